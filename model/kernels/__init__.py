@@ -1,0 +1,1 @@
+"""numba kernels of the model: pure functions of floats and arrays in SI units."""
