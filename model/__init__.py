@@ -1,1 +1,29 @@
-"""placeholder"""
+"""vibroplan's model: the per-device physics of Saitou, Wang & Wou (JMEMS 2000).
+
+Impacter and slider parameters from eqs. (2)-(4), the substrate drive as a sum of
+tones, an exact event-driven simulator (closed form between impacts, rigorous
+impact detection, chattering and sticking), the paper's RK4 as a reference, the
+response r of eq. (12) and parallel sweeps.  SI units throughout.
+"""
+
+from model.devices import Geometry, Impacter, Slider
+from model.drive import POWER, Drive, amplitude_from_power
+from model.simulation import (
+    METHODS,
+    ImpactResult,
+    SliderResult,
+    SolverWarning,
+    kick,
+    response,
+    responses,
+    simulate,
+    simulate_slider,
+    slider_motion,
+    sweep,
+)
+
+__all__ = [
+    "Drive", "Geometry", "Impacter", "ImpactResult", "METHODS", "POWER", "Slider",
+    "SliderResult", "SolverWarning", "amplitude_from_power", "kick", "response",
+    "responses", "simulate", "simulate_slider", "slider_motion", "sweep",
+]

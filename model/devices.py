@@ -1,0 +1,232 @@
+"""Impacter and slider parameters: value objects built from the paper's eqs. (2)-(4).
+
+Notes
+-----
+**The paper's inconsistency.**  Eq. (4) as printed does not reproduce the natural
+frequencies the paper reports: Fig. 7's device (A = 1.5e4 um^2, w = 4 um,
+l = 1242 um) gives about 4.6 kHz with (2) and (4) where the paper says 5.2 kHz,
+and Table II's designs give 16.1 and 6.0 kHz where the table says 5.82 and
+2.04 kHz.  We implement (2)-(4) exactly as printed and let every impacter take a
+natural-frequency override, k = m (2 pi nu_n)^2 (:meth:`Impacter.with_natural_frequency`,
+or ``natural_frequency=`` in :meth:`Impacter.from_geometry`), which is what the paper
+itself does in Section IV ("k obtained from the natural frequency of the actual device").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+# Process and environment constants (Table I and Section III-B), SI units.
+DENSITY = 2330.0                #: rho, LPCVD poly-Si [kg/m^3]
+YOUNGS_MODULUS = 169e9          #: E, poly-Si [Pa]
+BEAM_HEIGHT = 2.0e-6            #: h, beam height = Poly1 thickness [m]
+MASS_THICKNESS = 3.5e-6         #: t, impacter mass thickness, Poly1 + Poly2 [m]
+SUBSTRATE_GAP = 0.75e-6         #: d, gap between substrate and mass [m]
+BEAM_ANGLE = math.radians(15.0)  #: phi, half angle between the V-beam segments [rad]
+IMPACT_ANGLE = math.pi / 4      #: theta, impact angle [rad]
+RESTITUTION = 0.5               #: e, poly-Si side walls [-]
+STATIC_FRICTION = 20e-6         #: F_s [N]
+DYNAMIC_FRICTION = 5e-6         #: F_d [N]
+VISCOSITY_VACUUM = 0.0          #: mu at 10 mTorr [Pa s]
+VISCOSITY_AIR = 0.0179e-3       #: mu of air at room temperature [Pa s]
+SLIDER_THICKNESS = 2.0e-6       #: Poly1 slider [m]
+
+
+def _positive(name, value, allow_zero=False):
+    value = float(value)
+    if not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{name} must be finite and {bound}, {value!r} was given")
+    return value
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """Impacter geometry p = (A, w, l, c) of the paper's design problem (13)-(17).
+
+    Attributes
+    ----------
+    area : float
+        Planar area A of the impacter mass [m^2].
+    width : float
+        Width w of the V-beams [m].
+    length : float
+        Total length l of the two segments of a V-beam [m].
+    gap : float
+        Distance c from the impacter tip to the slider wall [m].
+    """
+
+    area: float
+    width: float
+    length: float
+    gap: float
+
+
+@dataclass(frozen=True)
+class Impacter:
+    """One impacter of a pair, as the lumped model of eq. (1).
+
+    Parameters
+    ----------
+    mass : float
+        m [kg].
+    stiffness : float
+        k [N/m].
+    damping : float
+        b [N s/m].
+    gap : float
+        Distance c from the tip to the slider wall [m].
+    impact_angle : float, default pi/4
+        theta [rad], in [0, pi/2).
+    restitution : float, default 0.5
+        Coefficient of restitution e of eq. (8), in [0, 1].
+    geometry : Geometry, optional
+        The geometry the parameters came from, if any (for reports).
+
+    Examples
+    --------
+    >>> imp = Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6)
+    >>> round(imp.natural_frequency)           # eq. (4) as printed
+    4602
+    >>> round(imp.with_natural_frequency(5200.0).natural_frequency)
+    5200
+    """
+
+    mass: float
+    stiffness: float
+    damping: float
+    gap: float
+    impact_angle: float = IMPACT_ANGLE
+    restitution: float = RESTITUTION
+    geometry: Geometry | None = field(default=None, compare=False)
+
+    def __post_init__(self):
+        object.__setattr__(self, "mass", _positive("mass", self.mass))
+        object.__setattr__(self, "stiffness", _positive("stiffness", self.stiffness))
+        object.__setattr__(self, "damping", _positive("damping", self.damping, allow_zero=True))
+        object.__setattr__(self, "gap", _positive("gap", self.gap))
+        theta = float(self.impact_angle)
+        if not (math.isfinite(theta) and 0.0 <= theta < math.pi / 2):
+            raise ValueError(f"impact_angle must be in [0, pi/2) rad, {theta!r} was given")
+        object.__setattr__(self, "impact_angle", theta)
+        e = float(self.restitution)
+        if not (math.isfinite(e) and 0.0 <= e <= 1.0):
+            raise ValueError(f"restitution must be in [0, 1], {e!r} was given")
+        object.__setattr__(self, "restitution", e)
+
+    @classmethod
+    def from_geometry(cls, area, width, length, gap, *, thickness=MASS_THICKNESS,
+                      beam_height=BEAM_HEIGHT, density=DENSITY,
+                      youngs_modulus=YOUNGS_MODULUS, viscosity=VISCOSITY_VACUUM,
+                      substrate_gap=SUBSTRATE_GAP, beam_angle=BEAM_ANGLE,
+                      impact_angle=IMPACT_ANGLE, restitution=RESTITUTION,
+                      natural_frequency=None):
+        """Impacter from its geometry by eqs. (2)-(4).
+
+        Parameters
+        ----------
+        area, width, length, gap : float
+            A [m^2], w [m], l [m], c [m].
+        thickness : float
+            Mass thickness t [m] (Poly1 + Poly2 by default).
+        beam_height : float
+            Beam height h [m].
+        density, youngs_modulus : float
+            rho [kg/m^3], E [Pa].
+        viscosity : float
+            mu [Pa s]: 0 in vacuum (Table I), 1.79e-5 in air.
+        substrate_gap : float
+            d [m].
+        beam_angle : float
+            phi [rad].
+        natural_frequency : float, optional
+            If given, k = m (2 pi nu_n)^2 replaces eq. (4) [Hz].
+
+        Notes
+        -----
+        m = rho A t + 2 rho h w l          (2)
+        b = mu A / d                       (3)
+        k = E h (w/l)^3 (4/cos phi) (2/cos phi + 1)   (4)
+        """
+        area = _positive("area", area)
+        width = _positive("width", width)
+        length = _positive("length", length)
+        gap = _positive("gap", gap)
+        mass = density * area * thickness + 2.0 * density * beam_height * width * length
+        damping = viscosity * area / substrate_gap
+        cphi = math.cos(beam_angle)
+        stiffness = (youngs_modulus * beam_height * (width / length) ** 3
+                     * (4.0 / cphi) * (2.0 / cphi + 1.0))
+        if natural_frequency is not None:
+            stiffness = mass * (2.0 * math.pi * _positive("natural_frequency", natural_frequency)) ** 2
+        return cls(mass, stiffness, damping, gap, impact_angle, restitution,
+                   Geometry(area, width, length, gap))
+
+    def with_natural_frequency(self, hz):
+        """A copy with k = m (2 pi hz)^2 [hz in Hz]."""
+        hz = _positive("natural_frequency", hz)
+        return replace(self, stiffness=self.mass * (2.0 * math.pi * hz) ** 2)
+
+    @property
+    def natural_frequency(self):
+        """Undamped natural frequency sqrt(k/m) / (2 pi) [Hz]."""
+        return math.sqrt(self.stiffness / self.mass) / (2.0 * math.pi)
+
+    @property
+    def omega_n(self):
+        """Undamped natural angular frequency [rad/s]."""
+        return math.sqrt(self.stiffness / self.mass)
+
+    @property
+    def sigma(self):
+        """b / (2 m) [1/s]."""
+        return self.damping / (2.0 * self.mass)
+
+    @property
+    def damping_ratio(self):
+        """b / (2 sqrt(k m)) [-]."""
+        return self.damping / (2.0 * math.sqrt(self.stiffness * self.mass))
+
+
+@dataclass(frozen=True)
+class Slider:
+    """The linear slider of eqs. (6)-(7).
+
+    Parameters
+    ----------
+    mass : float
+        M [kg].
+    damping : float, default 0.0
+        B [N s/m].
+    static_friction : float, default 20e-6
+        F_s [N] (Table I).
+    dynamic_friction : float, default 5e-6
+        F_d [N] (Table I).
+    """
+
+    mass: float
+    damping: float = 0.0
+    static_friction: float = STATIC_FRICTION
+    dynamic_friction: float = DYNAMIC_FRICTION
+
+    def __post_init__(self):
+        object.__setattr__(self, "mass", _positive("mass", self.mass))
+        object.__setattr__(self, "damping", _positive("damping", self.damping, allow_zero=True))
+        object.__setattr__(self, "static_friction",
+                           _positive("static_friction", self.static_friction, allow_zero=True))
+        object.__setattr__(self, "dynamic_friction",
+                           _positive("dynamic_friction", self.dynamic_friction, allow_zero=True))
+
+    @classmethod
+    def from_geometry(cls, area, thickness=SLIDER_THICKNESS, *, density=DENSITY,
+                      viscosity=VISCOSITY_VACUUM, substrate_gap=SUBSTRATE_GAP,
+                      static_friction=STATIC_FRICTION, dynamic_friction=DYNAMIC_FRICTION):
+        """Slider from its planar area [m^2] and thickness [m], "similarly to (2) and (3)".
+
+        M = rho A t_s and B = mu A / d.
+        """
+        area = _positive("area", area)
+        thickness = _positive("thickness", thickness)
+        return cls(density * area * thickness, viscosity * area / substrate_gap,
+                   static_friction, dynamic_friction)

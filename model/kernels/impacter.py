@@ -1,0 +1,426 @@
+"""Exact event-driven simulation of one impacter against the slider wall.
+
+The impacter moves freely (closed form of :mod:`model.kernels.closed_form`) until
+x reaches the wall at x = gap, where the impact law (8) reverses its velocity,
+v+ = -e v-.  Impacts are located by *safe steps*: from a point where
+g = x - gap < 0 the Taylor bound
+
+    g(t + h) <= g + g' h + M2 h^2 / 2,   M2 >= max |x''| over the rest of the run,
+
+is negative for every h below the positive root of its right-hand side, so the
+step to that root cannot jump over a crossing, grazing (tangential) contacts
+included.  Near a transversal crossing the steps converge quadratically onto it
+from below; a trajectory that passes at any distance above the floating-point
+noise of x is stepped past without inventing an impact.
+
+Chattering (impacts accumulating in finite time, as v- shrinks geometrically by
+e under a force pressing into the wall) is summed in closed form once the
+accumulation time drops below a tiny fraction of a period, and the impacter
+then *sticks* at the wall until the net force pulls it away (release found by
+the same safe steps on the force).  Leaving the wall from rest uses third- or
+fourth-order Taylor bounds, since there g = g' = 0.
+
+Every run ends with a status: OK, EVENT_CAP or STEP_CAP (the caps are arguments,
+so no run can hang) or NONFINITE.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from model.kernels.closed_form import (
+    derive,
+    forcing,
+    forcing_bound,
+    homogeneous_basis,
+    homogeneous_bound,
+    homogeneous_regime,
+    particular,
+    particular_bound,
+    particular_derivative,
+    tone_coefficients,
+)
+
+OK = 0
+EVENT_CAP = 1
+STEP_CAP = 2
+NONFINITE = 3
+
+#: Impact kinds in a recorded event list.
+IMPACT = 0
+CHATTER_TAIL = 1  # the closed-form sum of an accumulating chatter sequence
+
+EPS = 2.220446049250313e-16
+#: Floating-point noise allowance of a closed-form evaluation, in units of eps
+#: times the magnitudes summed: a crossing closer than this to the wall is contact.
+NOISE = 32.0
+#: A chatter sequence whose remaining accumulation time is below this fraction of
+#: the shortest period is summed in closed form and the impacter sticks.
+CHATTER_TIME = 1e-9
+#: Defaults for the caps that keep every run finite.
+MAX_EVENTS = 1_000_000
+MAX_STEPS = 50_000_000
+
+
+@njit(cache=True)
+def safe_step(g, g1, m2):
+    """Largest h with g + g1 h + m2 h^2 / 2 < 0 on [0, h), for g < 0 [s]."""
+    disc = g1 * g1 - 2.0 * m2 * g
+    sq = math.sqrt(disc)
+    if g1 >= 0.0:
+        den = g1 + sq
+        return math.inf if den == 0.0 else -2.0 * g / den
+    if m2 == 0.0:
+        return math.inf
+    return (-g1 + sq) / m2
+
+
+@njit(cache=True)
+def _fill_free(sample_t, sample_x, si, t_b, regime, sigma, fr, p, q, seg_t0, coef):
+    """Closed-form positions at the sample times below t_b; returns the next index."""
+    ns = sample_t.shape[0]
+    while si < ns and sample_t[si] < t_b:
+        ts = sample_t[si]
+        ec, es = homogeneous_basis(regime, sigma, fr, ts - seg_t0)
+        xp, _, _ = particular(coef, ts)
+        sample_x[si] = p * ec + q * es + xp
+        si += 1
+    return si
+
+
+@njit(cache=True)
+def _fill_const(sample_t, sample_x, si, t_b, value):
+    ns = sample_t.shape[0]
+    while si < ns and sample_t[si] < t_b:
+        sample_x[si] = value
+        si += 1
+    return si
+
+
+@njit(cache=True)
+def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
+                 stop_after, max_events, max_steps, imp_t, imp_v, imp_kind,
+                 sample_t, sample_x):
+    """Simulate one impacter exactly from t0 to t_end.
+
+    Parameters
+    ----------
+    wn : float
+        Undamped natural angular frequency sqrt(k/m) [rad/s].
+    sigma : float
+        b / (2 m) [1/s].
+    gap : float
+        Wall position c [m].
+    e : float
+        Coefficient of restitution, eq. (8) [-].
+    w, a, phi : ndarray, shape (n_tones,)
+        Tones of the forcing per unit mass: angular frequency [rad/s],
+        amplitude cos(theta) w^2 Z [m/s^2], phase [rad].
+    coef : ndarray, shape (n_tones, 5)
+        ``tone_coefficients(wn, sigma, w, a, phi)``, passed in so that sweeps
+        compute it once per frequency.
+    t0, t_end : float
+        Start and end of the run [s], 0 <= t0 < t_end.
+    x0, v0 : float
+        Initial position [m] (<= gap) and velocity [m/s].
+    stuck0 : bool
+        Start in the sticking phase (requires x0 == gap, v0 == 0).
+    stop_after : int
+        Stop at the stop_after-th impact (0: never).  2 answers "does it
+        respond?" (eq. 12 counts impacts from the second on).
+    max_events, max_steps : int
+        Caps; reaching one ends the run with EVENT_CAP or STEP_CAP.
+    imp_t, imp_v : ndarray, shape (capacity,)
+        Receive impact times [s] and velocities v- [m/s]; capacity 0 records
+        nothing (response-only runs keep no event list).
+    imp_kind : ndarray of int64, shape (capacity,)
+        IMPACT, or CHATTER_TAIL for a summed chatter sequence (its "time" is the
+        accumulation point and its "velocity" the sum of the sequence's v-).
+    sample_t : ndarray, shape (n_samples,)
+        Sorted times [s] at which to record the position (may be empty).
+    sample_x : ndarray, shape (n_samples,)
+        Receives the positions [m].
+
+    Returns
+    -------
+    status, n_events, sum_v, t_stop, x_end, v_end, stuck_end, n_steps
+        n_events counts impacts and chatter tails; sum_v [m/s] is the sum of v-
+        over every event but the first (eq. 12); t_stop [s] is where the run
+        ended (t_end unless stopped early or capped).
+    """
+    capacity = imp_t.shape[0]
+    regime, fr, kappa = homogeneous_regime(wn, sigma)
+    tmax = max(abs(t0), abs(t_end))
+    pb0 = particular_bound(coef, 0, tmax)
+    pb2 = particular_bound(coef, 2, tmax)
+    pb3 = particular_bound(coef, 3, tmax)
+    pb4 = particular_bound(coef, 4, tmax)
+    fb2 = forcing_bound(w, a, 2)
+    fmax = forcing_bound(w, a, 0)
+    wmax = wn
+    for i in range(w.shape[0]):
+        wmax = max(wmax, w[i])
+    chatter_time = CHATTER_TIME * 2.0 * math.pi / wmax
+    tolf = NOISE * EPS * (wn * wn * gap + fmax)
+
+    si = 0
+    t = t0
+    x = x0
+    v = v0
+    stuck = stuck0
+    n_events = 0
+    sum_v = 0.0
+    steps = 0
+    status = OK
+
+    while t < t_end:
+        if stuck:
+            # sticking phase: x = gap, v = 0 while the net force presses on the wall:
+            # G = wn^2 gap - f(t) <= 0.  Find where G crosses zero upwards.
+            released = False
+            while True:
+                steps += 1
+                if steps > max_steps:
+                    status = STEP_CAP
+                    break
+                f, df = forcing(w, a, phi, t)
+                G = wn * wn * gap - f
+                G1 = df * -1.0
+                if G > 0.0 or (G >= -tolf and G1 > 0.0):
+                    released = True
+                    break
+                h = safe_step(min(G, -tolf), G1, fb2)
+                t_new = t + h
+                if t_new >= t_end:
+                    si = _fill_const(sample_t, sample_x, si, t_end, gap)
+                    t = t_end
+                    break
+                if t_new == t:
+                    t_new = t + 4.0 * EPS * max(abs(t), chatter_time)
+                si = _fill_const(sample_t, sample_x, si, t_new, gap)
+                t = t_new
+            if status != OK:
+                break
+            x = gap
+            v = 0.0
+            if not released:
+                break
+            stuck = False
+
+        # free-flight segment starting at (t, x, v)
+        seg_t0 = t
+        xp, vp, ap = particular(coef, t)
+        p = x - xp
+        q = (v - vp) + sigma * p
+        p1, q1 = derive(p, q, sigma, kappa)
+        p2, q2 = derive(p1, q1, sigma, kappa)
+        tau_end = t_end - seg_t0
+        amp = homogeneous_bound(regime, sigma, fr, p, q, 0.0, tau_end)
+        tolx = NOISE * EPS * (abs(gap) + amp + pb0)
+        tola = NOISE * EPS * (wn * wn * (abs(gap) + amp) + pb2 + fmax)
+        new_segment = False
+        while True:
+            steps += 1
+            if steps > max_steps:
+                status = STEP_CAP
+                break
+            tau = t - seg_t0
+            ec, es = homogeneous_basis(regime, sigma, fr, tau)
+            xp, vp, ap = particular(coef, t)
+            x = p * ec + q * es + xp
+            v = p1 * ec + q1 * es + vp
+            if not (math.isfinite(x) and math.isfinite(v)):
+                status = NONFINITE
+                break
+            g = x - gap
+            m2 = homogeneous_bound(regime, sigma, fr, p2, q2, tau, tau_end) + pb2
+            contact = g >= -tolx
+            if not contact:
+                h = safe_step(g, v, m2)
+                if t + h == t:  # within time resolution of the wall: contact
+                    contact = True
+            if contact and v > 0.0:
+                # impact, eq. (8)
+                if n_events >= max_events:
+                    status = EVENT_CAP
+                    break
+                if n_events < capacity:
+                    imp_t[n_events] = t
+                    imp_v[n_events] = v
+                    imp_kind[n_events] = 0
+                elif capacity > 0:
+                    status = EVENT_CAP
+                    break
+                n_events += 1
+                if n_events >= 2:
+                    sum_v += v
+                if stop_after > 0 and n_events >= stop_after:
+                    x = gap
+                    v = -e * v
+                    return OK, n_events, sum_v, t, x, v, False, steps
+                vminus = v
+                x = gap
+                v = -e * vminus
+                f, _ = forcing(w, a, phi, t)
+                acc_wall = f - wn * wn * gap - 2.0 * sigma * v
+                if acc_wall > 0.0 and e < 1.0:
+                    t_acc = 2.0 * e * vminus / (acc_wall * (1.0 - e))
+                    if t_acc < chatter_time:
+                        # chatter: sum the geometric sequence v-_{k+1} = e v-_k
+                        tail = vminus * e / (1.0 - e)
+                        if tail > 0.0:
+                            if n_events >= max_events:
+                                status = EVENT_CAP
+                                break
+                            if n_events < capacity:
+                                imp_t[n_events] = t + t_acc
+                                imp_v[n_events] = tail
+                                imp_kind[n_events] = 1
+                            elif capacity > 0:
+                                status = EVENT_CAP
+                                break
+                            n_events += 1
+                            sum_v += tail
+                            if stop_after > 0 and n_events >= stop_after:
+                                return OK, n_events, sum_v, t + t_acc, gap, 0.0, True, steps
+                        t_new = min(t + t_acc, t_end)
+                        si = _fill_const(sample_t, sample_x, si, t_new, gap)
+                        t = t_new
+                        v = 0.0
+                        stuck = True
+                new_segment = True
+                break
+            if contact:
+                # at the wall and not approaching it: leave, or stick if pressed on it
+                acc = p2 * ec + q2 * es + ap
+                h = 0.0
+                if v < 0.0 and m2 > 0.0:
+                    h = -v / m2
+                p3, q3 = derive(p2, q2, sigma, kappa)
+                if acc < -tola:
+                    m3 = homogeneous_bound(regime, sigma, fr, p3, q3, tau, tau_end) + pb3
+                    h = max(h, -1.5 * acc / m3)
+                elif acc <= tola:
+                    jerk = p3 * ec + q3 * es + particular_derivative(coef, t, 3)
+                    if jerk < 0.0:
+                        p4, q4 = derive(p3, q3, sigma, kappa)
+                        m4 = homogeneous_bound(regime, sigma, fr, p4, q4, tau, tau_end) + pb4
+                        h = max(h, -2.0 * jerk / m4)
+                if h <= 0.0 or t + h == t:
+                    if acc >= -tola:
+                        x = gap
+                        v = 0.0
+                        stuck = True
+                        new_segment = True
+                        break
+                    h = 4.0 * EPS * max(abs(t), chatter_time)
+            t_new = t + h
+            if t_new >= t_end:
+                si = _fill_free(sample_t, sample_x, si, t_end, regime, sigma, fr, p, q,
+                                seg_t0, coef)
+                ec, es = homogeneous_basis(regime, sigma, fr, t_end - seg_t0)
+                xp, vp, _ = particular(coef, t_end)
+                x = min(p * ec + q * es + xp, gap)
+                v = p1 * ec + q1 * es + vp
+                t = t_end
+                break
+            si = _fill_free(sample_t, sample_x, si, t_new, regime, sigma, fr, p, q,
+                            seg_t0, coef)
+            t = t_new
+        if status != OK or not new_segment:
+            break
+
+    if status == OK:
+        # samples at or after t_end (the end point itself)
+        ns = sample_t.shape[0]
+        while si < ns:
+            sample_x[si] = x
+            si += 1
+    return status, n_events, sum_v, t, x, v, stuck, steps
+
+
+@njit(cache=True)
+def _response_one(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0,
+                  stop_after, max_events, max_steps):
+    empty = np.empty(0)
+    kinds = np.empty(0, dtype=np.int64)
+    stuck0 = x0 == gap and v0 == 0.0
+    return run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
+                        stop_after, max_events, max_steps, empty, empty, kinds,
+                        empty, empty)
+
+
+@njit(cache=True, parallel=True)
+def response_batch(wn, sigma, gap, e, w, a, phi, x0s, v0s, t_end, stop_after,
+                   max_events, max_steps):
+    """Sum of v- (eq. 12 numerator / m) from many initial states, in parallel.
+
+    Returns
+    -------
+    sum_v : ndarray, shape (n,)
+        [m/s]; r = m sum_v / (t_end - 0).
+    n_events, status : ndarray of int64, shape (n,)
+    """
+    n = x0s.shape[0]
+    coef = tone_coefficients(wn, sigma, w, a, phi)
+    sum_v = np.zeros(n)
+    n_events = np.zeros(n, dtype=np.int64)
+    status = np.zeros(n, dtype=np.int64)
+    for i in prange(n):
+        res = _response_one(wn, sigma, gap, e, w, a, phi, coef, 0.0, t_end, x0s[i],
+                            v0s[i], stop_after, max_events, max_steps)
+        status[i] = res[0]
+        n_events[i] = res[1]
+        sum_v[i] = res[2]
+    return sum_v, n_events, status
+
+
+@njit(cache=True, parallel=True)
+def sweep_batch(wn, sigma, gap, e, w_list, a_list, x0s, t_end, stop_after,
+                max_events, max_steps):
+    """One-tone responses over a frequency x initial-position grid, in parallel.
+
+    Parameters
+    ----------
+    w_list, a_list : ndarray, shape (n_freq,)
+        Angular frequency [rad/s] and forcing amplitude per unit mass [m/s^2].
+    x0s : ndarray, shape (n_x0,)
+        Initial positions [m], v0 = 0.
+
+    Returns
+    -------
+    sum_v : ndarray, shape (n_freq, n_x0)
+        [m/s] (eq. 12 numerator over m).
+    status : ndarray of int64, shape (n_freq, n_x0)
+    """
+    nf = w_list.shape[0]
+    nx = x0s.shape[0]
+    # per-frequency constants, computed once and shared by every initial state
+    coefs = np.empty((nf, 1, 5))
+    phi = np.zeros(1)
+    for i in range(nf):
+        coefs[i] = tone_coefficients(wn, sigma, w_list[i:i + 1], a_list[i:i + 1], phi)
+    sum_v = np.zeros((nf, nx))
+    status = np.zeros((nf, nx), dtype=np.int64)
+    for k in prange(nf * nx):
+        i = k // nx
+        j = k % nx
+        res = _response_one(wn, sigma, gap, e, w_list[i:i + 1], a_list[i:i + 1], phi,
+                            coefs[i], 0.0, t_end, x0s[j], 0.0, stop_after, max_events,
+                            max_steps)
+        status[i, j] = res[0]
+        sum_v[i, j] = res[2]
+    return sum_v, status
+
+
+@njit(cache=True)
+def response_single(wn, sigma, gap, e, w, a, phi, t_end, x0, v0, stop_after,
+                    max_events, max_steps):
+    """One response-only run (no events kept, no trajectory): (status, n_events, sum_v)."""
+    coef = tone_coefficients(wn, sigma, w, a, phi)
+    res = _response_one(wn, sigma, gap, e, w, a, phi, coef, 0.0, t_end, x0, v0,
+                        stop_after, max_events, max_steps)
+    return res[0], res[1], res[2]
