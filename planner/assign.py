@@ -1,0 +1,277 @@
+"""Frequency assignment: conflict graph -> bandwidth colouring -> channels -> frequencies.
+
+Stage 2 and 3 of the plan pipeline.  Each impacter pair that some step drives is a
+node (``"C3.forward"``).  Two nodes must be told apart -- an edge, weighted by the
+separation they need in channels -- when some step drives one and not the other;
+nodes in the same state in every step may share a channel (they are merged into one
+colouring node).  A device's forward and backward pairs are never driven together,
+so they always conflict when both are used.
+
+The colouring (``planner.coloring.solve_bandwidth``) gives channel offsets; they are
+spread over the channel grid with an integer stride (so every separation is kept,
+multiplied by the stride: that is the spare room turned into guard band), and the
+offset and stride are chosen to avoid harmonic and low-order intermodulation
+products of tones that play together landing in an idle impacter's band.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+
+import networkx as nx
+import numpy as np
+import pandas as pd
+
+from planner.errors import PlanningError
+from planner.spec import LoadedSpec, Step, channel_grid
+
+DIRECTIONS = ("forward", "backward")
+
+
+def node_id(device: str, direction: str) -> str:
+    """``("C3", "forward")`` -> ``"C3.forward"``."""
+    return f"{device}.{direction}"
+
+
+def split_node(node: str) -> tuple[str, str]:
+    device, direction = node.rsplit(".", 1)
+    return device, direction
+
+
+def plan_steps(loaded: LoadedSpec, single_step_s: float) -> tuple[Step, ...]:
+    """The spec's steps plus, when every impacter must be independent, one per impacter."""
+    steps = list(loaded.steps)
+    if loaded.spec.all_independent:
+        for dev in loaded.device_ids:
+            for direction in DIRECTIONS:
+                fwd = (dev,) if direction == "forward" else ()
+                bwd = (dev,) if direction == "backward" else ()
+                steps.append(Step("independent", node_id(dev, direction), len(steps),
+                                  single_step_s, fwd, bwd))
+    return tuple(steps)
+
+
+def activity(steps) -> dict[str, tuple[bool, ...]]:
+    """Node -> tuple of "driven in step i" for every node driven in some step."""
+    nodes = sorted({node_id(d, dr) for st in steps for d, dr in st.active_nodes()})
+    out = {}
+    for n in nodes:
+        dev, direction = split_node(n)
+        out[n] = tuple((dev, direction) in st.active_nodes() for st in steps)
+    return out
+
+
+def conflict_graph(steps, separation=1, pair_separation=None) -> tuple[nx.Graph, dict]:
+    """Build the conflict graph.
+
+    Parameters
+    ----------
+    steps : sequence of Step
+    separation : int
+        Default separation [channels] of an edge.
+    pair_separation : dict, optional
+        ``frozenset({node_u, node_v}) -> separation`` overriding the default (the
+        repair loop widens offending pairs this way).
+
+    Returns
+    -------
+    graph : networkx.Graph
+        One node per channel group (nodes with identical activity share one),
+        named by its first member; edge attribute ``sep`` [channels].
+    groups : dict
+        Group name -> list of impacter nodes in it.
+    """
+    act = activity(steps)
+    by_pattern: dict[tuple, list[str]] = {}
+    for n, pattern in act.items():
+        by_pattern.setdefault(pattern, []).append(n)
+    groups = {members[0]: members for members in by_pattern.values()}
+    pair_separation = pair_separation or {}
+    graph = nx.Graph()
+    for g in groups:
+        graph.add_node(g, members=groups[g])
+    names = sorted(groups)
+    for a, b in itertools.combinations(names, 2):
+        # different activity patterns: some step drives one and not the other
+        sep = separation
+        for u in groups[a]:
+            for v in groups[b]:
+                sep = max(sep, pair_separation.get(frozenset((u, v)), 0))
+        graph.add_edge(a, b, sep=int(sep))
+    return graph, groups
+
+
+@dataclass(frozen=True)
+class Violation:
+    """A guard-rule violation: a product of playing tones in an idle impacter's band."""
+
+    step: str
+    node: str
+    kind: str       # "harmonic" or "intermodulation"
+    product_hz: float
+    node_hz: float
+    sources: tuple
+
+    def __str__(self):
+        src = ", ".join(f"{s:.1f}" for s in self.sources)
+        return (f"{self.step}: {self.kind} product {self.product_hz:.1f} Hz of tones ({src}) "
+                f"lands in {self.node}'s band at {self.node_hz:.1f} Hz")
+
+
+def guard_violations(steps, frequencies: dict, rules) -> list[Violation]:
+    """Harmonic and intermodulation products that land in an idle impacter's band.
+
+    For every step, products of the step's tones -- n f_i and f_i / n (n = 2, 3),
+    2 f_i - f_j, f_i + f_j - f_k -- are compared with the frequency of every impacter
+    idle in that step; within ``rules.relative_bandwidth`` of it is a violation.
+    """
+    out = []
+    bw = rules.relative_bandwidth
+    for st in steps:
+        active = [node_id(d, dr) for d, dr in sorted(st.active_nodes())]
+        tones = np.array(sorted({frequencies[n] for n in active if n in frequencies}))
+        idle = {n: f for n, f in frequencies.items() if n not in active}
+        if tones.size == 0 or not idle:
+            continue
+        idle_names = list(idle)
+        idle_f = np.array([idle[n] for n in idle_names])
+        prods = []
+        if rules.harmonics:
+            for nh in (2, 3):
+                prods += [("harmonic", nh * f, (f,)) for f in tones]
+                prods += [("harmonic", f / nh, (f,)) for f in tones]
+        if rules.intermodulation and tones.size >= 2:
+            for i, j in itertools.permutations(range(tones.size), 2):
+                prods.append(("intermodulation", 2 * tones[i] - tones[j], (tones[i], tones[j])))
+            if tones.size >= 3 and tones.size <= 40:
+                for i, j in itertools.combinations(range(tones.size), 2):
+                    for k in range(tones.size):
+                        if k != i and k != j:
+                            prods.append(("intermodulation", tones[i] + tones[j] - tones[k],
+                                          (tones[i], tones[j], tones[k])))
+        if not prods:
+            continue
+        pf = np.array([p[1] for p in prods])
+        # relative distance of each product to each idle impacter's frequency
+        near = np.abs(pf[:, None] - idle_f[None, :]) <= bw * idle_f[None, :]
+        for pi, ni in zip(*np.nonzero(near)):
+            kind, f, src = prods[pi]
+            out.append(Violation(st.key, idle_names[ni], kind, float(f), float(idle_f[ni]), src))
+    return out
+
+
+@dataclass
+class Assignment:
+    """Channels and frequencies of every driven impacter, and how they were found."""
+
+    graph: nx.Graph
+    groups: dict
+    coloring: dict            # group -> colour
+    span: int
+    lower_bound: int
+    optimal: bool
+    method: str
+    seconds: float
+    stride: int
+    offset: int
+    channels: dict            # impacter node -> channel index on the grid
+    frequencies: dict         # impacter node -> frequency [Hz]
+    violations: list = field(default_factory=list)
+
+    def table(self) -> pd.DataFrame:
+        """One row per impacter: device, direction, channel, frequency_hz."""
+        rows = []
+        for n in sorted(self.channels, key=lambda n: (split_node(n)[0][0],
+                                                      int(split_node(n)[0][1:]), n)):
+            dev, direction = split_node(n)
+            rows.append({"id": n, "device": dev, "direction": direction,
+                         "channel": self.channels[n], "frequency_hz": self.frequencies[n]})
+        return pd.DataFrame(rows)
+
+
+def _mapping_candidates(span: int, count: int, max_candidates=64):
+    """(stride, offset) pairs that fit a span onto a grid, widest stride first."""
+    if span > count:
+        return []
+    q_max = (count - 1) // max(span - 1, 1) if span > 1 else 1
+    out = []
+    for q in range(q_max, 0, -1):
+        room = count - 1 - q * (span - 1)
+        centre = room // 2
+        offsets = sorted(range(room + 1), key=lambda o: abs(o - centre))
+        for o in offsets[: max(1, max_candidates // q_max)]:
+            out.append((q, o))
+        if len(out) >= max_candidates:
+            break
+    return out
+
+
+def assign(loaded: LoadedSpec, steps, *, separation=None, pair_separation=None,
+           method="auto", time_limit=None) -> Assignment:
+    """Give every driven impacter a channel and a frequency.
+
+    Parameters
+    ----------
+    loaded : LoadedSpec
+    steps : sequence of Step
+        From :func:`plan_steps`.
+    separation : int, optional
+        Default edge separation [channels]; the spec's ``guard.separation_channels``.
+    pair_separation : dict, optional
+        Per-pair overrides, see :func:`conflict_graph`.
+
+    Raises
+    ------
+    PlanningError
+        When the band cannot hold the graph, saying which constraint fails and
+        what would fix it.
+    """
+    from planner.coloring import solve_bandwidth
+
+    spec = loaded.spec
+    sep = spec.drive.guard.separation_channels if separation is None else int(separation)
+    graph, groups = conflict_graph(steps, sep, pair_separation)
+    if graph.number_of_nodes() == 0:
+        raise PlanningError("no step drives any impacter: nothing to assign")
+    result = solve_bandwidth(graph, "sep", method=method, time_limit=time_limit, seed=0)
+    grid = channel_grid(spec)
+    count = grid.size
+    if result.span > count:
+        n_groups = graph.number_of_nodes()
+        lo, hi = spec.drive.band_hz
+        raise PlanningError(
+            f"the band {lo:g}-{hi:g} Hz holds {count} channels, but the conflict graph "
+            f"({n_groups} channel groups that must be told apart, separation {sep} channels) "
+            f"needs a span of {result.span} (lower bound {result.lower_bound}). Fixes: a wider "
+            f"band (drive.band_hz), more channels (drive.channels.count) with a narrower response "
+            f"band (drive.guard.separation_channels), fewer independently addressable devices "
+            f"(independent: false), or scenes in which devices move together and share a channel.")
+    best = None
+    for q, o in _mapping_candidates(result.span, count):
+        freqs = {}
+        chans = {}
+        for g, colour in result.coloring.items():
+            for n in groups[g]:
+                chans[n] = o + q * colour
+                freqs[n] = float(grid[chans[n]])
+        viol = guard_violations(steps, freqs, spec.drive.guard)
+        if best is None or len(viol) < len(best[4]):
+            best = (q, o, chans, freqs, viol)
+        if not viol:
+            break
+    q, o, chans, freqs, viol = best
+    return Assignment(graph, groups, dict(result.coloring), result.span, result.lower_bound,
+                      result.optimal, result.method, result.seconds, q, o, chans, freqs, viol)
+
+
+def verify_assignment(assignment: Assignment) -> list[str]:
+    """Independent check: every edge's separation holds on the channels actually used."""
+    problems = []
+    for a, b, data in assignment.graph.edges(data=True):
+        for u in assignment.groups[a]:
+            for v in assignment.groups[b]:
+                d = abs(assignment.channels[u] - assignment.channels[v])
+                if d < data["sep"]:
+                    problems.append(f"{u} and {v}: {d} channels apart, need {data['sep']}")
+    return problems

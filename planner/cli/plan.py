@@ -1,0 +1,100 @@
+"""``vibroplan plan``: the end-to-end array plan, verified by simulation."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from planner.cli._common import handle_errors
+
+
+class _Bars:
+    """One tqdm progress bar per pipeline stage."""
+
+    def __init__(self, quiet):
+        self.quiet = quiet
+        self.bar = None
+        self.stage = None
+
+    def __call__(self, stage, item=None, total=None):
+        from tqdm import tqdm
+
+        if total is not None:
+            self.close()
+            self.stage = stage
+            self.bar = tqdm(total=total, desc=f"{stage:>7}", unit="item", disable=self.quiet,
+                            file=sys.stderr, leave=True)
+        elif self.bar is not None and item is not None:
+            self.bar.update(1)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+
+
+@click.command("plan")
+@click.argument("spec", required=False, type=click.Path(dir_okay=False))
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="plan_out",
+              show_default=True, help="Output folder (replaced only when the plan is complete).")
+@click.option("--seed", type=int, default=None, help="Seed (default: the spec's design.seed).")
+@click.option("--jobs", type=int, default=None,
+              help="Threads for the parallel simulation kernels (default: all cores).")
+@click.option("--no-figures", is_flag=True, help="Skip the PNG figures (faster).")
+@click.option("--quiet", is_flag=True, help="No progress bars.")
+@handle_errors
+def command(spec, out_dir, seed, jobs, no_figures, quiet):
+    """Plan an array from a YAML SPEC: channels, designs, drives, verification.
+
+    Without SPEC, plans the embedded default: a 5 x 5 array (configs/array_5x5.yaml)
+    with every impacter independently addressable and a scene that positions all 25
+    chips at once, then releases one row.
+
+    Writes OUT/plan.json (the contract), designs.csv, coupling.csv, waveforms/ (WAV,
+    int16 WAV, CSV and Keysight .arb per step, each with a JSON sidecar), figures/
+    and report.md.  Exit status 0 when every step passes re-simulation, 1 when some
+    step fails (the report says which and why), 2 for a bad spec.
+    """
+    import numba
+
+    from planner.pipeline import plan
+    from planner.spec import default_spec_path
+
+    if jobs is not None:
+        if not 1 <= jobs <= numba.config.NUMBA_NUM_THREADS:
+            raise ValueError(f"--jobs must be between 1 and {numba.config.NUMBA_NUM_THREADS}")
+        numba.set_num_threads(jobs)
+    bars = _Bars(quiet)
+    path = Path(spec) if spec else default_spec_path()
+    try:
+        result = plan(path, out_dir=out_dir, seed=seed, progress=bars, figures=not no_figures)
+    except KeyboardInterrupt:
+        bars.close()
+        click.echo("interrupted: no output written", err=True)
+        sys.exit(130)
+    finally:
+        bars.close()
+    d = result.data
+    a = d["assignment"]
+    ver = result.verification
+    click.echo(f"\n{d['spec']['name']}: {len(d['impacters'])} impacters on {len(d['devices'])} "
+               f"devices, {len(d['steps'])} steps; span {a['span']} channels "
+               f"({'optimal' if a['optimal'] else 'not proven optimal'})")
+    summary = ver.groupby(["scene", "step"], sort=False).agg(
+        devices=("device", "size"), passed=("passed", "sum"))
+    shown = summary[summary.index.get_level_values(0) != "independent"]
+    if not shown.empty:
+        click.echo(shown.to_string())
+    ind = summary[summary.index.get_level_values(0) == "independent"]
+    if not ind.empty:
+        click.echo(f"independent single-impacter steps: {int((ind['passed'] == ind['devices']).sum())}"
+                   f" of {len(ind)} pass")
+    t = result.timings
+    click.echo("time: " + ", ".join(f"{k} {v:.1f} s" for k, v in t.items()))
+    click.echo(f"verification: {'PASSED' if result.passed else 'FAILED'} "
+               f"({int(ver['passed'].sum())}/{len(ver)} checks); wrote {out_dir}/ "
+               f"(see {out_dir}/report.md)")
+    if not result.passed:
+        sys.exit(1)

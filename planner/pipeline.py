@@ -1,0 +1,626 @@
+"""The end-to-end array plan: spec -> graph -> channels -> designs -> drives -> verification.
+
+:func:`plan` runs the stages in order; data flows one way and each stage only
+reads the previous stages' results:
+
+1. **steps** -- the spec's scenes, plus one step per impacter when every impacter
+   must be independently addressable (:func:`planner.assign.plan_steps`);
+2. **assign** -- conflict graph, bandwidth colouring, channels and frequencies;
+3. **design** -- every driven impacter is designed for its tone with every tone that
+   plays while it must be idle as a forbidden frequency (designs sharing a target
+   and a forbidden set are designed once);
+4. **drive** -- the summed-tone drive of every step, phases for a low crest factor,
+   within the piezo's peak limit;
+5. **verify** -- every step re-simulated with its actual summed drive for its whole
+   duration, from a grid of initial states, plus every scene in order with the
+   state carried across steps; failures are repaired by widening the offending
+   pair's separation and re-colouring, for a bounded number of rounds;
+6. **outputs** -- ``plan.json`` (the public contract), CSVs, waveform files, figures
+   and ``report.md``, written to a temporary folder and moved into place at the end.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+import model
+from model import Drive
+from planner.assign import (
+    DIRECTIONS,
+    Assignment,
+    assign,
+    node_id,
+    plan_steps,
+    split_node,
+    verify_assignment,
+)
+from planner.config import build_impacter, build_slider
+from planner.spec import LoadedSpec, default_spec_path, load_spec, separation_for_bandwidth
+
+UM = 1e-6
+#: Duration of the implicit single-impacter steps of an independently addressable array [s].
+SINGLE_STEP_S = 0.01
+#: Formats every step's waveform is exported in.
+EXPORT_FORMATS = ("wav", "wav16", "csv", "arb")
+
+
+def _version():
+    from planner.cli._common import version_string
+
+    return version_string()
+
+
+@dataclass
+class Plan:
+    """A verified array plan; the same content as ``plan.json``, as DataFrames.
+
+    Attributes
+    ----------
+    impacters : DataFrame
+        One row per designed impacter (id, device, direction, channel, frequency_hz,
+        mass_kg, ...).
+    devices : DataFrame
+        One row per device in scope, with its slider parameters.
+    steps : DataFrame
+        One row per step: scene, name, duration, tones, crest factor, scale.
+    verification : DataFrame
+        One row per step and device: expected motion, predicted displacement, worst
+        case, pass flag and cause of failure.
+    coupling : DataFrame
+        Cross-coupling matrix: worst response r [N] of every impacter (rows) to every
+        tone (columns, Hz) alone.
+    scenes : DataFrame
+        Predicted slider positions after each step of each scene.
+    passed : bool
+        Every step passed re-simulation.
+    data : dict
+        The ``plan.json`` content.
+    timings : dict
+        Seconds per stage (not in plan.json, which is deterministic).
+    out_dir : Path or None
+    """
+
+    impacters: pd.DataFrame
+    devices: pd.DataFrame
+    steps: pd.DataFrame
+    verification: pd.DataFrame
+    coupling: pd.DataFrame
+    scenes: pd.DataFrame
+    passed: bool
+    data: dict
+    timings: dict = field(default_factory=dict)
+    out_dir: Path | None = None
+
+
+# ----------------------------------------------------------------------------------
+# stage 3: designs
+
+
+def _forbidden(steps, frequencies):
+    """Node -> sorted frequencies of every tone that plays while the node is idle."""
+    out = {n: set() for n in frequencies}
+    for st in steps:
+        active = {node_id(d, dr) for d, dr in st.active_nodes()}
+        tones = {frequencies[n] for n in active if n in frequencies}
+        for n in frequencies:
+            if n not in active:
+                out[n] |= tones
+    return {n: tuple(sorted(v)) for n, v in out.items()}
+
+
+def _bounds(spec):
+    from planner.designer import DesignBounds
+
+    b = spec.design.bounds
+    kwargs = {}
+    for key, scale in (("area_um2", UM**2), ("width_um", UM), ("length_um", UM), ("gap_um", UM)):
+        value = getattr(b, key)
+        if value is not None:
+            kwargs[key] = tuple(value)
+    return DesignBounds.from_spec(**kwargs) if kwargs else DesignBounds()
+
+
+def design_all(loaded, steps, assignment, cache, progress=None):
+    """Design every driven impacter; ``cache`` maps (frequency, forbidden) -> result."""
+    from planner.designer import design_impacter
+
+    spec = loaded.spec
+    forbidden = _forbidden(steps, assignment.frequencies)
+    designs = {}
+    bounds = _bounds(spec)
+    for n in sorted(assignment.frequencies):
+        key = (round(assignment.frequencies[n], 6), forbidden[n])
+        if key not in cache:
+            dev, direction = split_node(n)
+            cache[key] = design_impacter(
+                assignment.frequencies[n], forbidden[n], process=spec.process,
+                environment=spec.environment, power=spec.drive.power_m2_s3,
+                amplitude=(spec.drive.amplitude_um * UM if spec.drive.amplitude_um else None),
+                bounds=bounds, window=spec.design.window_ms * 1e-3, seed=spec.design.seed,
+                budget=spec.design.budget)
+        designs[n] = cache[key]
+        if progress is not None:
+            progress(n)
+    return designs
+
+
+# ----------------------------------------------------------------------------------
+# stage 4: drives
+
+
+def _tone_amplitudes(spec, freqs):
+    if spec.drive.amplitude_um is not None:
+        return np.full(len(freqs), spec.drive.amplitude_um * UM)
+    return model.amplitude_from_power(np.asarray(freqs), spec.drive.power_m2_s3)
+
+
+def synthesize_steps(loaded, steps, assignment, seed):
+    """Waveform of every step (the sum of its active impacters' tones)."""
+    from planner.synthesis import synthesize
+
+    spec = loaded.spec
+    out = {}
+    for st in steps:
+        nodes = sorted(node_id(d, dr) for d, dr in st.active_nodes())
+        freqs = sorted({assignment.frequencies[n] for n in nodes})
+        amps = _tone_amplitudes(spec, freqs)
+        out[st.key] = synthesize(freqs, amps, spec.drive.sample_rate_hz, seed=seed + st.index,
+                                 peak_limit=spec.drive.peak_limit_um * UM)
+    return out
+
+
+def _drive_of(waveform):
+    return Drive(waveform.frequencies, waveform.amplitudes, waveform.phases)
+
+
+# ----------------------------------------------------------------------------------
+# stage 5: verification
+
+
+def _x0_grid(impacter, n):
+    return np.linspace(-impacter.gap, impacter.gap, n)
+
+
+def _kicks(impacter, slider, res, direction):
+    times = np.concatenate([res.times, res.chatter_times])
+    dv = model.kick(impacter, slider, np.concatenate([res.velocities, res.chatter_sums]),
+                    direction)
+    return times, dv
+
+
+def _device_motion(impacters, slider, drive, duration, starts):
+    """Slider displacement [m] of one device; ``starts`` maps node -> (x0, v0, stuck)."""
+    times, dvs = [np.empty(0)], [np.empty(0)]
+    for n, imp in impacters.items():
+        x0, v0, stuck = starts.get(n, (0.0, 0.0, False))
+        res = model.simulate(imp, drive, x0, v0, duration, stuck=stuck or None,
+                             max_events=1_000_000)
+        t, dv = _kicks(imp, slider, res, 1.0 if n.endswith("forward") else -1.0)
+        times.append(t)
+        dvs.append(dv)
+    _, _, z, v, _ = model.slider_motion(slider, drive, np.concatenate(times),
+                                        np.concatenate(dvs), duration)
+    return z, v
+
+
+def verify_step(loaded, step, waveform, impacters, sliders):
+    """Re-simulate one step with its actual summed drive; one row per device in scope."""
+    spec = loaded.spec
+    ver = spec.verification
+    drive = _drive_of(waveform)
+    duration = step.duration_s
+    active = {node_id(d, dr) for d, dr in step.active_nodes()}
+    rows = []
+    for dev in sorted(sliders, key=lambda d: (d[0], int(d[1:]))):
+        own = {n: imp for n, imp in impacters.items() if split_node(n)[0] == dev}
+        moving = [n for n in own if n in active]
+        expected = split_node(moving[0])[1] if moving else "idle"
+        causes = []
+        # every impacter that must be idle: r = 0 from every x0 of the grid (eq. 14)
+        worst_idle_r = 0.0
+        for n, imp in own.items():
+            if n in active:
+                continue
+            x0s = _x0_grid(imp, ver.x0_points)
+            r = model.responses(imp, drive, x0s, duration=duration, stop_at_first=True)
+            if np.any(r > 0):
+                full = model.responses(imp, drive, x0s, duration=duration)
+                worst_idle_r = max(worst_idle_r, float(full.max()))
+                causes.append(f"{n} responds (r = {full.max():.3g} N from x0 = "
+                              f"{x0s[int(np.argmax(full))] / UM:.2f} um)")
+        displacement, _ = _device_motion(own, sliders[dev], drive, duration, {})
+        if moving:
+            n = moving[0]
+            sign = 1.0 if expected == "forward" else -1.0
+            speeds = []
+            for x0 in _x0_grid(own[n], ver.x0_points):
+                z, _ = _device_motion(own, sliders[dev], drive, duration, {n: (x0, 0.0, False)})
+                speeds.append(sign * z / duration)
+            worst = float(min(speeds))
+            if worst < ver.min_speed_mm_s * 1e-3:
+                causes.append(f"too slow: {worst * 1e3:.3g} mm/s < {ver.min_speed_mm_s:g} mm/s "
+                              f"from some x0")
+            worst_case = {"min_speed_m_s": worst}
+        else:
+            worst_case = {"max_response_n": worst_idle_r}
+            if abs(displacement) > ver.idle_tolerance_um * UM:
+                causes.append(f"idle slider moves {displacement / UM:.3g} um > "
+                              f"{ver.idle_tolerance_um:g} um")
+        if moving:
+            worst_case["max_idle_response_n"] = worst_idle_r
+        rows.append({"scene": step.scene, "step": step.name, "index": step.index,
+                     "device": dev, "expected": expected,
+                     "predicted_displacement_m": float(displacement),
+                     **worst_case, "passed": not causes, "cause": "; ".join(causes)})
+    return rows
+
+
+def simulate_scenes(loaded, steps, waveforms, impacters, sliders):
+    """Each scene in order, carrying impacter and slider states across steps."""
+    rows = []
+    for scene in loaded.spec.scenes:
+        states = {n: (0.0, 0.0, False) for n in impacters}
+        sl_states = {d: (0.0, 0.0) for d in sliders}
+        for st in [s for s in steps if s.scene == scene]:
+            drive = _drive_of(waveforms[st.key])
+            kicks = {d: ([], []) for d in sliders}
+            for n, imp in impacters.items():
+                x0, v0, stuck = states[n]
+                res = model.simulate(imp, drive, x0, v0, st.duration_s, stuck=stuck or None,
+                                     max_events=1_000_000)
+                states[n] = (min(res.x_end, imp.gap), res.v_end, res.stuck_end)
+                dev, direction = split_node(n)
+                t, dv = _kicks(imp, sliders[dev], res, 1.0 if direction == "forward" else -1.0)
+                kicks[dev][0].append(t)
+                kicks[dev][1].append(dv)
+            positions = {}
+            for dev, slider in sliders.items():
+                z0, v0 = sl_states[dev]
+                t = np.concatenate(kicks[dev][0]) if kicks[dev][0] else np.empty(0)
+                dv = np.concatenate(kicks[dev][1]) if kicks[dev][1] else np.empty(0)
+                _, _, z, v, _ = model.slider_motion(slider, drive, t, dv, st.duration_s, z0, v0)
+                sl_states[dev] = (z, v)
+                positions[dev] = float(z)
+            ringing = sorted(n for n, (x, v, s) in states.items() if abs(v) > 1e-6 and
+                             n not in {node_id(d, r) for d, r in st.active_nodes()})
+            rows.append({"scene": scene, "step": st.name, "positions_m": positions,
+                         "ringing_impacters": ringing})
+    return rows
+
+
+def coupling_matrix(impacters, tones, spec, duration):
+    """Worst response r [N] over the x0 grid of every impacter to every tone alone."""
+    freqs = sorted(set(tones))
+    amps = _tone_amplitudes(spec, freqs)
+    names = sorted(impacters)
+    mat = np.zeros((len(names), len(freqs)))
+    for i, n in enumerate(names):
+        imp = impacters[n]
+        x0s = _x0_grid(imp, spec.verification.x0_points)
+        for j, (f, z) in enumerate(zip(freqs, amps)):
+            mat[i, j] = float(np.max(model.responses(imp, Drive([f], [z]), x0s,
+                                                     duration=duration)))
+    return pd.DataFrame(mat, index=names, columns=[f"{f:.3f}" for f in freqs])
+
+
+# ----------------------------------------------------------------------------------
+# orchestration
+
+
+def _round(x, digits=12):
+    """Round floats for plan.json so it is stable to the last byte across runs."""
+    if isinstance(x, float):
+        return float(f"{x:.{digits}g}") if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _round(v, digits) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_round(v, digits) for v in x]
+    if isinstance(x, np.floating):
+        return _round(float(x), digits)
+    if isinstance(x, np.integer):
+        return int(x)
+    return x
+
+
+def _impacter_record(n, assignment, design):
+    dev, direction = split_node(n)
+    rec = {"id": n, "device": dev, "direction": direction,
+           "channel": int(assignment.channels[n]), "frequency_hz": assignment.frequencies[n]}
+    d = design.to_dict()
+    for key in ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m", "gap_m",
+                "impact_angle_rad", "restitution", "natural_frequency_hz", "geometry"):
+        rec[key] = d[key]
+    for key in ("r_min_n", "worst_x0_m", "predicted_slider_speed_m_s", "feasible"):
+        if key in d:
+            rec[key] = d[key]
+    return rec
+
+
+def run_plan(loaded: LoadedSpec, *, seed=None, progress=None):
+    """Run every stage; returns a :class:`Plan` (files are written by :func:`plan`)."""
+    spec = loaded.spec
+    seed = spec.design.seed if seed is None else int(seed)
+    tick = progress or (lambda stage, item=None, total=None: None)
+    timings = {}
+    t0 = time.perf_counter()
+    steps = plan_steps(loaded, SINGLE_STEP_S)
+    pair_sep = {}
+    cache = {}
+    rounds = []
+    sep = spec.drive.guard.separation_channels
+    for round_ in range(spec.verification.repair_rounds + 1):
+        ts = time.perf_counter()
+        assignment = assign(loaded, steps, separation=sep, pair_separation=pair_sep)
+        timings["assign"] = timings.get("assign", 0.0) + time.perf_counter() - ts
+        ts = time.perf_counter()
+        tick("design", total=len(assignment.frequencies))
+        designs = design_all(loaded, steps, assignment, cache,
+                             progress=lambda n: tick("design", n))
+        timings["design"] = timings.get("design", 0.0) + time.perf_counter() - ts
+        impacters = {n: d.impacter for n, d in designs.items()}
+        devices = sorted({split_node(n)[0] for n in impacters}, key=lambda d: (d[0], int(d[1:])))
+        sliders = {d: build_slider(spec.slider_config(d), spec.process, spec.environment)
+                   for d in devices}
+        ts = time.perf_counter()
+        waveforms = synthesize_steps(loaded, steps, assignment, seed)
+        timings["drive"] = timings.get("drive", 0.0) + time.perf_counter() - ts
+        ts = time.perf_counter()
+        tick("verify", total=len(steps))
+        ver_rows = []
+        for st in steps:
+            ver_rows += verify_step(loaded, st, waveforms[st.key], impacters, sliders)
+            tick("verify", st.key)
+        timings["verify"] = timings.get("verify", 0.0) + time.perf_counter() - ts
+        failures = [r for r in ver_rows if not r["passed"]]
+        rounds.append({"round": round_, "span": assignment.span, "failures": len(failures)})
+        if not failures or round_ == spec.verification.repair_rounds:
+            break
+        # repair: widen the separation between each failing idle impacter and the
+        # nearest tone of the step it responds in, then re-colour and re-design
+        changed = False
+        for r in failures:
+            st = steps[r["index"]]
+            active = sorted(node_id(d, dr) for d, dr in st.active_nodes())
+            for n in impacters:
+                if split_node(n)[0] != r["device"] or n in active or n not in r["cause"]:
+                    continue
+                f = assignment.frequencies[n]
+                near = min(active, key=lambda a: abs(math.log(assignment.frequencies[a] / f)))
+                key = frozenset((n, near))
+                now = abs(assignment.channels[n] - assignment.channels[near]) // max(assignment.stride, 1)
+                pair_sep[key] = max(pair_sep.get(key, sep), now + max(1, sep // 2))
+                changed = True
+        if not changed:
+            break
+    ts = time.perf_counter()
+    scene_rows = simulate_scenes(loaded, steps, waveforms, impacters, sliders)
+    tones = sorted(set(assignment.frequencies.values()))
+    coupling = coupling_matrix(impacters, tones, spec, SINGLE_STEP_S)
+    timings["scenes_coupling"] = time.perf_counter() - ts
+    ver = pd.DataFrame(ver_rows)
+    passed = bool(ver["passed"].all())
+
+    impacter_recs = [_impacter_record(n, assignment, designs[n]) for n in
+                     sorted(designs, key=lambda n: (n[0], int(split_node(n)[0][1:]), n))]
+    device_recs = [{"id": d, "slider_mass_kg": s.mass, "slider_damping_ns_per_m": s.damping,
+                    "static_friction_n": s.static_friction,
+                    "dynamic_friction_n": s.dynamic_friction} for d, s in sliders.items()]
+    step_recs = []
+    for st in steps:
+        w = waveforms[st.key]
+        stem = f"{st.scene}__{st.name}"
+        step_recs.append({
+            "scene": st.scene, "name": st.name, "index": st.index, "duration_s": st.duration_s,
+            "forward": list(st.forward), "backward": list(st.backward),
+            "tones": [{"frequency_hz": float(f), "amplitude_m": float(z), "phase_rad": float(p)}
+                      for f, z, p in zip(w.frequencies, w.amplitudes, w.phases)],
+            "crest_factor": float(w.crest_factor), "scale": float(w.scale),
+            "loop_length_s": float(w.loop_length),
+            "files": {fmt: f"waveforms/{stem}{_suffix(fmt)}" for fmt in EXPORT_FORMATS},
+        })
+    per_step = {}
+    for r in ver_rows:
+        per_step.setdefault(f"{r['scene']}/{r['step']}", {})[r["device"]] = {
+            k: r[k] for k in r if k not in ("scene", "step", "index", "device")}
+    data = {
+        "vibroplan_version": _version(),
+        "seed": seed,
+        "spec": json.loads(spec.model_dump_json()),
+        "assignment": {"span": assignment.span, "lower_bound": assignment.lower_bound,
+                       "optimal": assignment.optimal, "method": assignment.method,
+                       "stride": assignment.stride, "offset": assignment.offset,
+                       "graph_nodes": assignment.graph.number_of_nodes(),
+                       "graph_edges": assignment.graph.number_of_edges(),
+                       "separation_problems": verify_assignment(assignment),
+                       "guard_violations": [str(v) for v in assignment.violations]},
+        "impacters": impacter_recs,
+        "devices": device_recs,
+        "steps": step_recs,
+        "verification": {"passed": passed, "repair_rounds": rounds, "steps": per_step},
+        "scenes": scene_rows,
+    }
+    data = _round(data)
+    timings["total"] = time.perf_counter() - t0
+    result = Plan(
+        impacters=pd.DataFrame(impacter_recs), devices=pd.DataFrame(device_recs),
+        steps=pd.DataFrame(step_recs), verification=ver, coupling=coupling,
+        scenes=pd.DataFrame(scene_rows), passed=passed, data=data, timings=timings)
+    result._waveforms = waveforms
+    result._designs = designs
+    result._assignment = assignment
+    result._loaded = loaded
+    return result
+
+
+def _suffix(fmt):
+    return {"wav": ".wav", "wav16": ".int16.wav", "csv": ".csv", "arb": ".arb"}[fmt]
+
+
+def write_outputs(result: Plan, out_dir: Path, *, figures=True):
+    """Write plan.json, CSVs, waveforms, figures and report.md into ``out_dir``."""
+    import warnings
+
+    from planner.exporters import export
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "plan.json").write_text(json.dumps(result.data, indent=2, sort_keys=False) + "\n")
+    result.coupling.to_csv(out_dir / "coupling.csv", float_format="%.6g")
+    result.impacters.assign(
+        area_m2=[g["area_m2"] for g in result.impacters["geometry"]],
+        width_m=[g["width_m"] for g in result.impacters["geometry"]],
+        length_m=[g["length_m"] for g in result.impacters["geometry"]],
+    ).drop(columns=["geometry"]).to_csv(out_dir / "designs.csv", index=False, float_format="%.8g")
+    (out_dir / "waveforms").mkdir(exist_ok=True)
+    for rec in result.data["steps"]:
+        w = result._waveforms[f"{rec['scene']}/{rec['name']}"]
+        for fmt, rel in rec["files"].items():
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                export(w, out_dir / rel, fmt)
+    if figures:
+        _figures(result, out_dir)
+    _report(result, out_dir)
+
+
+def _figures(result, out_dir):
+    from planner import report_plots as rp
+
+    figs = out_dir / "figures"
+    figs.mkdir(exist_ok=True)
+    loaded = result._loaded
+    rp.array_map(loaded.spec, result.impacters, figs / "array_map.png")
+    tones = [float(c) for c in result.coupling.columns]
+    rp.coupling_heatmap(result.coupling.to_numpy(), list(result.coupling.index), tones,
+                        figs / "coupling.png")
+    # response curves: worst r over x0 against frequency around every design
+    curves = []
+    spec = loaded.spec
+    lo, hi = spec.drive.band_hz
+    grid = np.geomspace(lo, hi, 160)
+    for n, d in sorted(result._designs.items()):
+        imp = d.impacter
+        r = model.sweep(imp, grid, np.linspace(-imp.gap, imp.gap, 5), spec.drive.power_m2_s3,
+                        spec.design.window_ms * 1e-3).max(axis=1)
+        curves.append((n, grid, r, result._assignment.frequencies[n]))
+    rp.response_curves(curves, tones, figs / "response_curves.png",
+                       "designed impacters: worst-case response over x0 (dots: own tone)")
+    shown = [k for k in result._waveforms if not k.startswith("independent/")][:4]
+    shown = shown or list(result._waveforms)[:1]
+    for k in shown:
+        rp.waveform_and_spectrum(result._waveforms[k], figs / f"drive_{k.replace('/', '__')}.png", k)
+    if result.data["scenes"]:
+        rp.slider_positions(result.data["scenes"], figs / "slider_positions.png")
+
+
+def _report(result, out_dir):
+    d = result.data
+    ver = result.verification
+    lines = [f"# vibroplan plan: {d['spec']['name']}", "",
+             f"vibroplan {d['vibroplan_version']}, seed {d['seed']}.", "",
+             f"**Verification: {'PASSED' if result.passed else 'FAILED'}** "
+             f"({int(ver['passed'].sum())} of {len(ver)} step x device checks pass).", ""]
+    a = d["assignment"]
+    lines += ["## Frequency assignment", "",
+              f"Conflict graph: {a['graph_nodes']} channel groups, {a['graph_edges']} edges; span "
+              f"{a['span']} channels (lower bound {a['lower_bound']}, "
+              f"{'proven optimal' if a['optimal'] else 'not proven optimal'}, {a['method']}).", "",
+              "![array map](figures/array_map.png)", ""]
+    if a["guard_violations"]:
+        lines += [f"Guard-rule warnings ({len(a['guard_violations'])}): harmonic or intermodulation "
+                  "products of tones that play together land near an idle impacter's frequency "
+                  "(the verification below simulates the real drive; these matter if the piezo "
+                  "distorts):", ""]
+        lines += [f"- {v}" for v in a["guard_violations"][:15]]
+        if len(a["guard_violations"]) > 15:
+            lines.append(f"- ... and {len(a['guard_violations']) - 15} more (plan.json)")
+        lines.append("")
+    lines += ["## Designs", "", result.impacters.drop(columns=["geometry"]).to_markdown(index=False)
+              if _has_tabulate() else result.impacters.drop(columns=["geometry"]).to_string(index=False),
+              "", "![response curves](figures/response_curves.png)", "",
+              "## Cross-coupling", "", "![coupling](figures/coupling.png)", "",
+              "## Steps", ""]
+    for rec in d["steps"]:
+        if rec["scene"] == "independent":
+            continue
+        lines.append(f"- {rec['scene']}/{rec['name']}: {len(rec['tones'])} tones, crest factor "
+                     f"{rec['crest_factor']:.2f}, scale {rec['scale']:.3f}, {rec['duration_s'] * 1e3:g} ms")
+    figs = sorted((out_dir / "figures").glob("drive_*.png")) if (out_dir / "figures").exists() else []
+    lines += [""] + [f"![{p.stem}](figures/{p.name})" for p in figs] + [""]
+    if d["scenes"]:
+        lines += ["## Scenes (state carried across steps)", "",
+                  "![slider positions](figures/slider_positions.png)", ""]
+        for row in d["scenes"]:
+            moved = {k: v for k, v in row["positions_m"].items() if abs(v) > 0.5e-6}
+            lines.append(f"- {row['scene']}/{row['step']}: {len(moved)} sliders displaced > 0.5 um; "
+                         f"still ringing: {', '.join(row['ringing_impacters'][:8]) or 'none'}")
+        lines.append("")
+    fails = ver[~ver["passed"]]
+    lines += ["## Failures", ""]
+    if fails.empty:
+        lines.append("None: every step moves the sliders it should and no other.")
+    else:
+        for _, r in fails.head(60).iterrows():
+            lines.append(f"- {r['scene']}/{r['step']} {r['device']} ({r['expected']}): {r['cause']}")
+        if len(fails) > 60:
+            lines.append(f"- ... and {len(fails) - 60} more (plan.json)")
+    lines += ["", "## Timings", ""] + [f"- {k}: {v:.2f} s" for k, v in result.timings.items()]
+    (out_dir / "report.md").write_text("\n".join(lines) + "\n")
+
+
+def _has_tabulate():
+    try:
+        import tabulate  # noqa: F401
+        return True
+    except ImportError:
+        return False
+
+
+def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True):
+    """Plan an array: the whole pipeline, optionally writing every output.
+
+    Parameters
+    ----------
+    spec : str, Path, LoadedSpec or None
+        An array spec file, YAML text, or an already loaded spec; None plans the
+        embedded default (configs/array_5x5.yaml).
+    out_dir : str or Path, optional
+        Where to write plan.json, CSVs, waveforms, figures and report.md.  They are
+        written to a temporary folder beside it and moved into place only when
+        complete.
+    seed : int, optional
+        Overrides the spec's ``design.seed``; same spec and seed give a
+        byte-identical plan.json.
+
+    Returns
+    -------
+    Plan
+    """
+    if isinstance(spec, LoadedSpec):
+        loaded = spec
+    else:
+        loaded = load_spec(Path(spec) if spec is None or isinstance(spec, Path) or "\n" not in str(spec)
+                           else spec) if spec is not None else load_spec(default_spec_path())
+    result = run_plan(loaded, seed=seed, progress=progress)
+    if out_dir is not None:
+        from planner.cli._common import atomic_path
+
+        with atomic_path(out_dir) as tmp:
+            ts = time.perf_counter()
+            write_outputs(result, tmp, figures=figures)
+            result.timings["outputs"] = time.perf_counter() - ts
+            _report(result, tmp)
+        result.out_dir = Path(out_dir)
+    return result
+
+
+def step_tones(spec_path):
+    """Steps with their tones for ``vibroplan drive SPEC``: runs the plan without files."""
+    return plan(spec_path).data["steps"]

@@ -1,0 +1,134 @@
+"""Figures of the plan report: array map, response curves, coupling, drives, slider motion."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from planner.plots import plt, save
+
+UM = 1e-6
+
+
+def _grid_shape(table):
+    rows = sorted({d[0] for d in table["device"]})
+    cols = sorted({int(d[1:]) for d in table["device"]})
+    return rows, cols
+
+
+def array_map(spec, table, path):
+    """The array with each device's forward/backward frequencies, coloured by channel."""
+    rows = [chr(ord("A") + r) for r in range(spec.array.rows)]
+    cols = list(range(1, spec.array.cols + 1))
+    fig, ax = plt.subplots(figsize=(1.7 * len(cols) + 1.5, 1.2 * len(rows) + 1))
+    cmap = plt.get_cmap("viridis")
+    lo, hi = spec.drive.band_hz
+    by_id = {r["id"]: r for r in table.to_dict(orient="records")}
+    for i, r in enumerate(rows):
+        for j, c in enumerate(cols):
+            dev = f"{r}{c}"
+            y = len(rows) - 1 - i
+            ax.add_patch(plt.Rectangle((j, y), 0.96, 0.92, fill=False, lw=0.8, color="0.5"))
+            ax.text(j + 0.04, y + 0.8, dev, fontsize=8, weight="bold", va="top")
+            for k, direction in enumerate(("forward", "backward")):
+                rec = by_id.get(f"{dev}.{direction}")
+                if rec is None:
+                    continue
+                frac = np.log(rec["frequency_hz"] / lo) / np.log(hi / lo)
+                ax.add_patch(plt.Rectangle((j + 0.05, y + 0.42 - 0.34 * k), 0.86, 0.3,
+                                           color=cmap(frac), alpha=0.85))
+                ax.text(j + 0.48, y + 0.57 - 0.34 * k,
+                        f"{'F' if k == 0 else 'B'} {rec['frequency_hz'] / 1e3:.2f}k ch{rec['channel']}",
+                        fontsize=7, ha="center", va="center",
+                        color="white" if frac < 0.6 else "black")
+    ax.set_xlim(-0.1, len(cols) + 0.1)
+    ax.set_ylim(-0.1, len(rows) + 0.1)
+    ax.set_aspect("equal")
+    ax.axis("off")
+    sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.matplotlib.colors.LogNorm(lo, hi))
+    fig.colorbar(sm, ax=ax, fraction=0.04, label="drive frequency [Hz]")
+    ax.set_title(f"{spec.name}: channels (F = forward, B = backward)")
+    save(fig, path)
+
+
+def response_curves(curves, tones, path, title):
+    """Every designed impacter's response band against frequency with all tones marked.
+
+    Parameters
+    ----------
+    curves : list of (label, frequencies [Hz], worst r [N], own frequency [Hz])
+    tones : sequence of float
+        Every tone of the plan [Hz].
+    """
+    fig, ax = plt.subplots(figsize=(10, 5))
+    cmap = plt.get_cmap("tab20")
+    for i, (label, f, r, own) in enumerate(curves):
+        ax.semilogx(f, r * 1e9, color=cmap(i % 20), lw=0.9)
+        ax.plot([own], [np.interp(own, f, r) * 1e9], "o", color=cmap(i % 20), ms=3)
+    for t in tones:
+        ax.axvline(t, color="0.6", lw=0.4, zorder=0)
+    ax.set_xlabel("drive frequency [Hz] (grey lines: every tone of the plan)")
+    ax.set_ylabel("worst-case response r over x0 [nN]")
+    ax.set_title(title)
+    ax.grid(alpha=0.3, which="both")
+    save(fig, path)
+
+
+def coupling_heatmap(matrix, impacters, tones, path):
+    """Cross-coupling: worst response of every impacter (rows) to every tone (columns)."""
+    fig, ax = plt.subplots(figsize=(max(6, 0.16 * len(tones) + 3), max(5, 0.16 * len(impacters) + 2)))
+    data = np.log10(np.maximum(matrix * 1e9, 1e-3))
+    im = ax.imshow(data, aspect="auto", cmap="magma", vmin=-3,
+                   vmax=max(float(np.max(data)), -2.0))
+    ax.set_yticks(range(len(impacters)))
+    ax.set_yticklabels(impacters, fontsize=5)
+    ax.set_xticks(range(len(tones)))
+    ax.set_xticklabels([f"{t / 1e3:.2f}" for t in tones], rotation=90, fontsize=5)
+    ax.set_xlabel("tone [kHz]")
+    fig.colorbar(im, ax=ax, label="log10 worst r [nN] (-3: no response)")
+    ax.set_title("cross-coupling: impacter x tone (own tone on the diagonal)")
+    save(fig, path)
+
+
+def waveform_and_spectrum(waveform, path, title, stretch=2e-3):
+    """A stretch of the drive waveform and its spectrum with the tones marked."""
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 6))
+    n = min(waveform.samples.size, int(stretch * waveform.sample_rate))
+    t = np.arange(n) / waveform.sample_rate
+    ax1.plot(t * 1e3, waveform.samples[:n] / UM, lw=0.8)
+    ax1.set_xlabel("time [ms]")
+    ax1.set_ylabel("substrate displacement [um]")
+    ax1.set_title(f"{title}: crest factor {waveform.crest_factor:.2f}, "
+                  f"peak {waveform.peak / UM:.2f} um")
+    spec = np.abs(np.fft.rfft(waveform.samples)) * 2 / waveform.samples.size
+    f = np.fft.rfftfreq(waveform.samples.size, 1 / waveform.sample_rate)
+    ax2.loglog(f[1:], np.maximum(spec[1:], 1e-15) / UM, lw=0.8)
+    for ft, zt in zip(waveform.frequencies, waveform.amplitudes):
+        ax2.plot([ft], [zt / UM], "rv", ms=4)
+    ax2.set_xlabel("frequency [Hz] (red: tones)")
+    ax2.set_ylabel("amplitude [um]")
+    ax2.set_ylim(1e-6, None)
+    ax2.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    save(fig, path)
+
+
+def slider_positions(scene_rows, path):
+    """Predicted slider positions after each step of each scene (scene simulation)."""
+    scenes = sorted({r["scene"] for r in scene_rows})
+    fig, axes = plt.subplots(len(scenes), 1, figsize=(9, 3.2 * len(scenes)), squeeze=False)
+    for ax, scene in zip(axes[:, 0], scenes):
+        rows = [r for r in scene_rows if r["scene"] == scene]
+        steps = [r["step"] for r in rows]
+        devices = sorted(rows[0]["positions_m"])
+        for dev in devices:
+            y = [0.0] + [r["positions_m"][dev] / UM for r in rows]
+            ax.plot(range(len(y)), y, marker="o", ms=3, lw=0.8, label=dev)
+        ax.set_xticks(range(len(steps) + 1))
+        ax.set_xticklabels(["start"] + steps, fontsize=8)
+        ax.set_ylabel("slider position [um]")
+        ax.set_title(f"scene {scene}: predicted slider positions after each step")
+        ax.grid(alpha=0.3)
+        if len(devices) <= 25:
+            ax.legend(fontsize=6, ncol=5)
+    fig.tight_layout()
+    save(fig, path)

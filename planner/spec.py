@@ -1,0 +1,368 @@
+"""The array spec: devices on a grid, process, drive, design and scenes (YAML).
+
+Devices are named like a well plate: rows A, B, ... and columns 1, 2, ... (A1 ... E5 on
+the default 5 x 5 array).  Every device has a forward and a backward impacter pair.
+A *scene* is a named sequence of steps; a step lists which devices move forward and
+which backward, for how long; every other device must stay idle.  With
+``independent: true`` (the default when no scenes are given) every impacter must also
+be drivable on its own, which adds one implicit step per impacter.
+
+Selectors in a step's ``forward``/``backward`` lists: a device id (``C3``), a row
+letter (``B`` = B1 ... B5), a column number as text (``"3"`` = A3 ... E3), or ``all``.
+
+Validation names the field and the YAML line: ``drive.band_hz: band_hz[1] must be
+greater than band_hz[0] (line 14)``.
+"""
+
+from __future__ import annotations
+
+import math
+import string
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from planner.config import (
+    DEFAULT_IMPACTER,
+    EnvironmentConfig,
+    ImpacterConfig,
+    ProcessConfig,
+    SliderConfig,
+)
+from planner.errors import SpecError
+from planner.yamlio import format_loc, line_of, load_yaml, validate
+
+PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+DIRECTIONS = ("forward", "backward")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class ArrayConfig(_Strict):
+    """Grid of devices: ``rows`` x ``cols`` at ``pitch_um``."""
+
+    rows: Annotated[int, Field(ge=1, le=26)] = 5
+    cols: Annotated[int, Field(ge=1, le=99)] = 5
+    pitch_um: PositiveFloat = 1000.0
+
+    def device_ids(self) -> list[str]:
+        return [f"{string.ascii_uppercase[r]}{c + 1}" for r in range(self.rows)
+                for c in range(self.cols)]
+
+
+class DeviceDefaults(_Strict):
+    """Impacter (both pairs) and slider defaults; ``forward``/``backward`` override per pair."""
+
+    impacter: ImpacterConfig = DEFAULT_IMPACTER
+    forward: ImpacterConfig | None = None
+    backward: ImpacterConfig | None = None
+    slider: SliderConfig = SliderConfig()
+
+
+class ChannelGrid(_Strict):
+    """The channel grid inside the band: ``count`` channels, log- or linearly spaced."""
+
+    spacing: Literal["log", "linear"] = "log"
+    count: Annotated[int, Field(ge=2, le=100000)] = 240
+
+
+class GuardRules(_Strict):
+    """How far apart tones must be.
+
+    separation_channels : the default separation [channels] between impacters that must
+        be told apart, before designs exist (designs' measured response bands then set it).
+    relative_bandwidth : half-width of an impacter's response band relative to its tone,
+        used to reject harmonic and intermodulation products landing in it.
+    harmonics : reject f_i ~ n f_j and f_i ~ f_j / n (n = 2, 3).
+    intermodulation : reject f_i + f_j - f_k and 2 f_i - f_j of tones that play together.
+    """
+
+    separation_channels: Annotated[int, Field(ge=1)] = 8
+    relative_bandwidth: Annotated[float, Field(gt=0, lt=0.5)] = 0.02
+    harmonics: bool = True
+    intermodulation: bool = True
+
+
+class DriveSpec(_Strict):
+    """The piezo drive: band, tone amplitude convention, limits and sampling."""
+
+    band_hz: tuple[PositiveFloat, PositiveFloat] = (2000.0, 20000.0)
+    power_m2_s3: PositiveFloat = 50.0
+    amplitude_um: PositiveFloat | None = None
+    peak_limit_um: PositiveFloat = 10.0
+    sample_rate_hz: PositiveFloat = 200000.0
+    over_limit: Literal["scale", "split"] = "scale"
+    channels: ChannelGrid = ChannelGrid()
+    guard: GuardRules = GuardRules()
+    piezo_um_per_v: PositiveFloat | None = None
+    amplifier_gain: PositiveFloat | None = None
+
+    @field_validator("band_hz")
+    @classmethod
+    def _band_order(cls, band):
+        if band[1] <= band[0]:
+            raise ValueError(f"band_hz[1] must be greater than band_hz[0], got {list(band)}")
+        return band
+
+    @model_validator(mode="after")
+    def _nyquist(self):
+        if self.sample_rate_hz <= 2 * self.band_hz[1]:
+            raise ValueError(f"sample_rate_hz ({self.sample_rate_hz:g}) must exceed twice the "
+                             f"band's top ({self.band_hz[1]:g} Hz)")
+        return self
+
+
+class DesignBoundsSpec(_Strict):
+    """Upper and lower bounds of the design variables, [lo, hi] each (paper's (17) below)."""
+
+    area_um2: tuple[PositiveFloat, PositiveFloat] | None = None
+    width_um: tuple[PositiveFloat, PositiveFloat] | None = None
+    length_um: tuple[PositiveFloat, PositiveFloat] | None = None
+    gap_um: tuple[PositiveFloat, PositiveFloat] | None = None
+
+
+class DesignSpec(_Strict):
+    """Designer settings for every impacter of the array."""
+
+    bounds: DesignBoundsSpec = DesignBoundsSpec()
+    window_ms: PositiveFloat = 3.0
+    seed: Annotated[int, Field(ge=0)] = 0
+    budget: Literal["fast", "full"] = "fast"
+
+
+class VerificationSpec(_Strict):
+    """Pass criteria of the verification by simulation."""
+
+    x0_points: Annotated[int, Field(ge=3, le=201)] = 9
+    min_speed_mm_s: NonNegFloat = 0.2
+    idle_tolerance_um: NonNegFloat = 0.5
+    repair_rounds: Annotated[int, Field(ge=0, le=20)] = 3
+
+
+class StepSpec(_Strict):
+    """One step of a scene: who moves which way, for how long."""
+
+    name: str
+    duration_ms: PositiveFloat
+    forward: list[str] = []
+    backward: list[str] = []
+
+
+class DeviceOverride(_Strict):
+    """Per-device overrides of the device defaults."""
+
+    impacter: ImpacterConfig | None = None
+    forward: ImpacterConfig | None = None
+    backward: ImpacterConfig | None = None
+    slider: SliderConfig | None = None
+
+
+class ArraySpec(_Strict):
+    """A whole array spec; see the module docstring."""
+
+    name: str = "array"
+    array: ArrayConfig = ArrayConfig()
+    process: ProcessConfig = ProcessConfig()
+    environment: EnvironmentConfig = EnvironmentConfig(viscosity_mpa_s=0.0179)
+    device: DeviceDefaults = DeviceDefaults()
+    devices: dict[str, DeviceOverride] = {}
+    drive: DriveSpec = DriveSpec()
+    design: DesignSpec = DesignSpec()
+    verification: VerificationSpec = VerificationSpec()
+    independent: bool | None = None
+    scenes: dict[str, list[StepSpec]] = {}
+
+    @property
+    def all_independent(self) -> bool:
+        return self.independent if self.independent is not None else not self.scenes
+
+    def impacter_config(self, device_id: str, direction: str) -> ImpacterConfig:
+        cfg = DEFAULT_IMPACTER.merged(self.device.impacter).merged(getattr(self.device, direction))
+        over = self.devices.get(device_id)
+        if over is not None:
+            cfg = cfg.merged(over.impacter).merged(getattr(over, direction))
+        return cfg
+
+    def slider_config(self, device_id: str) -> SliderConfig:
+        over = self.devices.get(device_id)
+        if over is not None and over.slider is not None:
+            data = self.device.slider.model_dump()
+            data.update(over.slider.model_dump(exclude_unset=True))
+            return SliderConfig(**data)
+        return self.device.slider
+
+
+@dataclass(frozen=True)
+class Step:
+    """A resolved step: device ids in each direction, duration in SI."""
+
+    scene: str
+    name: str
+    index: int
+    duration_s: float
+    forward: tuple[str, ...]
+    backward: tuple[str, ...]
+
+    @property
+    def key(self) -> str:
+        return f"{self.scene}/{self.name}"
+
+    def active_nodes(self) -> set[tuple[str, str]]:
+        return {(d, "forward") for d in self.forward} | {(d, "backward") for d in self.backward}
+
+
+@dataclass(frozen=True)
+class LoadedSpec:
+    """A validated spec with its resolved steps and source."""
+
+    spec: ArraySpec
+    steps: tuple[Step, ...]
+    source: str
+
+    @property
+    def device_ids(self) -> list[str]:
+        return self.spec.array.device_ids()
+
+
+def _resolve(selectors, ids, rows, cols, where, lines, source):
+    out = []
+    for k, sel in enumerate(selectors):
+        sel = str(sel).strip()
+        if sel.lower() == "all":
+            chosen = list(ids)
+        elif sel in ids:
+            chosen = [sel]
+        elif len(sel) == 1 and sel.upper() in rows:
+            chosen = [i for i in ids if i[0] == sel.upper()]
+        elif sel.isdigit() and sel in cols:
+            chosen = [i for i in ids if i[1:] == sel]
+        else:
+            loc = where + (k,)
+            raise SpecError(f"unknown device {sel!r} (devices are {ids[0]} ... {ids[-1]}, a row "
+                            "letter, a column number or 'all')", path=format_loc(loc),
+                            line=line_of(lines, loc), source=source)
+        for c in chosen:
+            if c not in out:
+                out.append(c)
+    return tuple(out)
+
+
+def resolve_steps(spec: ArraySpec, lines=None, source=None) -> tuple[Step, ...]:
+    """Resolve every scene's steps to device ids, checking ids and contradictions."""
+    lines = lines or {}
+    ids = spec.array.device_ids()
+    rows = {i[0] for i in ids}
+    cols = {i[1:] for i in ids}
+    for dev in spec.devices:
+        if dev not in ids:
+            loc = ("devices", dev)
+            raise SpecError(f"unknown device {dev!r} (devices are {ids[0]} ... {ids[-1]})",
+                            path=format_loc(loc), line=line_of(lines, loc), source=source)
+    steps = []
+    for scene, step_list in spec.scenes.items():
+        if not step_list:
+            loc = ("scenes", scene)
+            raise SpecError("a scene needs at least one step", path=format_loc(loc),
+                            line=line_of(lines, loc), source=source)
+        names = set()
+        for i, st in enumerate(step_list):
+            base = ("scenes", scene, i)
+            if st.name in names:
+                raise SpecError(f"duplicate step name {st.name!r} in scene {scene!r}",
+                                path=format_loc(base + ("name",)),
+                                line=line_of(lines, base + ("name",)), source=source)
+            names.add(st.name)
+            fwd = _resolve(st.forward, ids, rows, cols, base + ("forward",), lines, source)
+            bwd = _resolve(st.backward, ids, rows, cols, base + ("backward",), lines, source)
+            both = sorted(set(fwd) & set(bwd))
+            if both:
+                loc = base + ("backward",)
+                raise SpecError(f"device(s) {', '.join(both)} cannot move both forward and "
+                                "backward in one step", path=format_loc(loc),
+                                line=line_of(lines, loc), source=source)
+            if not fwd and not bwd:
+                raise SpecError("a step must move at least one device", path=format_loc(base),
+                                line=line_of(lines, base), source=source)
+            steps.append(Step(scene, st.name, len(steps), st.duration_ms * 1e-3, fwd, bwd))
+    return tuple(steps)
+
+
+def _check_units(data, lines, source):
+    """Catch keys with the wrong unit suffix early, with a hint (e.g. band_khz)."""
+    if not isinstance(data, dict):
+        return
+    hints = {"band_khz": "band_hz", "gap_nm": "gap_um", "duration_s": "duration_ms",
+             "viscosity_pa_s": "viscosity_mpa_s", "pitch_mm": "pitch_um"}
+
+    def walk(node, path):
+        if isinstance(node, dict):
+            for key, value in node.items():
+                if key in hints:
+                    loc = path + (key,)
+                    raise SpecError(f"wrong unit: use {hints[key]} (in its unit)",
+                                    path=format_loc(loc), line=line_of(lines, loc), source=source)
+                walk(value, path + (key,))
+        elif isinstance(node, list):
+            for i, item in enumerate(node):
+                walk(item, path + (i,))
+    walk(data, ())
+
+
+def load_spec(path_or_text: str | Path, *, source: str | None = None) -> LoadedSpec:
+    """Read, validate and resolve an array spec.
+
+    Parameters
+    ----------
+    path_or_text : str or Path
+        A YAML file, or YAML text.
+
+    Raises
+    ------
+    SpecError
+        With the field path and YAML line of the first problem.
+    """
+    data, lines = load_yaml(path_or_text, source=source)
+    src = source or (str(path_or_text) if isinstance(path_or_text, Path)
+                     or "\n" not in str(path_or_text) else "<spec>")
+    if data is not None and not isinstance(data, dict):
+        raise SpecError("an array spec must be a YAML mapping", line=1, source=src)
+    _check_units(data, lines, src)
+    spec = validate(ArraySpec, data, lines, source=src)
+    return LoadedSpec(spec, resolve_steps(spec, lines, src), src)
+
+
+def default_spec_path() -> Path:
+    """The embedded default spec (a copy of configs/array_5x5.yaml shipped in the package)."""
+    return Path(__file__).resolve().parent / "data" / "array_5x5.yaml"
+
+
+def channel_grid(spec: ArraySpec):
+    """Channel centre frequencies [Hz] inside the band, ndarray shape (count,)."""
+    import numpy as np
+
+    lo, hi = spec.drive.band_hz
+    n = spec.drive.channels.count
+    if spec.drive.channels.spacing == "log":
+        return np.geomspace(lo, hi, n)
+    return np.linspace(lo, hi, n)
+
+
+def separation_for_bandwidth(spec: ArraySpec, relative_halfwidth: float) -> int:
+    """Channels needed between two tones so neither lies in the other's response band.
+
+    On a log grid with channel ratio rho, tones k channels apart are rho^k apart; a band of
+    relative half-width b around each needs rho^k >= (1 + b) / (1 - b).
+    """
+    lo, hi = spec.drive.band_hz
+    n = spec.drive.channels.count
+    b = min(max(relative_halfwidth, 1e-6), 0.99)
+    if spec.drive.channels.spacing == "log":
+        rho = (hi / lo) ** (1.0 / (n - 1))
+        return max(1, math.ceil(math.log((1 + b) / (1 - b)) / math.log(rho) - 1e-9))
+    step = (hi - lo) / (n - 1)
+    return max(1, math.ceil(2 * b * hi / step - 1e-9))
