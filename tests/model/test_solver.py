@@ -205,3 +205,22 @@ def test_multitone_against_dop853(fig7):
 def test_invalid_simulation_arguments(fig7, bad, match):
     with pytest.raises(ValueError, match=match):
         model.simulate(fig7, Drive.tone(6000.0), **bad)
+
+
+def test_release_from_wall_does_not_loop_on_noise_velocity():
+    # regression: started at the wall (x0 = gap, v0 = 0) under a four-tone drive, the
+    # impacter is released after 1.18 us; the closed form then evaluated v = 3.5e-18 m/s
+    # (rounding noise) at the wall and the solver recorded 100000 "impacts" at that instant
+    # until the event cap.  Noise-level velocities at the wall are not impacts.
+    imp = Impacter(mass=1.6862675999999998e-10, stiffness=0.02867260144575654, damping=3.58e-07,
+                   gap=1.0717616509007002e-05)
+    drive = Drive([2914.97975708502, 5398.110661268556, 9986.504723346829, 18515.519568151147],
+                  [2.8569348163396596e-06, 1.1329916038468874e-06, 4.493172077451155e-07,
+                   1.781883930034403e-07],
+                  [-2.50052163619395, 1.5013782463205816, -0.7910867647368707, 0.48407696468598704])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", model.SolverWarning)
+        res = model.simulate(imp, drive, x0=imp.gap, duration=0.01)
+    assert res.status == "ok"
+    assert np.all(np.diff(res.times) > 0)
+    assert np.all(res.velocities > 1e-9)
