@@ -12,7 +12,7 @@ from pathlib import Path
 
 import click
 
-from planner.errors import SpecError
+from planner.errors import PlanningError, SpecError
 
 
 def version_string() -> str:
@@ -28,8 +28,9 @@ def handle_errors(func):
     """Turn user errors into a one-line message on stderr and exit code 2.
 
     ``SpecError`` (a bad config or spec, with field path and YAML line) and
-    ``ValueError`` (a bad argument caught by the model's validation) are the
-    user's errors: they get ``error: ...`` and exit 2, never a traceback.
+    ``ValueError`` (a bad argument caught by the model's validation) and
+    ``PlanningError`` (a valid spec that cannot be planned, with what would fix it)
+    are the user's to act on: they get ``error: ...`` and exit 2, never a traceback.
     Anything else is a bug and propagates.
     """
 
@@ -37,7 +38,7 @@ def handle_errors(func):
     def wrapper(*args, **kwargs):
         try:
             return func(*args, **kwargs)
-        except (SpecError, ValueError, FileNotFoundError) as exc:
+        except (SpecError, PlanningError, ValueError, FileNotFoundError) as exc:
             click.echo(f"error: {exc}", err=True)
             sys.exit(2)
 

@@ -1,0 +1,118 @@
+"""Array spec validation (errors name the field and YAML line) and the assigner's invariants."""
+
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from planner.assign import activity, assign, conflict_graph, plan_steps, verify_assignment
+from planner.cli import main
+from planner.errors import SpecError
+from planner.spec import default_spec_path, load_spec, separation_for_bandwidth
+
+ROOT = Path(__file__).resolve().parents[2]
+
+GOOD = """\
+name: t
+array: {rows: 2, cols: 3}
+scenes:
+  s:
+    - name: a
+      duration_ms: 5
+      forward: [A1, B]
+    - name: b
+      duration_ms: 5
+      backward: ["2"]
+"""
+
+
+def test_embedded_default_equals_configs_copy():
+    assert default_spec_path().read_text() == (ROOT / "configs" / "array_5x5.yaml").read_text()
+    loaded = load_spec(default_spec_path())
+    assert len(loaded.device_ids) == 25 and loaded.spec.all_independent
+    position = loaded.steps[0]
+    assert len(position.forward) == 25 and not position.backward
+    assert loaded.steps[1].backward == ("C1", "C2", "C3", "C4", "C5")
+
+
+def test_selectors_resolve():
+    loaded = load_spec(GOOD)
+    a, b = loaded.steps
+    assert a.forward == ("A1", "B1", "B2", "B3")
+    assert b.backward == ("A2", "B2")
+    assert not loaded.spec.all_independent
+
+
+@pytest.mark.parametrize("text, path, line", [
+    ("drive:\n  band_hz: [20000, 2000]\n", "drive.band_hz", 2),
+    ("array:\n  rows: 2\n  colour: 3\n", "array.colour", 3),
+    ("drive:\n  band_khz: [2, 20]\n", "drive.band_khz", 2),
+    (GOOD.replace("duration_ms: 5\n      forward", "duration_ms: -5\n      forward"),
+     "scenes.s[0].duration_ms", 6),
+    (GOOD.replace("forward: [A1, B]", "forward: [A1, Z9]"), "scenes.s[0].forward[1]", 7),
+    (GOOD.replace("backward: [\"2\"]", "backward: [\"2\"]\n      forward: [A2]"),
+     "scenes.s[1].backward", 10),
+    ("devices:\n  Q7: {}\n", "devices.Q7", 2),
+])
+def test_bad_spec_names_field_and_line(text, path, line):
+    with pytest.raises(SpecError) as err:
+        load_spec(text)
+    assert err.value.path == path
+    assert err.value.line == line
+
+
+@pytest.mark.parametrize("text, needle", [
+    ("drive:\n  band_hz: [20000, 2000]\n", "drive.band_hz: band_hz[1] must be greater"),
+    (GOOD.replace("forward: [A1, B]", "forward: [A1, Z9]"), "unknown device 'Z9'"),
+])
+def test_bad_spec_cli_exit_2(tmp_path, text, needle):
+    spec = tmp_path / "bad.yaml"
+    spec.write_text(text)
+    out = tmp_path / "out"
+    for cmd in (["assign", str(spec)], ["plan", str(spec), "--out", str(out), "--quiet"]):
+        res = CliRunner().invoke(main, cmd)
+        assert res.exit_code == 2, res.output
+        assert needle in res.output and "line" in res.output
+        assert "Traceback" not in res.output
+    assert not out.exists()
+
+
+def test_conflict_graph_rules():
+    loaded = load_spec(GOOD)
+    steps = plan_steps(loaded, 0.01)
+    act = activity(steps)
+    graph, groups = conflict_graph(steps, 3)
+    # A1, B1, B2 and B3 move forward together in every step they move: one channel group
+    shared = [g for g, members in groups.items() if "B1.forward" in members][0]
+    assert set(groups[shared]) == {"A1.forward", "B1.forward", "B2.forward", "B3.forward"}
+    # a device's forward and backward always conflict when both are used
+    fwd = [g for g, m in groups.items() if "B2.forward" in m][0]
+    bwd = [g for g, m in groups.items() if "B2.backward" in m][0]
+    assert graph.has_edge(fwd, bwd) and graph.edges[fwd, bwd]["sep"] == 3
+    assert "A3.forward" not in act  # never driven: not in the graph
+
+
+def test_assignment_meets_every_separation():
+    loaded = load_spec(GOOD)
+    steps = plan_steps(loaded, 0.01)
+    result = assign(loaded, steps, separation=5)
+    assert verify_assignment(result) == []
+    lo, hi = loaded.spec.drive.band_hz
+    assert all(lo <= f <= hi for f in result.frequencies.values())
+    # nodes sharing a group share a frequency; conflicting ones do not
+    assert result.frequencies["B1.forward"] == result.frequencies["B3.forward"]
+    assert result.frequencies["B2.forward"] != result.frequencies["B2.backward"]
+
+
+def test_band_too_small_says_what_fails_and_fixes(tmp_path):
+    spec = tmp_path / "tight.yaml"
+    spec.write_text("array: {rows: 5, cols: 5}\ndrive:\n  channels: {count: 40}\n")
+    res = CliRunner().invoke(main, ["assign", str(spec)])
+    assert res.exit_code == 2
+    assert "holds 40 channels" in res.output and "wider band" in res.output
+
+
+def test_separation_for_bandwidth_log_grid():
+    loaded = load_spec("drive:\n  channels: {count: 241}\n")
+    # 240 log steps over a decade: ratio 10^(1/240); +-2% needs ln(1.02/0.98)/ln(rho) = 4.2 -> 5
+    assert separation_for_bandwidth(loaded.spec, 0.02) == 5
