@@ -237,6 +237,59 @@ def particular(coef, t):
 
 
 @njit(cache=True)
+def particular_jet(coef, t):
+    """x_p and its first three derivatives at absolute time t [s].
+
+    Returns
+    -------
+    x, v, acc, jerk : float
+        [m, m/s, m/s^2, m/s^3].  One sine and cosine per regular tone, two
+        pairs per beat tone: the event finder's per-step cost.
+    """
+    x = 0.0
+    v = 0.0
+    acc = 0.0
+    jerk = 0.0
+    for i in range(coef.shape[0]):
+        w = coef[i, 0]
+        if coef[i, 3] == REGULAR:
+            c = math.cos(w * t)
+            s = math.sin(w * t)
+            f0 = coef[i, 1] * c + coef[i, 2] * s
+            f1 = w * (coef[i, 2] * c - coef[i, 1] * s)
+            ww = w * w
+            x += f0
+            v += f1
+            acc -= ww * f0
+            jerk -= ww * f1
+        else:
+            k = coef[i, 1]
+            hd = coef[i, 4]
+            arg = w * t + coef[i, 2]
+            sn = math.sin(arg)
+            cs = math.cos(arg)
+            if hd == 0.0:
+                u0 = t
+                u1 = 1.0
+                u2 = 0.0
+                u3 = 0.0
+            else:
+                sh = math.sin(hd * t)
+                ch = math.cos(hd * t)
+                u0 = sh / hd
+                u1 = ch
+                u2 = -hd * sh
+                u3 = -hd * hd * ch
+            # Leibniz rule on u(t) sin(W t + phi)
+            ww = w * w
+            x += k * u0 * sn
+            v += k * (u1 * sn + u0 * w * cs)
+            acc += k * (u2 * sn + 2.0 * u1 * w * cs - u0 * ww * sn)
+            jerk += k * (u3 * sn + 3.0 * u2 * w * cs - 3.0 * u1 * ww * sn - u0 * ww * w * cs)
+    return x, v, acc, jerk
+
+
+@njit(cache=True)
 def particular_derivative(coef, t, order):
     """order-th derivative (0..4) of x_p at time t [m/s^order]."""
     total = 0.0

@@ -32,6 +32,8 @@ import numpy as np
 from numba import njit, prange
 
 from model.kernels.closed_form import (
+    REGULAR,
+    UNDER,
     derive,
     forcing,
     forcing_bound,
@@ -41,6 +43,7 @@ from model.kernels.closed_form import (
     particular,
     particular_bound,
     particular_derivative,
+    particular_jet,
     tone_coefficients,
 )
 
@@ -63,19 +66,133 @@ CHATTER_TIME = 1e-9
 #: Defaults for the caps that keep every run finite.
 MAX_EVENTS = 1_000_000
 MAX_STEPS = 50_000_000
+#: Window of the fourth-order safe step, as a multiple of the second-order one:
+#: the bound is tried once on [0, TAYLOR_WINDOW h2] (a second try costs as much
+#: latency as a third of a step and gains less).
+TAYLOR_WINDOW = 2.0
 
 
 @njit(cache=True)
 def safe_step(g, g1, m2):
-    """Largest h with g + g1 h + m2 h^2 / 2 < 0 on [0, h), for g < 0 [s]."""
+    """Largest h with g + g1 h + m2 h^2 / 2 < 0 on [0, h), for g < 0 [s].
+
+    m2 may be negative (a concave bound): then the parabola may never reach 0.
+    """
     disc = g1 * g1 - 2.0 * m2 * g
+    if disc < 0.0:  # only when m2 < 0: the concave bound stays below 0
+        return math.inf
     sq = math.sqrt(disc)
     if g1 >= 0.0:
         den = g1 + sq
         return math.inf if den == 0.0 else -2.0 * g / den
-    if m2 == 0.0:
+    if m2 <= 0.0:
         return math.inf
     return (-g1 + sq) / m2
+
+
+@njit(cache=True)
+def _window_step(g, v, acc, jerk, m2, m4, big_h):
+    """A safe step of at most big_h from the fourth-order Taylor bound [s].
+
+    For 0 <= h <= H,  g(t + h) <= g + v h + (h^2 / 2) (acc + jerk h / 3 + m4 h^2 / 12)
+    and the bracket, convex in h, is at most max(acc, acc + jerk H / 3 + m4 H^2 / 12):
+    a quadratic bound valid on [0, H] whose safe step, capped at H, is safe.
+    acc and jerk must already carry their rounding allowance (upper bounds of the
+    second and third derivatives); m2 and m4 bound the second and fourth over the
+    rest of the run.
+    """
+    m2e = max(acc, acc + big_h * (jerk / 3.0 + m4 * big_h / 12.0))
+    return min(big_h, safe_step(g, v, min(m2e, m2)))
+
+
+@njit(cache=True)
+def _leave_step(v, m2, tol):
+    """Larger root of tol + v h + m2 h^2 / 2 for v < 0: a safe step off the wall [s].
+
+    From the wall (g within tol of 0) moving away (v < 0), the bound is negative
+    from about tol / |v| (below the rounding noise of x) to this root.
+    """
+    if m2 <= 0.0:
+        return math.inf
+    disc = v * v - 2.0 * m2 * tol
+    if disc <= 0.0:
+        return 0.0
+    return (-v + math.sqrt(disc)) / m2
+
+
+@njit(cache=True)
+def _envelope_step(zhr, zhi, zpr, zpi, amp_p2, delta, level):
+    """A safe step from the beat envelope, for one regular tone [s].
+
+    With one tone the motion is x = Re(Z_h + Z_p), two phasors turning at the
+    damped frequency wd and at the drive frequency w, the first one shrinking by
+    e^{-sigma tau}.  So for s >= 0, x(t + s) <= max(|Z_p|, |Z_p + R e^{i theta(s)}|)
+    with R = |Z_h(t)| and theta turning at delta = w - wd relative to Z_p: the
+    beat envelope, which changes at the slow rate delta, not at w.  While it
+    stays below the wall no impact can happen; its square,
+    G(s) = |Z_p|^2 + R^2 + 2 Re(Z_p conj(Z_h) e^{i delta s}) - level^2, has
+    |G''| <= 2 |Z_p| R delta^2, which gives a safe step as for x itself.
+
+    Parameters
+    ----------
+    zhr, zhi, zpr, zpi : float
+        Real and imaginary parts of Z_h and Z_p at t [m]; the real parts are
+        x_h and x_p.
+    amp_p2 : float
+        |Z_p|^2 [m^2], constant.
+    delta : float
+        w - wd [rad/s].
+    level : float
+        The wall less the rounding allowance of x [m].
+
+    Returns
+    -------
+    h : float
+        0 when the envelope is at or above the level.
+    """
+    if amp_p2 >= level * level or level <= 0.0:
+        return 0.0
+    amp_h2 = zhr * zhr + zhi * zhi
+    cr = zpr * zhr + zpi * zhi
+    ci = zpi * zhr - zpr * zhi
+    tol = NOISE * EPS * (amp_p2 + amp_h2 + level * level)
+    big_g = amp_p2 + amp_h2 + 2.0 * cr - level * level + tol
+    if big_g >= 0.0:
+        return 0.0
+    return safe_step(big_g, -2.0 * delta * ci,
+                     2.0 * delta * delta * math.sqrt(amp_p2 * amp_h2))
+
+
+@njit(cache=True)
+def _basis(regime, sigma, fr, tau):
+    """(E C, E S, decay) at tau [s]; decay = e^{-sigma tau} scales UNDER bounds.
+
+    Same values as :func:`homogeneous_basis`; the exponential is skipped when
+    the impacter is undamped (sigma == 0).
+    """
+    if regime == UNDER:
+        env = 1.0 if sigma == 0.0 else math.exp(-sigma * tau)
+        arg = fr * tau
+        return env * math.cos(arg), env * math.sin(arg) / fr, env
+    ec, es = homogeneous_basis(regime, sigma, fr, tau)
+    return ec, es, 1.0
+
+
+@njit(cache=True)
+def _hbound(regime, sigma, fr, p, q, tau, tau_end, env, amp):
+    """Bound on |E (p C + q S)| over [tau, tau_end]; amp from :func:`_amplitude`."""
+    if regime == UNDER:
+        return env * amp
+    return homogeneous_bound(regime, sigma, fr, p, q, tau, tau_end)
+
+
+@njit(cache=True)
+def _amplitude(regime, fr, p, q, tau_end):
+    """Segment constant of an UNDER bound: homogeneous_bound / e^{-sigma tau}."""
+    if regime != UNDER:
+        return 0.0
+    a = math.sqrt(p * p + (q / fr) ** 2) if fr > 0.0 else math.inf
+    return min(a, abs(p) + abs(q) * tau_end)
 
 
 @njit(cache=True)
@@ -155,6 +272,7 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
     regime, fr, kappa = homogeneous_regime(wn, sigma)
     tmax = max(abs(t0), abs(t_end))
     pb0 = particular_bound(coef, 0, tmax)
+    pb1 = particular_bound(coef, 1, tmax)
     pb2 = particular_bound(coef, 2, tmax)
     pb3 = particular_bound(coef, 3, tmax)
     pb4 = particular_bound(coef, 4, tmax)
@@ -165,6 +283,10 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
         wmax = max(wmax, w[i])
     chatter_time = CHATTER_TIME * 2.0 * math.pi / wmax
     tolf = NOISE * EPS * (wn * wn * gap + fmax)
+    # one regular tone (every sweep): the beat envelope bounds x, see _envelope_step
+    one_tone = regime == UNDER and coef.shape[0] == 1 and coef[0, 3] == REGULAR
+    tone_w = coef[0, 0] if one_tone else 1.0
+    tone_amp2 = coef[0, 1] ** 2 + coef[0, 2] ** 2 if one_tone else 0.0
 
     si = 0
     t = t0
@@ -212,15 +334,28 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
 
         # free-flight segment starting at (t, x, v)
         seg_t0 = t
-        xp, vp, ap = particular(coef, t)
+        x_start = x
+        v_start = v
+        xp, vp, ap, jp = particular_jet(coef, t)
         p = x - xp
         q = (v - vp) + sigma * p
         p1, q1 = derive(p, q, sigma, kappa)
         p2, q2 = derive(p1, q1, sigma, kappa)
+        p3, q3 = derive(p2, q2, sigma, kappa)
+        p4, q4 = derive(p3, q3, sigma, kappa)
         tau_end = t_end - seg_t0
+        # per-segment constants of the UNDER bounds (times e^{-sigma tau} each step)
+        amp0 = _amplitude(regime, fr, p, q, tau_end)
+        amp2 = _amplitude(regime, fr, p2, q2, tau_end)
+        amp4 = _amplitude(regime, fr, p4, q4, tau_end)
         amp = homogeneous_bound(regime, sigma, fr, p, q, 0.0, tau_end)
         tolx = NOISE * EPS * (abs(gap) + amp + pb0)
         tola = NOISE * EPS * (wn * wn * (abs(gap) + amp) + pb2 + fmax)
+        # an impact needs v above the rounding noise of v: a contact at a velocity
+        # within it is a touch at rest (stick or leave), not an impact
+        tolv = NOISE * EPS * (homogeneous_bound(regime, sigma, fr, p1, q1, 0.0, tau_end) + pb1)
+        tolj = NOISE * EPS * (homogeneous_bound(regime, sigma, fr, p3, q3, 0.0, tau_end)
+                              + pb3 + wn * tola)
         new_segment = False
         while True:
             steps += 1
@@ -228,21 +363,50 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
                 status = STEP_CAP
                 break
             tau = t - seg_t0
-            ec, es = homogeneous_basis(regime, sigma, fr, tau)
-            xp, vp, ap = particular(coef, t)
-            x = p * ec + q * es + xp
-            v = p1 * ec + q1 * es + vp
+            if tau == 0.0:
+                # the segment's start: its state is known exactly (v = 0 after a
+                # release, not the rounding noise of p1 + vp, which may be > 0)
+                ec = 1.0
+                es = 0.0
+                env = 1.0
+                x = x_start
+                v = v_start
+            else:
+                ec, es, env = _basis(regime, sigma, fr, tau)
+                xp, vp, ap, jp = particular_jet(coef, t)
+                x = p * ec + q * es + xp
+                v = p1 * ec + q1 * es + vp
             if not (math.isfinite(x) and math.isfinite(v)):
                 status = NONFINITE
                 break
             g = x - gap
-            m2 = homogeneous_bound(regime, sigma, fr, p2, q2, tau, tau_end) + pb2
+            m2 = _hbound(regime, sigma, fr, p2, q2, tau, tau_end, env, amp2) + pb2
             contact = g >= -tolx
             if not contact:
-                h = safe_step(g, v, m2)
-                if t + h == t:  # within time resolution of the wall: contact
-                    contact = True
-            if contact and v > 0.0:
+                x_hi = _hbound(regime, sigma, fr, p, q, tau, tau_end, env, amp0) + pb0
+                if x_hi < gap - tolx:
+                    # x stays below the wall for the rest of the run: no impact
+                    h = math.inf
+                else:
+                    h = safe_step(g, v, m2)
+                    if t + h == t:  # within time resolution of the wall: contact
+                        contact = True
+                    else:
+                        if v > 0.0:
+                            # approaching: the fourth-order bound converges faster
+                            acc = p2 * ec + q2 * es + ap
+                            jerk = p3 * ec + q3 * es + jp
+                            m4 = _hbound(regime, sigma, fr, p4, q4, tau, tau_end, env,
+                                         amp4) + pb4
+                            h = max(h, _window_step(g, v, acc + tola, jerk + tolj, m2, m4,
+                                                    TAYLOR_WINDOW * h))
+                        if one_tone:
+                            xh = x - xp
+                            vh = v - vp
+                            h = max(h, _envelope_step(xh, -(vh + sigma * xh) / fr, xp,
+                                                      -vp / tone_w, tone_amp2,
+                                                      tone_w - fr, gap - tolx))
+            if contact and v > tolv:
                 # impact, eq. (8)
                 if n_events >= max_events:
                     status = EVENT_CAP
@@ -296,19 +460,25 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
             if contact:
                 # at the wall and not approaching it: leave, or stick if pressed on it
                 acc = p2 * ec + q2 * es + ap
+                jerk = p3 * ec + q3 * es + jp
+                m4 = _hbound(regime, sigma, fr, p4, q4, tau, tau_end, env, amp4) + pb4
                 h = 0.0
-                if v < 0.0 and m2 > 0.0:
-                    h = -v / m2
-                p3, q3 = derive(p2, q2, sigma, kappa)
+                if v < 0.0:
+                    # moving off the wall: v stays < 0 (x falls) for h < -v / m2, and
+                    # g <= tolx + v h + m h^2 / 2 stays < 0 until its larger root,
+                    # with m = m2 or the fourth-order bound
+                    h = max(-v / m2 if m2 > 0.0 else math.inf, _leave_step(v, m2, tolx))
+                    big_h = TAYLOR_WINDOW * h
+                    m2e = max(acc + tola, acc + tola + big_h * ((jerk + tolj) / 3.0
+                                                                 + m4 * big_h / 12.0))
+                    h = max(h, min(big_h, _leave_step(v, m2e, tolx)))
                 if acc < -tola:
+                    # leaving from rest: g <= acc h^2 / 2 + m3 h^3 / 6 (half its root)
                     m3 = homogeneous_bound(regime, sigma, fr, p3, q3, tau, tau_end) + pb3
                     h = max(h, -1.5 * acc / m3)
-                elif acc <= tola:
-                    jerk = p3 * ec + q3 * es + particular_derivative(coef, t, 3)
-                    if jerk < 0.0:
-                        p4, q4 = derive(p3, q3, sigma, kappa)
-                        m4 = homogeneous_bound(regime, sigma, fr, p4, q4, tau, tau_end) + pb4
-                        h = max(h, -2.0 * jerk / m4)
+                elif acc <= tola and jerk < 0.0:
+                    # at rest with no force on the wall: g <= jerk h^3 / 6 + m4 h^4 / 24
+                    h = max(h, -2.0 * jerk / m4)
                 if h <= 0.0 or t + h == t:
                     if acc >= -tola:
                         x = gap
