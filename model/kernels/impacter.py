@@ -66,6 +66,12 @@ CHATTER_TIME = 1e-9
 #: Defaults for the caps that keep every run finite.
 MAX_EVENTS = 1_000_000
 MAX_STEPS = 50_000_000
+#: Chatter flights shorter than CHATTER_LOCAL / wmax are taken from the Taylor series
+#: of x at the wall, to order CHATTER_ORDER (the closed form cannot resolve them: its
+#: x - gap carries the rounding noise of terms as large as the whole motion).
+CHATTER_LOCAL = 0.05
+CHATTER_ORDER = 12
+_FACTORIALS = np.array([float(math.factorial(k)) for k in range(CHATTER_ORDER + 1)])
 #: Window of the fourth-order safe step, as a multiple of the second-order one:
 #: the bound is tried once on [0, TAYLOR_WINDOW h2] (a second try costs as much
 #: latency as a third of a step and gains less).
@@ -118,6 +124,120 @@ def _leave_step(v, m2, tol):
     if disc <= 0.0:
         return 0.0
     return (-v + math.sqrt(disc)) / m2
+
+
+@njit(cache=True)
+def _push_event(imp_t, imp_v, imp_kind, n, t, v, kind, max_events):
+    """Record event n (if there is room); EVENT_CAP when the caps forbid it."""
+    if n >= max_events:
+        return EVENT_CAP
+    capacity = imp_t.shape[0]
+    if n < capacity:
+        imp_t[n] = t
+        imp_v[n] = v
+        imp_kind[n] = kind
+    elif capacity > 0:
+        return EVENT_CAP
+    return OK
+
+
+@njit(cache=True)
+def _wall_flight(w, a, phi, t, wn, sigma, gap, v, wmax, series):
+    """A short flight from the wall by the Taylor series of x at t [s, m/s].
+
+    From (t, x = gap, v < 0) the free motion has the derivatives
+    x^(k) = f^(k-2) - 2 sigma x^(k-1) - wn^2 x^(k-2) (eq. 1 differentiated), all
+    exact from the drive's derivatives, and g(s) = sum_k x^(k) s^k / k!.  Its
+    first positive root is found by Newton on g(s) / s.  The series is used
+    only when the flight is short (wmax s <= CHATTER_LOCAL, so the terms beyond
+    order CHATTER_ORDER are below 1e-18 of the motion) and when its quadratic
+    term dominates the higher ones on [0, s] (so g / s increases there and the
+    root is the first and only one).
+
+    Parameters
+    ----------
+    series : ndarray, shape (CHATTER_ORDER + 1,)
+        Receives x^(k)(t) [m/s^k] (series[0] = gap).
+
+    Returns
+    -------
+    s, v_minus : float
+        Flight time [s] and velocity at the return [m/s]; s = -1 when the
+        series does not apply (the caller uses the closed form).
+    """
+    n = series.shape[0]
+    for k in range(n):
+        series[k] = 0.0
+    # forcing derivatives f^(j)(t), j = 0 .. n - 3, into series[2:] for now
+    for i in range(w.shape[0]):
+        arg = w[i] * t + phi[i]
+        c = math.cos(arg)
+        sn = math.sin(arg)
+        m = a[i]
+        for j in range(n - 2):
+            r = j % 4
+            val = c if r == 0 else (-sn if r == 1 else (-c if r == 2 else sn))
+            series[j + 2] += m * val
+            m *= w[i]
+    series[0] = gap
+    series[1] = v
+    wn2 = wn * wn
+    for k in range(2, n):
+        series[k] = series[k] - 2.0 * sigma * series[k - 1] - wn2 * series[k - 2]
+    d2 = series[2]
+    if not (v < 0.0 and d2 > 0.0):
+        return -1.0, 0.0
+    s = -2.0 * v / d2
+    if not (s * wmax <= CHATTER_LOCAL):
+        return -1.0, 0.0
+    for _ in range(30):
+        # Q(s) = g(s) / s = sum_{k>=1} x^(k) s^(k-1) / k! and its derivative
+        q = 0.0
+        dq = 0.0
+        for k in range(n - 1, 0, -1):
+            inv = 1.0 / _FACTORIALS[k]
+            dq = dq * s + q
+            q = q * s + series[k] * inv
+        step = q / dq if dq > 0.0 else 0.0
+        s -= step
+        if not (s > 0.0) or abs(step) <= 4.0 * EPS * s:
+            break
+    if not (s > 0.0 and s * wmax <= CHATTER_LOCAL):
+        return -1.0, 0.0
+    # Q' >= d2 / 2 - sum_{k>=3} |x^(k)| (k - 1) s^(k-2) / k! > 0 on [0, s]
+    rest = 0.0
+    sp = 1.0
+    for k in range(3, n):
+        sp *= s
+        rest += abs(series[k]) * (k - 1) * sp / _FACTORIALS[k]
+    if not (rest < 0.25 * d2):
+        return -1.0, 0.0
+    v_minus = _series_value(series, s, 1)
+    if not (v_minus > 0.0):
+        return -1.0, 0.0
+    return s, v_minus
+
+
+@njit(cache=True)
+def _series_value(series, s, order):
+    """order-th derivative (0 or 1) of sum_{k>=1} series[k] s^k / k! at s."""
+    n = series.shape[0]
+    total = 0.0
+    for k in range(n - 1, order - 1, -1):
+        if k == 0:
+            break
+        total = total * s + series[k] / _FACTORIALS[k - order]
+    return total * s if order == 0 else total
+
+
+@njit(cache=True)
+def _fill_series(sample_t, sample_x, si, t_b, t_a, series):
+    """Positions gap + g(t - t_a) from a wall series at the samples below t_b."""
+    ns = sample_t.shape[0]
+    while si < ns and sample_t[si] < t_b:
+        sample_x[si] = series[0] + _series_value(series, sample_t[si] - t_a, 0)
+        si += 1
+    return si
 
 
 @njit(cache=True)
@@ -283,6 +403,7 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
         wmax = max(wmax, w[i])
     chatter_time = CHATTER_TIME * 2.0 * math.pi / wmax
     tolf = NOISE * EPS * (wn * wn * gap + fmax)
+    series = np.empty(CHATTER_ORDER + 1)
     # one regular tone (every sweep): the beat envelope bounds x, see _envelope_step
     one_tone = regime == UNDER and coef.shape[0] == 1 and coef[0, 3] == REGULAR
     tone_w = coef[0, 0] if one_tone else 1.0
@@ -407,44 +528,32 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
                                                       -vp / tone_w, tone_amp2,
                                                       tone_w - fr, gap - tolx))
             if contact and v > tolv:
-                # impact, eq. (8)
-                if n_events >= max_events:
-                    status = EVENT_CAP
-                    break
-                if n_events < capacity:
-                    imp_t[n_events] = t
-                    imp_v[n_events] = v
-                    imp_kind[n_events] = 0
-                elif capacity > 0:
-                    status = EVENT_CAP
-                    break
-                n_events += 1
-                if n_events >= 2:
-                    sum_v += v
-                if stop_after > 0 and n_events >= stop_after:
-                    x = gap
-                    v = -e * v
-                    return OK, n_events, sum_v, t, x, v, False, steps
+                # impact, eq. (8), then the short flights of a chatter sequence
                 vminus = v
-                x = gap
-                v = -e * vminus
-                f, _ = forcing(w, a, phi, t)
-                acc_wall = f - wn * wn * gap - 2.0 * sigma * v
-                if acc_wall > 0.0 and e < 1.0:
+                while True:
+                    status = _push_event(imp_t, imp_v, imp_kind, n_events, t, vminus,
+                                         IMPACT, max_events)
+                    if status != OK:
+                        break
+                    n_events += 1
+                    if n_events >= 2:
+                        sum_v += vminus
+                    if stop_after > 0 and n_events >= stop_after:
+                        return OK, n_events, sum_v, t, gap, -e * vminus, False, steps
+                    x = gap
+                    v = -e * vminus
+                    f, _ = forcing(w, a, phi, t)
+                    acc_wall = f - wn * wn * gap - 2.0 * sigma * v
+                    if not (acc_wall > 0.0 and 0.0 < e < 1.0):
+                        break
                     t_acc = 2.0 * e * vminus / (acc_wall * (1.0 - e))
                     if t_acc < chatter_time:
                         # chatter: sum the geometric sequence v-_{k+1} = e v-_k
                         tail = vminus * e / (1.0 - e)
                         if tail > 0.0:
-                            if n_events >= max_events:
-                                status = EVENT_CAP
-                                break
-                            if n_events < capacity:
-                                imp_t[n_events] = t + t_acc
-                                imp_v[n_events] = tail
-                                imp_kind[n_events] = 1
-                            elif capacity > 0:
-                                status = EVENT_CAP
+                            status = _push_event(imp_t, imp_v, imp_kind, n_events, t + t_acc,
+                                                 tail, CHATTER_TAIL, max_events)
+                            if status != OK:
                                 break
                             n_events += 1
                             sum_v += tail
@@ -455,6 +564,27 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
                         t = t_new
                         v = 0.0
                         stuck = True
+                        break
+                    # a flight this short is below the resolution of the closed form
+                    # (x - gap is a difference of terms as large as the motion): take it
+                    # from the series of x at the wall instead, the same function
+                    s_fl, vminus = _wall_flight(w, a, phi, t, wn, sigma, gap, v, wmax, series)
+                    if s_fl <= 0.0 or t + s_fl == t:
+                        break
+                    steps += 1
+                    if steps > max_steps:
+                        status = STEP_CAP
+                        break
+                    if t + s_fl >= t_end:
+                        si = _fill_series(sample_t, sample_x, si, t_end, t, series)
+                        x = gap + _series_value(series, t_end - t, 0)
+                        v = _series_value(series, t_end - t, 1)
+                        t = t_end
+                        break
+                    si = _fill_series(sample_t, sample_x, si, t + s_fl, t, series)
+                    t = t + s_fl
+                if status != OK or t >= t_end:
+                    break
                 new_segment = True
                 break
             if contact:
