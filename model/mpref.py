@@ -261,6 +261,44 @@ def _first_crossing(value, slope, t_s, t_end, s_min, grid, tol):
     return None
 
 
+def free_maximum(impacter, drive, x0=0.0, v0=0.0, duration=3e-3, *, dps=DPS,
+                 samples_per_period=SAMPLES_PER_PERIOD):
+    """Highest interior local maximum of the motion without a wall, to ``dps`` digits.
+
+    Used to build grazing tests: with the wall at this height (plus or minus a
+    hair) the trajectory touches it tangentially (or just passes it).
+
+    Returns
+    -------
+    t_max, x_max : mpf or None
+        Time [s] and height [m] of the highest local maximum in (0, duration);
+        None when x has no interior maximum.
+    """
+    w = drive.omegas
+    a = math.cos(impacter.impact_angle) * drive.acceleration_amplitudes()
+    with mpmath.workdps(dps):
+        mp = mpmath.mp
+        cf = _ClosedForm(impacter.omega_n, impacter.sigma, w, a, drive.phases)
+        seg = _Segment(cf, mp.mpf(0), mp.mpf(x0), mp.mpf(v0))
+        t_end = mp.mpf(duration)
+        grid = 2 * mp.pi / max([cf.wn] + [mp.mpf(x) for x in w]) / samples_per_period
+        tol = t_end * mp.mpf(10) ** (-(mp.dps - 3))
+        best = (None, None)
+        prev_t, prev_d = None, None
+        n = int(mp.ceil(t_end / grid))
+        for k in range(n + 1):
+            t = min(grid * k, t_end)
+            d = seg.state(t)[1]
+            if prev_t is not None and prev_d > 0 and d <= 0:
+                t_m = _bracket_root(lambda u: -seg.state(u)[1], prev_t, t, -prev_d, -d, tol)
+                if t_m < t_end:
+                    x_m = seg.state(t_m)[0]
+                    if best[1] is None or x_m > best[1]:
+                        best = (t_m, x_m)
+            prev_t, prev_d = t, d
+        return best
+
+
 def reference(impacter, drive, x0=0.0, v0=0.0, duration=3e-3, *, dps=DPS,
               samples_per_period=SAMPLES_PER_PERIOD, chatter_time=CHATTER_TIME,
               max_events=MAX_EVENTS):

@@ -32,6 +32,7 @@ import numpy as np
 from numba import njit, prange
 
 from model.kernels.closed_form import (
+    N_COEF,
     REGULAR,
     UNDER,
     derive,
@@ -66,11 +67,13 @@ CHATTER_TIME = 1e-9
 #: Defaults for the caps that keep every run finite.
 MAX_EVENTS = 1_000_000
 MAX_STEPS = 50_000_000
-#: Chatter flights shorter than CHATTER_LOCAL / wmax are taken from the Taylor series
-#: of x at the wall, to order CHATTER_ORDER (the closed form cannot resolve them: its
-#: x - gap carries the rounding noise of terms as large as the whole motion).
-CHATTER_LOCAL = 0.05
-CHATTER_ORDER = 12
+#: Flights from the wall shorter than CHATTER_LOCAL / rate (rate: the fastest of wn,
+#: the drive frequencies and 2 sigma) are taken from the Taylor series of x at the
+#: wall, to order CHATTER_ORDER (remainder below 0.5^25 / 25! ~ 2e-33 of the motion).
+#: The closed form cannot resolve low flights: its x - gap carries the rounding noise
+#: of terms as large as the whole motion, 1e-10 of the speed of a 1e-12 m flight.
+CHATTER_LOCAL = 0.5
+CHATTER_ORDER = 24
 _FACTORIALS = np.array([float(math.factorial(k)) for k in range(CHATTER_ORDER + 1)])
 #: Window of the fourth-order safe step, as a multiple of the second-order one:
 #: the bound is tried once on [0, TAYLOR_WINDOW h2] (a second try costs as much
@@ -142,15 +145,15 @@ def _push_event(imp_t, imp_v, imp_kind, n, t, v, kind, max_events):
 
 
 @njit(cache=True)
-def _wall_flight(w, a, phi, t, wn, sigma, gap, v, wmax, series):
+def _wall_flight(w, a, phi, t, wn, sigma, gap, v, rate, series):
     """A short flight from the wall by the Taylor series of x at t [s, m/s].
 
     From (t, x = gap, v < 0) the free motion has the derivatives
     x^(k) = f^(k-2) - 2 sigma x^(k-1) - wn^2 x^(k-2) (eq. 1 differentiated), all
     exact from the drive's derivatives, and g(s) = sum_k x^(k) s^k / k!.  Its
     first positive root is found by Newton on g(s) / s.  The series is used
-    only when the flight is short (wmax s <= CHATTER_LOCAL, so the terms beyond
-    order CHATTER_ORDER are below 1e-18 of the motion) and when its quadratic
+    only when the flight is short (rate s <= CHATTER_LOCAL, so the terms beyond
+    order CHATTER_ORDER are below 1e-32 of the motion) and when its quadratic
     term dominates the higher ones on [0, s] (so g / s increases there and the
     root is the first and only one).
 
@@ -188,7 +191,7 @@ def _wall_flight(w, a, phi, t, wn, sigma, gap, v, wmax, series):
     if not (v < 0.0 and d2 > 0.0):
         return -1.0, 0.0
     s = -2.0 * v / d2
-    if not (s * wmax <= CHATTER_LOCAL):
+    if not (s * rate <= CHATTER_LOCAL):
         return -1.0, 0.0
     for _ in range(30):
         # Q(s) = g(s) / s = sum_{k>=1} x^(k) s^(k-1) / k! and its derivative
@@ -202,7 +205,7 @@ def _wall_flight(w, a, phi, t, wn, sigma, gap, v, wmax, series):
         s -= step
         if not (s > 0.0) or abs(step) <= 4.0 * EPS * s:
             break
-    if not (s > 0.0 and s * wmax <= CHATTER_LOCAL):
+    if not (s > 0.0 and s * rate <= CHATTER_LOCAL):
         return -1.0, 0.0
     # Q' >= d2 / 2 - sum_{k>=3} |x^(k)| (k - 1) s^(k-2) / k! > 0 on [0, s]
     rest = 0.0
@@ -356,7 +359,7 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
     w, a, phi : ndarray, shape (n_tones,)
         Tones of the forcing per unit mass: angular frequency [rad/s],
         amplitude cos(theta) w^2 Z [m/s^2], phase [rad].
-    coef : ndarray, shape (n_tones, 5)
+    coef : ndarray, shape (n_tones, N_COEF)
         ``tone_coefficients(wn, sigma, w, a, phi)``, passed in so that sweeps
         compute it once per frequency.
     t0, t_end : float
@@ -568,7 +571,8 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
                     # a flight this short is below the resolution of the closed form
                     # (x - gap is a difference of terms as large as the motion): take it
                     # from the series of x at the wall instead, the same function
-                    s_fl, vminus = _wall_flight(w, a, phi, t, wn, sigma, gap, v, wmax, series)
+                    s_fl, vminus = _wall_flight(w, a, phi, t, wn, sigma, gap, v,
+                                               max(wmax, 2.0 * sigma), series)
                     if s_fl <= 0.0 or t + s_fl == t:
                         break
                     steps += 1
@@ -699,7 +703,7 @@ def sweep_batch(wn, sigma, gap, e, w_list, a_list, x0s, t_end, stop_after,
     nf = w_list.shape[0]
     nx = x0s.shape[0]
     # per-frequency constants, computed once and shared by every initial state
-    coefs = np.empty((nf, 1, 5))
+    coefs = np.empty((nf, 1, N_COEF))
     phi = np.zeros(1)
     for i in range(nf):
         coefs[i] = tone_coefficients(wn, sigma, w_list[i:i + 1], a_list[i:i + 1], phi)
