@@ -1,0 +1,318 @@
+"""``vibroplan drive``: one step's drive signal as a file for a generator, DAQ or sound card."""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+from pathlib import Path
+
+import click
+
+from planner.cli._common import atomic_path, handle_errors
+
+#: The exporters' registry names (``planner.exporters.EXPORTERS``), spelled out here so that
+#: ``vibroplan --help`` need not import numpy and scipy; a test keeps the two equal.
+FORMATS = ("wav", "wav16", "csv", "arb")
+
+#: Snapping tolerance for a plan's own tones, relative [-]: they are already on their loop's
+#: grid (to plan.json's 12 significant digits), so they must land on it again.
+PLAN_SNAP_REL = 1e-9
+
+#: Stretch of the waveform the plot shows [s].
+PLOT_STRETCH = 5e-3
+
+UM = 1e-6
+
+
+@click.command("drive")
+@click.argument("spec_or_plan", type=click.Path(exists=True, path_type=Path))
+@click.option("--step", "step_name", required=True,
+              help="The step: NAME, or SCENE/NAME when several scenes have a step NAME.")
+@click.option("--format", "fmt", type=click.Choice(FORMATS), default="wav", show_default=True,
+              help="wav: float32 WAV; wav16: int16 WAV; csv: time_s,displacement_m; "
+                   "arb: Keysight 33500/33600 text file.")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
+              help="Output file (default SCENE__NAME with the format's suffix, here). "
+                   "A JSON sidecar NAME.json goes next to it.")
+@click.option("--plot", type=click.Path(dir_okay=False, path_type=Path),
+              help="PNG: a few ms of the waveform and its spectrum with the tones marked.")
+@click.option("--sample-rate", type=click.FloatRange(min=0, min_open=True),
+              help="Sample rate [Hz] (default: the spec's sample_rate_hz, else 192 kHz for "
+                   "WAV and 200 kHz otherwise).")
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="Seed of the phase optimisation's random starts.")
+@click.option("--reoptimise", is_flag=True,
+              help="Optimise the phases afresh instead of using the plan's (the plan's are the "
+                   "ones its verification simulated).")
+@click.option("--peak-limit-um", type=click.FloatRange(min=0, min_open=True),
+              help="Piezo peak displacement [um] (default: the spec's drive.peak_limit_um).")
+@click.option("--over-limit", type=click.Choice(["scale", "split"]), default=None,
+              help="Above the peak limit: scale every tone down, or split the step into "
+                   "sub-steps written as NAME.sub1, NAME.sub2, ... (default: the spec's).")
+@click.option("--um-per-v", type=click.FloatRange(min=0, min_open=True),
+              help="Piezo displacement per volt [um/V], for volts in the sidecar and .arb levels.")
+@click.option("--amplifier-gain", type=click.FloatRange(min=0, min_open=True),
+              help="Piezo amplifier voltage gain [V/V].")
+@click.option("--memory-points", type=click.IntRange(min=1),
+              help="Instrument memory [points] for the warning (default 1 M, a 33500B; "
+                   "16000000 with its memory option).")
+@handle_errors
+def command(spec_or_plan, step_name, fmt, out, plot, sample_rate, seed, reoptimise,
+            peak_limit_um, over_limit, um_per_v, amplifier_gain, memory_points):
+    """Synthesise one step's drive and write it for a generator, DAQ or sound card.
+
+    SPEC_OR_PLAN is a plan (plan.json, or the folder `vibroplan plan` wrote) or an
+    array spec (YAML), which is planned first.  The drive is the sum of the step's
+    tones as a seamless loop (every tone makes whole cycles; frequencies snapped to
+    the loop's grid, shifts reported), with the plan's phases or phases optimised
+    for a low crest factor.  The file is read back and its spectrum checked against
+    the tone table (amplitude within 0.1 %, phase within 1 mrad, continuous loop).
+
+    \b
+    Examples:
+      vibroplan drive plan_out/plan.json --step s1/forward --format arb --out s1.arb
+      vibroplan drive plan_out --step forward --format wav --plot forward.png
+    """
+    from planner.exporters import EXPORTERS, export, sidecar_path, verify_export
+
+    steps, drive = _load_steps(spec_or_plan)
+    step = _select_step(steps, step_name)
+    key = f"{step['scene']}/{step['name']}"
+    freqs, amps, phases = _step_tones(step, key)
+
+    exporter = EXPORTERS[fmt]
+    rate = sample_rate or drive.get("sample_rate_hz") or exporter.default_sample_rate
+    limit_um = peak_limit_um or drive.get("peak_limit_um")
+    mode = over_limit or drive.get("over_limit") or "scale"
+    um_per_v = um_per_v or drive.get("piezo_um_per_v")
+    gain = amplifier_gain or drive.get("amplifier_gain")
+    if (um_per_v is None) != (gain is None):
+        raise ValueError("--um-per-v and --amplifier-gain go together (volts need both)")
+    limit = None if limit_um is None else limit_um * UM
+
+    notes = []
+    parts = _synthesise(freqs, amps, None if reoptimise else phases, rate, seed, limit, mode,
+                        notes)
+    if out is None:
+        out = Path(f"{step['scene']}__{step['name']}{exporter.suffix}".replace("/", "_"))
+    written = []
+    for i, (idx, wf) in enumerate(parts, 1):
+        path = out if len(parts) == 1 else _sub_path(out, exporter.suffix, i)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")   # the sidecar and the summary carry them
+            export(wf, path, fmt, um_per_v=um_per_v, amplifier_gain=gain,
+                   memory_points=memory_points)
+        sidecar = json.loads(sidecar_path(path).read_text())
+        check = verify_export(path)
+        written.append((path, idx, wf, sidecar, check))
+
+    _summary(key, step, written, freqs, limit, notes)
+    if plot is not None:
+        with atomic_path(plot) as tmp:
+            plot_drive(written[0][2], tmp, title=key, peak_limit=limit)
+        click.echo(f"plot: {plot}")
+    failed = [str(p) for p, *_, check in written if not check.ok]
+    if failed:
+        raise click.ClickException(f"read-back check failed for {', '.join(failed)}")
+
+
+# --------------------------------------------------------------------------- input
+
+
+def _load_steps(path: Path):
+    """The steps and the drive settings of a plan (JSON or its folder) or a spec (YAML)."""
+    if path.is_dir():
+        path = path / "plan.json"
+        if not path.exists():
+            raise ValueError(f"{path.parent}: no plan.json in this folder")
+    if path.suffix.lower() in (".yaml", ".yml"):
+        try:
+            from planner.pipeline import step_tones
+        except ImportError:
+            raise ValueError(f"{path}: planning from a spec requires `vibroplan plan` first: run "
+                             f"`vibroplan plan {path} --out plan_out` and pass "
+                             f"plan_out/plan.json") from None
+        from planner.spec import load_spec
+
+        click.echo(f"planning {path} (the whole pipeline; `vibroplan plan` keeps its result)...")
+        drive = load_spec(path).spec.drive.model_dump()
+        return step_tones(path), drive
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not a plan (JSON) nor a spec (.yaml): {exc}") from None
+    if not isinstance(data, dict) or not isinstance(data.get("steps"), list):
+        raise ValueError(f"{path}: a plan needs a 'steps' list")
+    drive = (data.get("spec") or {}).get("drive") or {}
+    return data["steps"], drive
+
+
+def _select_step(steps, name):
+    """The step called NAME or SCENE/NAME; ValueError listing the names if none or several."""
+    keys = [f"{s.get('scene')}/{s.get('name')}" for s in steps]
+    found = [s for s, k in zip(steps, keys) if k == name]
+    if not found:
+        found = [s for s in steps if s.get("name") == name]
+    if len(found) == 1:
+        return found[0]
+    if not steps:
+        raise ValueError("the plan has no steps")
+    if found:
+        which = ", ".join(f"{s['scene']}/{s['name']}" for s in found)
+        raise ValueError(f"--step {name!r} is in several scenes; give one of: {which}")
+    raise ValueError(f"--step {name!r}: no such step; the plan has: {', '.join(keys)}")
+
+
+def _step_tones(step, key):
+    """Frequencies [Hz], amplitudes [m] and phases [rad] (None if any is missing) of a step."""
+    tones = step.get("tones")
+    if not isinstance(tones, list) or not tones:
+        raise ValueError(f"step {key}: no tones (a step with nothing to move has no drive)")
+    freqs, amps, phases = [], [], []
+    for j, tone in enumerate(tones):
+        for field in ("frequency_hz", "amplitude_m"):
+            value = tone.get(field) if isinstance(tone, dict) else None
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise ValueError(f"step {key}: tones[{j}].{field} must be a positive number, "
+                                 f"{value!r} was given")
+        freqs.append(float(tone["frequency_hz"]))
+        amps.append(float(tone["amplitude_m"]))
+        phases.append(tone.get("phase_rad"))
+    if any(not isinstance(p, (int, float)) for p in phases):
+        phases = None
+    return freqs, amps, phases
+
+
+# --------------------------------------------------------------------------- synthesis
+
+
+def _synthesise(freqs, amps, phases, rate, seed, limit, mode, notes):
+    """[(tone indices, Waveform)]: one part, or several sub-steps when splitting."""
+    import numpy as np
+
+    from planner.synthesis import LoopLengthError, split_tones, synthesize
+
+    f = np.asarray(freqs)
+    if phases is not None:
+        try:
+            # the plan's tones are already on a loop grid: keep it, and the verified phases
+            wf = synthesize(f, amps, rate, seed=seed, peak_limit=limit, phases=phases,
+                            frequency_tolerance=PLAN_SNAP_REL * f)
+        except LoopLengthError:
+            notes.append(f"the plan's tones are not on a loop grid at {rate:g} Hz: snapped "
+                         f"within 0.1 % and phases optimised afresh, so this drive is not "
+                         f"the one the plan verified")
+            phases = None
+    if phases is None:
+        wf = synthesize(f, amps, rate, seed=seed, peak_limit=limit)
+    if wf.scale < 1 and mode == "split":
+        groups = split_tones(f, amps, rate, limit, seed=seed)
+        notes.append(f"peak limit {limit / UM:g} um: split into {len(groups)} sub-steps "
+                     f"instead of scaling by {wf.scale:.4f}")
+        return groups
+    return [(np.arange(len(f)), wf)]
+
+
+def _sub_path(out: Path, suffix: str, i: int) -> Path:
+    name = out.name
+    stem = name[: -len(suffix)] if name.endswith(suffix) else out.stem
+    ext = suffix if name.endswith(suffix) else out.suffix
+    return out.with_name(f"{stem}.sub{i}{ext}")
+
+
+# --------------------------------------------------------------------------- output
+
+
+def _summary(key, step, written, freqs, limit, notes):
+    moving = ", ".join([str(d) for d in step.get("forward") or []]
+                       + [f"{d} (back)" for d in step.get("backward") or []])
+    count = f"{len(freqs)} tone{'s' if len(freqs) != 1 else ''}"
+    click.echo(f"step {key}: {count}" + (f"; moves {moving}" if moving else ""))
+    for path, idx, wf, sidecar, check in written:
+        if len(written) > 1:
+            click.echo(f"\nsub-step {path.name}: tones {', '.join(str(i + 1) for i in idx)}")
+        click.echo(f"  {'f [Hz]':>12} {'shift [Hz]':>11} {'Z [um]':>9} {'phase [rad]':>12}")
+        for f, s, a, p in zip(wf.frequencies, wf.frequency_shift, wf.amplitudes, wf.phases):
+            click.echo(f"  {f:12.3f} {s:+11.4f} {a / UM:9.4f} {p:+12.6f}")
+        click.echo(f"loop {wf.loop_length * 1e3:.6g} ms = {wf.loop_points} points at "
+                   f"{wf.sample_rate:g} Hz; crest factor {wf.crest_factor:.3f} (peak "
+                   f"{wf.peak / UM:.4g} um, rms {wf.rms / UM:.4g} um"
+                   + (f", limit {limit / UM:g} um" if limit else "") + f"); scale {wf.scale:.4f}")
+        volts = sidecar.get("volts_full_scale")
+        click.echo(f"wrote {path} (+ {path.name}.json): full scale "
+                   f"{sidecar['full_scale_m'] / UM:.6g} um"
+                   + (f" = {volts:.6g} V at the generator" if volts else ""))
+        click.echo(f"read back: {check}")
+        for message in sidecar["warnings"]:
+            click.echo(f"warning: {message}")
+    for message in notes:
+        click.echo(f"note: {message}")
+
+
+def plot_drive(waveform, path, *, title="", peak_limit=None, stretch=PLOT_STRETCH):
+    """Save a PNG: a stretch of the waveform and its spectrum with the tones marked.
+
+    Parameters
+    ----------
+    waveform : Waveform
+        The drive.
+    path : str or os.PathLike
+        PNG file.
+    title : str, optional
+        Figure title.
+    peak_limit : float, optional
+        The piezo's limit [m], drawn on the waveform.
+    stretch : float, optional
+        Length of waveform shown [s] (at most one loop).
+    """
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.ticker import FuncFormatter
+
+    fig = Figure(figsize=(9, 6.5), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax_t, ax_f = fig.subplots(2, 1)
+
+    span = min(stretch, waveform.loop_length)
+    n_show = int(round(span * waveform.sample_rate))
+    t_fine = np.linspace(0, span, max(2000, 20 * n_show))
+    ax_t.plot(t_fine * 1e3, waveform.evaluate(t_fine) / UM, lw=0.8, color="C0",
+              label="continuous (sum of cosines)")
+    ax_t.plot(waveform.times[:n_show] * 1e3, waveform.samples[:n_show] / UM, ".", ms=2,
+              color="C1", label=f"samples at {waveform.sample_rate / 1e3:g} kHz")
+    for sign in (1, -1):
+        ax_t.axhline(sign * waveform.peak / UM, color="0.4", ls="--", lw=0.8,
+                     label="peak" if sign > 0 else None)
+        if peak_limit is not None:
+            ax_t.axhline(sign * peak_limit / UM, color="C3", lw=1,
+                         label="piezo limit" if sign > 0 else None)
+    ax_t.set_xlabel("time [ms]")
+    ax_t.set_ylabel("substrate displacement [um]")
+    ax_t.set_title(f"{title}  crest factor {waveform.crest_factor:.2f}, scale {waveform.scale:.3f}"
+                   f", loop {waveform.loop_length * 1e3:.4g} ms")
+    ax_t.legend(loc="upper right", fontsize=7, ncol=2)
+
+    loop = waveform.samples[:waveform.loop_points]
+    spectrum = 2 * np.abs(np.fft.rfft(loop)) / len(loop)
+    bins = np.fft.rfftfreq(len(loop), 1 / waveform.sample_rate)
+    floor = spectrum.max() * 1e-9   # rounding noise of the exact sum sits far below this
+    ax_f.semilogy(bins[1:], np.maximum(spectrum[1:], floor) / UM, lw=0.6, color="C0",
+                  label="spectrum of one loop (bins of 1 / loop)")
+    ax_f.plot(waveform.frequencies, waveform.amplitudes / UM, "x", color="C3", ms=7,
+              label="tone table")
+    for f in waveform.frequencies:
+        ax_f.axvline(f, color="C3", lw=0.4, alpha=0.5)
+    ax_f.set_xscale("log")
+    lo, hi = waveform.frequencies.min(), waveform.frequencies.max()
+    ax_f.set_xlim(lo / 1.5, min(hi * 1.5, waveform.sample_rate / 2))
+    ax_f.set_ylim(floor / UM, spectrum.max() * 3 / UM)
+    khz = FuncFormatter(lambda x, _: f"{x / 1e3:g}")
+    ax_f.xaxis.set_major_formatter(khz)
+    ax_f.xaxis.set_minor_formatter(khz)
+    ax_f.tick_params(axis="x", which="minor", labelsize=7)
+    ax_f.set_xlabel("frequency [kHz]")
+    ax_f.set_ylabel("amplitude [um]")
+    ax_f.legend(loc="upper right", fontsize=7)
+    fig.savefig(path, dpi=120, format="png")

@@ -1,0 +1,235 @@
+"""Drive synthesis: invariants of the loop, the tones, the peak and the scale.
+
+Every test checks a property a correct drive must have (the spectrum holds the tone table,
+the loop repeats seamlessly, the peak is the continuous one, nothing is clipped) rather
+than comparing with stored outputs.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from planner.synthesis import (
+    LoopLengthError,
+    Waveform,
+    crest_factor,
+    schroeder_phases,
+    split_tones,
+    synthesize,
+    tones_from_power,
+)
+
+FS = 200e3
+#: The benchmark's channel grid: 200 log-spaced channels over the 2-20 kHz band.
+GRID = np.geomspace(2e3, 20e3, 200)
+
+
+def channel_subset(n, seed):
+    return np.sort(np.random.default_rng(seed).choice(GRID, n, replace=False))
+
+
+def loop_spectrum(wf):
+    """Amplitudes and phases at the tones from an FFT of one loop (independent of the code)."""
+    loop = wf.samples[:wf.loop_points]
+    spectrum = np.fft.rfft(loop) * 2 / len(loop)
+    bins = np.rint(wf.frequencies * wf.loop_length).astype(int)
+    return np.abs(spectrum[bins]), np.angle(spectrum[bins])
+
+
+def max_step(wf):
+    """Largest change a signal of these tones can make in one sample: sum 2 pi f A / fs."""
+    return float(np.sum(2 * np.pi * wf.frequencies * wf.amplitudes)) / wf.sample_rate
+
+
+@pytest.fixture(scope="module")
+def wf25():
+    return synthesize(channel_subset(25, 1), 1e-6, FS, seed=3)
+
+
+def test_power_convention():
+    # paper notes: Z0^2 w^3 = 50 m^2/s^3 gives Z0 = 1.27 um at 5 kHz
+    assert tones_from_power([5000.0])[0] == pytest.approx(1.27e-6, abs=0.005e-6)
+    f = np.array([2e3, 7e3, 19e3])
+    z = tones_from_power(f, power=20.0)
+    np.testing.assert_allclose(z**2 * (2 * np.pi * f) ** 3, 20.0, rtol=1e-12)
+
+
+def test_default_amplitudes_follow_the_power_convention():
+    f = [3000.0, 5000.0, 9000.0]
+    wf = synthesize(f, None, FS, seed=0)
+    np.testing.assert_allclose(wf.amplitudes, tones_from_power(wf.requested_frequencies))
+
+
+def test_loop_holds_whole_cycles_within_tolerance(wf25):
+    cycles = wf25.frequencies * wf25.loop_length
+    np.testing.assert_allclose(cycles, np.rint(cycles), atol=1e-6)
+    assert np.all(np.abs(wf25.frequency_shift) <= 1e-3 * wf25.requested_frequencies * (1 + 1e-9))
+    assert len(wf25.samples) == wf25.loop_points * wf25.n_loops
+    assert wf25.loop_length <= 1.0
+
+
+def test_loop_point_is_continuous(wf25):
+    x = wf25.samples
+    # the sample after the last is the first, by periodic extension of the exact sum
+    after_last = wf25.evaluate(len(x) / wf25.sample_rate)
+    assert after_last == pytest.approx(x[0], abs=1e-12 * wf25.peak)
+    assert abs(x[0] - x[-1]) <= max_step(wf25)
+    assert np.max(np.abs(np.diff(x))) <= max_step(wf25)
+
+
+def test_samples_are_the_exact_sum_of_cosines(wf25):
+    t = wf25.times
+    direct = np.zeros_like(t)
+    for f, a, p in zip(wf25.frequencies, wf25.amplitudes, wf25.phases):
+        direct += a * np.cos(2 * np.pi * f * t + p)
+    # float t costs ~1e-11 rad of phase per tone at these times; the sum is exact to that
+    np.testing.assert_allclose(wf25.samples, direct, rtol=0, atol=1e-9 * wf25.peak)
+
+
+def test_spectrum_holds_the_tone_table(wf25):
+    amp, ph = loop_spectrum(wf25)
+    np.testing.assert_allclose(amp, wf25.amplitudes, rtol=1e-9)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (ph - wf25.phases))), 0, atol=1e-9)
+    assert wf25.rms == pytest.approx(np.sqrt(np.mean(wf25.samples**2)), rel=1e-12)
+
+
+def test_peak_is_the_continuous_peak(wf25):
+    # no point of a 40x finer grid is above the reported peak, and the peak is reached
+    t = np.linspace(0, wf25.loop_length, 40 * wf25.loop_points, endpoint=False)
+    fine = np.abs(wf25.evaluate(t)).max()
+    assert fine <= wf25.peak * (1 + 1e-12)
+    assert fine >= wf25.peak * (1 - 1e-4)
+    assert np.abs(wf25.samples).max() <= wf25.peak * (1 + 1e-12)
+    assert wf25.crest_factor == pytest.approx(wf25.peak / wf25.rms, rel=1e-12)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_crest_factor_below_schroeder_and_random(seed):
+    f = channel_subset(25, seed)
+    wf = synthesize(f, 1e-6, FS, seed=seed)
+    cycles = np.rint(wf.frequencies * wf.loop_length).astype(int)
+    a = np.full(25, 1e-6)
+    schroeder = crest_factor(cycles, a, schroeder_phases(a))
+    rand = crest_factor(cycles, a, np.random.default_rng(seed).uniform(0, 2 * np.pi, 25))
+    assert wf.crest_factor < schroeder
+    assert wf.crest_factor < rand
+    assert wf.crest_factor < 2.9   # random phases give 3.4-4.5 on these sets
+
+
+def test_same_seed_same_bytes():
+    f = channel_subset(12, 7)
+    a = synthesize(f, 1e-6, FS, seed=11)
+    b = synthesize(f, 1e-6, FS, seed=np.random.default_rng(11))
+    assert a.samples.tobytes() == b.samples.tobytes()
+    assert a.phases.tobytes() == b.phases.tobytes()
+
+
+def test_given_phases_are_kept():
+    ph = [0.3, -1.2, 2.5]
+    wf = synthesize([3000.0, 4000.0, 6500.0], 1e-6, FS, phases=ph)
+    np.testing.assert_allclose(wf.phases, ph)
+    np.testing.assert_allclose(loop_spectrum(wf)[1], ph, atol=1e-9)
+
+
+def test_duration_is_a_whole_number_of_loops():
+    wf = synthesize([3000.0, 5000.0], 1e-6, FS, duration=0.01, seed=0)
+    assert len(wf.samples) == 2000
+    assert wf.n_loops * wf.loop_points == 2000
+    assert wf.duration == pytest.approx(0.01)
+    np.testing.assert_array_equal(wf.samples[:wf.loop_points],
+                                  wf.samples[-wf.loop_points:])
+
+
+def test_peak_limit_scales_and_never_clips():
+    f = channel_subset(10, 4)
+    free = synthesize(f, 1e-6, FS, seed=5)
+    limit = 0.5 * free.peak
+    wf = synthesize(f, 1e-6, FS, seed=5, peak_limit=limit)
+    assert wf.scale == pytest.approx(limit / free.peak, rel=1e-12)
+    assert wf.peak <= limit * (1 + 1e-12)
+    assert np.abs(wf.samples).max() <= limit * (1 + 1e-12)
+    np.testing.assert_allclose(wf.amplitudes, 1e-6 * wf.scale, rtol=1e-12)
+    # same shape, only smaller: the crest factor and the spectrum's phases are unchanged
+    assert wf.crest_factor == pytest.approx(free.crest_factor, rel=1e-12)
+    np.testing.assert_allclose(wf.samples, free.samples * wf.scale, rtol=0, atol=1e-15)
+    assert any("scaled by" in w and "not clipped" in w for w in wf.warnings)
+    assert free.scale == 1.0 and free.warnings == ()
+
+
+def test_split_tones_fits_every_sub_step():
+    f = channel_subset(12, 9)
+    whole = synthesize(f, 1e-6, FS, seed=0)
+    limit = 0.6 * whole.peak
+    parts = split_tones(f, 1e-6, FS, limit, seed=0)
+    assert len(parts) >= 2
+    idx = np.concatenate([i for i, _ in parts])
+    assert sorted(idx.tolist()) == list(range(12))
+    for i, wf in parts:
+        assert wf.peak <= limit and wf.scale == 1.0
+        np.testing.assert_allclose(wf.requested_frequencies, f[i], rtol=1e-12)
+
+
+def test_split_rejects_a_tone_above_the_limit():
+    with pytest.raises(ValueError, match="amplitudes"):
+        split_tones([3000.0, 5000.0], [1e-6, 5e-6], FS, 2e-6)
+
+
+def test_no_loop_within_tolerance():
+    with pytest.raises(LoopLengthError, match="frequency_tolerance"):
+        synthesize([3000.1234567, 4000.7654321], 1e-6, FS, frequency_tolerance=0.0,
+                   max_loop_length=0.01)
+
+
+@pytest.mark.parametrize("kwargs, name", [
+    ({"amplitudes": [1e-6, -1e-6]}, "amplitudes"),
+    ({"frequencies": [3000.0, np.nan]}, "frequencies"),
+    ({"amplitudes": [1e-6, 1e-6, 1e-6]}, "amplitudes"),
+    ({"frequencies": [3000.0, -4000.0]}, "frequencies"),
+    ({"frequencies": [3000.0, 150e3]}, "Nyquist"),
+    ({"frequencies": [3000.0, 3000.0]}, "distinct"),
+    ({"sample_rate": 0.0}, "sample_rate"),
+    ({"duration": 1.234567e-6}, "duration"),
+    ({"peak_limit": -1.0}, "peak_limit"),
+    ({"seed": "x"}, "seed"),
+    ({"phases": [0.0]}, "phases"),
+    ({"frequency_tolerance": [-1.0, 1.0]}, "frequency_tolerance"),
+])
+def test_validation_names_the_argument(kwargs, name):
+    args = {"frequencies": [3000.0, 4000.0], "amplitudes": [1e-6, 1e-6], "sample_rate": FS}
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=name):
+        synthesize(**args)
+
+
+def test_waveform_is_immutable(wf25):
+    with pytest.raises(ValueError):
+        wf25.samples[0] = 1.0
+    with pytest.raises(AttributeError):
+        wf25.scale = 2.0
+
+
+def test_waveform_checks_its_tone_table():
+    with pytest.raises(ValueError, match="phases"):
+        Waveform(samples=np.zeros(4), sample_rate=4.0, frequencies=[1.0], amplitudes=[1.0],
+                 phases=[0.0, 1.0], crest_factor=1.0, loop_length=1.0, peak=1.0, rms=1.0)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.integers(min_value=0, max_value=199), min_size=1, max_size=8, unique=True),
+       st.floats(min_value=0.2, max_value=5.0), st.integers(min_value=0, max_value=2**31))
+def test_invariants_hold_for_any_tone_set(channels, spread, seed):
+    f = GRID[sorted(channels)]
+    a = tones_from_power(f) * spread
+    wf = synthesize(f, a, FS, seed=seed)
+    assert np.all(np.isfinite(wf.samples))
+    cycles = wf.frequencies * wf.loop_length
+    np.testing.assert_allclose(cycles, np.rint(cycles), atol=1e-6)
+    assert np.all(np.abs(wf.frequency_shift) <= 1e-3 * f * (1 + 1e-9))
+    assert np.abs(wf.samples).max() <= wf.peak * (1 + 1e-12)
+    assert 1.0 <= wf.crest_factor <= math.sqrt(2 * len(f)) * (1 + 1e-9)   # sum of amplitudes
+    amp, _ = loop_spectrum(wf)
+    np.testing.assert_allclose(amp, wf.amplitudes, rtol=1e-9)
+    assert abs(wf.samples[0] - wf.samples[-1]) <= max_step(wf)
