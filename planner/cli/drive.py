@@ -74,7 +74,7 @@ def command(spec_or_plan, step_name, fmt, out, plot, sample_rate, seed, reoptimi
       vibroplan drive plan_out/plan.json --step s1/forward --format arb --out s1.arb
       vibroplan drive plan_out --step forward --format wav --plot forward.png
     """
-    from planner.exporters import EXPORTERS, export, sidecar_path, verify_export
+    from planner.exporters import EXPORTERS, export, read_sidecar, verify_export
 
     steps, drive = _load_steps(spec_or_plan)
     step = _select_step(steps, step_name)
@@ -103,7 +103,7 @@ def command(spec_or_plan, step_name, fmt, out, plot, sample_rate, seed, reoptimi
             warnings.simplefilter("ignore")   # the sidecar and the summary carry them
             export(wf, path, fmt, um_per_v=um_per_v, amplifier_gain=gain,
                    memory_points=memory_points)
-        sidecar = json.loads(sidecar_path(path).read_text())
+        sidecar = read_sidecar(path)
         check = verify_export(path)
         written.append((path, idx, wf, sidecar, check))
 
