@@ -17,8 +17,9 @@ Layout of this module
   and a Held-Karp (1-tree) bound on the shortest Hamiltonian path of large
   cliques.
 - strategies, registered in :data:`STRATEGIES`: ``"dsatur"`` (DSATUR-style
-  greedy + tabu search), ``"milp"`` / ``"exact"`` (scipy/HiGHS MILP seeded with
-  the heuristic's span) and ``"auto"``.
+  greedy restarts, a late-acceptance search over first-fit vertex orders, then
+  iterated tabu search at decreasing spans), ``"milp"`` / ``"exact"``
+  (scipy/HiGHS MILP below the heuristic's span) and ``"auto"``.
 - the public API: :func:`solve_bandwidth`, :func:`color_bandwidth`,
   :func:`verify_coloring`, :func:`span`, :func:`read_band`.
 
@@ -40,7 +41,7 @@ from __future__ import annotations
 import math
 import numbers
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Hashable, NamedTuple
 
@@ -75,8 +76,15 @@ DEFAULT_EXACT_TIME_LIMIT = 10.0
 #: earlier when it reaches the lower bound or its iteration budget.
 DEFAULT_HEURISTIC_TIME_LIMIT = 5.0
 
-#: Share of the exact strategy's budget given to its heuristic warm start.
+#: Share of the exact strategy's budget given to its heuristic warm start, and
+#: the scale of the heuristic's iteration caps there.  Up to
+#: AUTO_EXACT_MAX_NODES vertices the MILP, not the heuristic, proves that a
+#: span cannot be beaten, so a short warm start serves; on larger graphs the
+#: MILP rarely improves on the heuristic within seconds (measured in
+#: benchmarks/coloring.py), so the warm start gets the full search.
 HEURISTIC_SHARE = 0.3
+EXACT_HEURISTIC_EFFORT = 0.25
+LARGE_HEURISTIC_SHARE = 0.5
 
 #: Tabu iterations without a better shortfall before an attempt is given up
 #: (scaled by the number of vertices, with a floor).
@@ -105,8 +113,8 @@ TABU_PERTURB_FRACTION = 0.1
 
 #: Late-acceptance order search: moves per vertex (with a floor), moves per
 #: kernel call, and the late-acceptance list length.
-ORDER_SEARCH_PER_NODE = 2_000
-ORDER_SEARCH_MIN = 50_000
+ORDER_SEARCH_PER_NODE = 200
+ORDER_SEARCH_MIN = 20_000
 ORDER_CHUNK = 10_000
 ORDER_HISTORY = 500
 
@@ -689,10 +697,7 @@ class _Problem:
 
     @classmethod
     def from_graph(cls, graph, separation: str) -> "_Problem":
-        if not isinstance(graph, nx.Graph):
-            raise ValueError(f"graph must be a networkx graph, {type(graph).__name__} was given")
-        if not isinstance(separation, str):
-            raise ValueError(f"separation must be an edge attribute name, {separation!r} was given")
+        _check_graph(graph, separation)
         nodes = list(graph.nodes)
         index = {node: i for i, node in enumerate(nodes)}
         edges: dict[tuple[int, int], int] = {}
@@ -717,6 +722,13 @@ class _Problem:
                     w[pos[v], pos[u]] = self.adjsep[idx]
         return w
 
+    def index_graph(self) -> nx.Graph:
+        """The graph on vertex indices 0..n-1, without separations."""
+        g = nx.Graph()
+        g.add_nodes_from(range(self.n))
+        g.add_edges_from(zip(self.eu.tolist(), self.ev.tolist()))
+        return g
+
     def to_dict(self, colours) -> dict:
         return {node: int(c) for node, c in zip(self.nodes, colours)}
 
@@ -726,6 +738,13 @@ class _Problem:
             return 0
         gap = np.abs(colours[self.eu] - colours[self.ev])
         return int(np.maximum(0, self.es - gap).sum())
+
+
+def _check_graph(graph, separation) -> None:
+    if not isinstance(graph, nx.Graph):
+        raise ValueError(f"graph must be a networkx graph, {type(graph).__name__} was given")
+    if not isinstance(separation, str):
+        raise ValueError(f"separation must be an edge attribute name, {separation!r} was given")
 
 
 def _check_separation(value, u, v, separation) -> int:
@@ -751,13 +770,6 @@ def _span_of(colours) -> int:
 # --------------------------------------------------------------------------
 # Lower bounds
 # --------------------------------------------------------------------------
-
-
-@dataclass
-class _Bounds:
-    value: int
-    cliques: list = field(default_factory=list)  # index cliques of size >= 3
-    best_clique: list = field(default_factory=list)
 
 
 @njit(cache=True)
@@ -865,20 +877,21 @@ def _clique_bound(problem: _Problem, clique, cap: int) -> int:
     return min(cap, max(bound, int(_clique_span_kernel(sub, cap))))
 
 
-def _lower_bound(problem: _Problem, cap: int) -> _Bounds:
-    """Best of the edge bound (sep + 1) and clique bounds, searched up to ``cap``."""
+def _lower_bound(problem: _Problem, cap: int) -> int:
+    """Lower bound on the optimal span [channels], never above ``cap``.
+
+    The largest of: max separation + 1 (an edge is a 2-clique) and, over the
+    maximal cliques, :func:`_clique_bound`.  ``cap`` is an achievable span
+    (the heuristic's), which the bound cannot exceed and which stops the
+    search early.
+    """
     if problem.n == 0:
-        return _Bounds(0)
+        return 0
     if problem.m == 0:
-        return _Bounds(1)
+        return 1
     best = int(problem.es.max()) + 1
-    i = int(np.argmax(problem.es))
-    best_clique = [int(problem.eu[i]), int(problem.ev[i])]
-    g = nx.Graph()
-    g.add_nodes_from(range(problem.n))
-    g.add_edges_from(zip(problem.eu.tolist(), problem.ev.tolist()))
     cliques = []
-    for count, q in enumerate(nx.find_cliques(g)):
+    for count, q in enumerate(nx.find_cliques(problem.index_graph())):
         if count >= CLIQUE_ENUM_LIMIT:
             break
         if len(q) >= 3:
@@ -891,13 +904,10 @@ def _lower_bound(problem: _Problem, cap: int) -> _Bounds:
         if ub[j] <= best:
             break
         q = cliques[j]
-        b = _clique_bound(problem, q, min(cap, ub[j]))
-        if b > best:
-            best = b
-            best_clique = q
+        best = max(best, _clique_bound(problem, q, min(cap, ub[j])))
         if best >= cap:
             break
-    return _Bounds(min(best, cap), cliques, best_clique)
+    return min(best, cap)
 
 
 # --------------------------------------------------------------------------
@@ -964,7 +974,7 @@ def _squeeze(problem: _Problem, colours: np.ndarray, n_colours: int) -> np.ndarr
 
 
 def _tabu_descent(problem: _Problem, start: np.ndarray, lower: int, deadline: float,
-                  rng: np.random.Generator) -> tuple[np.ndarray, int]:
+                  rng: np.random.Generator, effort: float = 1.0) -> tuple[np.ndarray, int]:
     """Lower the span one channel at a time with tabu search; stop at ``lower``.
 
     At each target span the search runs a series of attempts (iterated tabu
@@ -972,15 +982,15 @@ def _tabu_descent(problem: _Problem, start: np.ndarray, lower: int, deadline: fl
     colour squeezed out, the later ones from the best state so far with a
     random kick, or from a random colouring.  An attempt ends after
     ``stall`` iterations without a better shortfall; a target is abandoned
-    after ``TABU_LEVEL_PER_NODE * n`` iterations.
+    after ``effort * TABU_LEVEL_PER_NODE * n`` iterations.
 
     Returns the best valid colouring and the number of tabu iterations spent.
     """
     best = start
     total = 0
     n = problem.n
-    stall = max(TABU_STALL_MIN, TABU_STALL_PER_NODE * n)
-    level_cap = max(TABU_LEVEL_MIN, TABU_LEVEL_PER_NODE * n)
+    stall = int(effort * max(TABU_STALL_MIN, TABU_STALL_PER_NODE * n))
+    level_cap = int(effort * max(TABU_LEVEL_MIN, TABU_LEVEL_PER_NODE * n))
     n_kick = max(1, int(round(TABU_PERTURB_FRACTION * n)))
     while _span_of(best) > lower and time.perf_counter() < deadline:
         k = _span_of(best) - 1
@@ -1031,11 +1041,11 @@ def _tabu_descent(problem: _Problem, start: np.ndarray, lower: int, deadline: fl
 
 
 def _order_descent(problem: _Problem, colours: np.ndarray, lower: int, deadline: float,
-                   rng: np.random.Generator) -> np.ndarray:
+                   rng: np.random.Generator, effort: float = 1.0) -> np.ndarray:
     """Late-acceptance search over first-fit orders, from ``colours``' order."""
     order = np.lexsort((np.arange(problem.n), colours)).astype(np.int64)
     best = colours
-    budget = max(ORDER_SEARCH_MIN, ORDER_SEARCH_PER_NODE * problem.n)
+    budget = int(effort * max(ORDER_SEARCH_MIN, ORDER_SEARCH_PER_NODE * problem.n))
     spent = 0
     while spent < budget and _span_of(best) > lower and time.perf_counter() < deadline:
         chunk = int(min(ORDER_CHUNK, budget - spent))
@@ -1049,20 +1059,23 @@ def _order_descent(problem: _Problem, colours: np.ndarray, lower: int, deadline:
     return best
 
 
-def _heuristic(problem: _Problem, deadline: float, rng) -> tuple[np.ndarray, _Bounds]:
+def _heuristic(problem: _Problem, deadline: float, rng,
+               effort: float = 1.0) -> tuple[np.ndarray, int]:
     """DSATUR restarts, late-acceptance order search, then tabu descent.
 
     Each phase runs only while the span is above the clique lower bound, and
-    all stop at ``deadline`` (a ``time.perf_counter()`` value).
+    all stop at ``deadline`` (a ``time.perf_counter()`` value).  ``effort``
+    scales the search phases' iteration caps.  Returns the colouring and the
+    clique lower bound.
     """
     colours = _greedy(problem, rng)
-    bounds = _lower_bound(problem, _span_of(colours))
-    if _span_of(colours) > bounds.value:
-        colours = _order_descent(problem, colours, bounds.value, deadline, rng)
-    if _span_of(colours) > bounds.value:
-        colours, _ = _tabu_descent(problem, colours, bounds.value, deadline, rng)
+    lower = _lower_bound(problem, _span_of(colours))
+    if _span_of(colours) > lower:
+        colours = _order_descent(problem, colours, lower, deadline, rng, effort)
+    if _span_of(colours) > lower:
+        colours, _ = _tabu_descent(problem, colours, lower, deadline, rng, effort)
     colours = colours - colours.min()
-    return colours, bounds
+    return colours, lower
 
 
 # --------------------------------------------------------------------------
@@ -1070,8 +1083,9 @@ def _heuristic(problem: _Problem, deadline: float, rng) -> tuple[np.ndarray, _Bo
 # --------------------------------------------------------------------------
 
 
+
 def _milp_component(problem: _Problem, members: list[int], start: np.ndarray, floor: int,
-                    cliques: list, time_limit: float):
+                    time_limit: float):
     """Minimise one connected component's span with HiGHS, below its current span.
 
     Parameters
@@ -1086,8 +1100,6 @@ def _milp_component(problem: _Problem, members: list[int], start: np.ndarray, fl
     floor : int
         Spans below this need no search (another component or a bound already
         forces it): the model's span variable starts at ``floor``.
-    cliques : list of list of int
-        Cliques (index form) used for ordering cuts.
     time_limit : float
         HiGHS time limit [s].
 
@@ -1108,83 +1120,26 @@ def _milp_component(problem: _Problem, members: list[int], start: np.ndarray, fl
     if target < floor:
         return None, floor, True
     cmax = target - 1  # largest colour allowed
-    pos = {v: i for i, v in enumerate(members)}
-    msk = np.isin(problem.eu, members)
-    eu = np.array([pos[int(a)] for a in problem.eu[msk]], np.int64)
-    ev = np.array([pos[int(b)] for b in problem.ev[msk]], np.int64)
-    es = problem.es[msk]
+    local = np.full(problem.n, -1, np.int64)
+    local[members] = np.arange(len(members))
+    keep = local[problem.eu] >= 0
+    eu, ev, es = local[problem.eu[keep]], local[problem.ev[keep]], problem.es[keep]
     n, m = len(members), len(es)
-    iz = n  # variable layout: colours 0..n-1, span variable z, orders n+1..n+m
-    io = n + 1
+    # variables: colours c_0..c_{n-1}, max colour z, order o_e (1: c_v >= c_u + s)
+    iz = n
+    io = n + 1 + np.arange(m)
     nvar = n + 1 + m
-    rows, cols, vals, lo, hi = [], [], [], [], []
-    r = 0
-
-    def add(entries, lb, ub):
-        nonlocal r
-        for col, val in entries:
-            rows.append(r)
-            cols.append(col)
-            vals.append(val)
-        lo.append(lb)
-        hi.append(ub)
-        r += 1
-
-    edge_of = {}
-    for e in range(m):
-        u, v, s = int(eu[e]), int(ev[e]), int(es[e])
-        big = cmax + s
-        # o_e = 1: v above u (c_v >= c_u + s); o_e = 0: u above v
-        add([(u, 1.0), (v, -1.0), (io + e, big)], s, np.inf)
-        add([(v, 1.0), (u, -1.0), (io + e, -big)], s - big, np.inf)
-        edge_of[(u, v)] = e
-    for v in range(n):
-        add([(v, 1.0), (iz, -1.0)], -np.inf, 0.0)
-
-    def above(a, b):
-        """(coefficient list, constant) of the 0/1 expression 'b above a'."""
-        if a < b:
-            return [(io + edge_of[(a, b)], 1.0)], 0.0
-        return [(io + edge_of[(b, a)], -1.0)], 1.0
-
-    local_cliques = []
-    for q in cliques:
-        if all(v in pos for v in q):
-            local_cliques.append([pos[v] for v in q])
-    seen_triangles = set()
-    for q in local_cliques:
-        w = problem.sep_matrix([members[v] for v in q])
-        g = np.where(w > 0, w, np.iinfo(np.int64).max).min(axis=1)
-        # ordering cuts: the vertices below v in colour order each need a
-        # distinct slot of at least their smallest separation in the clique,
-        # and so do those above v (up to the span variable z)
-        for i, v in enumerate(q):
-            below, above_ = [(v, 1.0)], [(iz, 1.0), (v, -1.0)]
-            const_b = const_a = 0.0
-            for j, u in enumerate(q):
-                if u == v:
-                    continue
-                ent, c0 = above(u, v)  # v above u
-                below += [(col, -g[j] * val) for col, val in ent]
-                const_b += g[j] * c0
-                ent, c0 = above(v, u)  # u above v
-                above_ += [(col, -g[j] * val) for col, val in ent]
-                const_a += g[j] * c0
-            add(below, const_b, np.inf)
-            add(above_, const_a, np.inf)
-        # transitivity of the colour order on every triangle of the clique
-        for a_i in range(len(q)):
-            for b_i in range(a_i + 1, len(q)):
-                for c_i in range(b_i + 1, len(q)):
-                    a, b, c = sorted((q[a_i], q[b_i], q[c_i]))
-                    if (a, b, c) in seen_triangles:
-                        continue
-                    seen_triangles.add((a, b, c))
-                    ab = io + edge_of[(a, b)]
-                    bc = io + edge_of[(b, c)]
-                    ac = io + edge_of[(a, c)]
-                    add([(ab, 1.0), (bc, 1.0), (ac, -1.0)], 0.0, 1.0)
-
+    big = cmax + es  # makes the constraint of the order not chosen vacuous
+    e2 = 2 * np.arange(m)
+    rows = np.concatenate([e2, e2, e2, e2 + 1, e2 + 1, e2 + 1,
+                           2 * m + np.arange(n), 2 * m + np.arange(n)])
+    cols = np.concatenate([eu, ev, io, ev, eu, io, np.arange(n), np.full(n, iz)])
+    ones = np.ones(m)
+    vals = np.concatenate([ones, -ones, big, ones, -ones, -big, np.ones(n), -np.ones(n)])
+    # c_u - c_v + M o >= s  and  c_v - c_u - M o >= s - M ;  c_v - z <= 0
+    lo = np.concatenate([np.column_stack([es, es - big]).ravel(), np.full(n, -np.inf)])
+    hi = np.concatenate([np.full(2 * m, np.inf), np.zeros(n)])
+    a = coo_array((vals.astype(float), (rows, cols)), shape=(2 * m + n, nvar)).tocsr()
     lb = np.zeros(nvar)
     ub = np.ones(nvar)
     ub[:n] = cmax
@@ -1193,10 +1148,9 @@ def _milp_component(problem: _Problem, members: list[int], start: np.ndarray, fl
     # reversal symmetry (c -> z - c) flips every order variable: fix one,
     # on the edge of largest separation
     if m:
-        lb[io + int(np.argmax(es))] = 1.0
+        lb[io[int(np.argmax(es))]] = 1.0
     cost = np.zeros(nvar)
     cost[iz] = 1.0
-    a = coo_array((vals, (rows, cols)), shape=(r, nvar)).tocsr()
     res = milp(cost, integrality=np.ones(nvar), bounds=Bounds(lb, ub),
                constraints=LinearConstraint(a, lo, hi),
                options={"time_limit": max(0.05, time_limit), "disp": False,
@@ -1256,7 +1210,6 @@ class ColoringResult:
 
 def _result(problem, colours, lower, method, t0, message) -> ColoringResult:
     s = _span_of(colours)
-    lower = min(lower, s)
     return ColoringResult(problem.to_dict(colours), s, lower, s == lower, method,
                           time.perf_counter() - t0, message)
 
@@ -1280,11 +1233,11 @@ def _strategy_dsatur(graph, separation="sep", time_limit=None, seed=None) -> Col
     rng = _as_rng(seed)
     if problem.n == 0:
         return _result(problem, np.zeros(0, np.int64), 0, "dsatur", t0, "empty graph")
-    colours, bounds = _heuristic(problem, t0 + budget, rng)
+    colours, lower = _heuristic(problem, t0 + budget, rng)
     s = _span_of(colours)
-    msg = ("span meets the clique lower bound" if s == bounds.value
-           else f"heuristic: span {s}, lower bound {bounds.value} (gap not closed)")
-    return _result(problem, colours, bounds.value, "dsatur", t0, msg)
+    msg = ("span meets the clique lower bound" if s == lower
+           else f"heuristic: span {s}, lower bound {lower} (gap not closed)")
+    return _result(problem, colours, lower, "dsatur", t0, msg)
 
 
 def _strategy_milp(graph, separation="sep", time_limit=None, seed=None) -> ColoringResult:
@@ -1296,13 +1249,16 @@ def _strategy_milp(graph, separation="sep", time_limit=None, seed=None) -> Color
     rng = _as_rng(seed)
     if problem.n == 0:
         return _result(problem, np.zeros(0, np.int64), 0, "milp", t0, "empty graph")
-    colours, bounds = _heuristic(problem, t0 + HEURISTIC_SHARE * budget, rng)
-    lower = bounds.value
+    if problem.n <= AUTO_EXACT_MAX_NODES:
+        share, effort = HEURISTIC_SHARE, EXACT_HEURISTIC_EFFORT
+    else:
+        share, effort = LARGE_HEURISTIC_SHARE, 1.0
+    colours, lower = _heuristic(problem, t0 + share * budget, rng, effort)
     if _span_of(colours) == lower:
         return _result(problem, colours, lower, "milp", t0,
                        "heuristic span meets the clique lower bound")
     colours = colours.copy()
-    comps = [sorted(c) for c in nx.connected_components(_index_graph(problem))]
+    comps = [sorted(c) for c in nx.connected_components(problem.index_graph())]
     # hardest component first: it sets the floor the others need not beat
     comps.sort(key=lambda c: -int(colours[c].max()))
     all_proven = True
@@ -1313,8 +1269,7 @@ def _strategy_milp(graph, separation="sep", time_limit=None, seed=None) -> Color
         if left <= 0.05:
             all_proven = False
             break
-        got, comp_lower, proven = _milp_component(problem, comp, colours, lower,
-                                                  bounds.cliques, left)
+        got, comp_lower, proven = _milp_component(problem, comp, colours, lower, left)
         if got is not None:
             for v, c in got.items():
                 colours[v] = c
@@ -1335,13 +1290,6 @@ def _strategy_auto(graph, separation="sep", time_limit=None, seed=None) -> Color
     if graph.number_of_nodes() <= AUTO_EXACT_MAX_NODES:
         return _strategy_milp(graph, separation, time_limit, seed)
     return _strategy_dsatur(graph, separation, time_limit, seed)
-
-
-def _index_graph(problem: _Problem) -> nx.Graph:
-    g = nx.Graph()
-    g.add_nodes_from(range(problem.n))
-    g.add_edges_from(zip(problem.eu.tolist(), problem.ev.tolist()))
-    return g
 
 
 #: Colouring strategies by name.  A strategy is called as
@@ -1413,32 +1361,34 @@ def solve_bandwidth(graph: nx.Graph, separation: str = "sep", method="auto",
     >>> import networkx as nx
     >>> g = nx.Graph()
     >>> g.add_edge("a", "b", sep=3); g.add_edge("b", "c", sep=2); g.add_edge("a", "c", sep=1)
-    >>> r = solve_bandwidth(g)
+    >>> r = solve_bandwidth(g)  # a = 0, c = 1, b = 3
     >>> r.span, r.optimal
-    (6, True)
+    (4, True)
     """
+    _check_graph(graph, separation)
     func = STRATEGIES.get(method, method) if isinstance(method, Hashable) else method
     if not callable(func):
         raise ValueError(f"method must be one of {sorted(STRATEGIES)} or a callable, "
                          f"{method!r} was given")
     t0 = time.perf_counter()
     out = func(graph, separation, time_limit, seed)
-    if isinstance(out, ColoringResult):
-        result = out
-    else:
-        if not isinstance(out, dict):
-            raise ValueError(f"strategy {method!r} returned {type(out).__name__}, expected a "
-                             f"ColoringResult or a dict")
-        name = getattr(func, "__name__", repr(func))
-        problem = _Problem.from_graph(graph, separation)
-        s = span(out)
-        lower = _lower_bound(problem, s).value if s else 0
-        result = ColoringResult(dict(out), s, lower, s == lower, name,
-                                time.perf_counter() - t0, "user strategy")
-    bad = verify_coloring(graph, result.coloring, separation)
+    if not isinstance(out, (ColoringResult, dict)):
+        raise ValueError(f"strategy {method!r} returned {type(out).__name__}, expected a "
+                         f"ColoringResult or a dict")
+    coloring = out.coloring if isinstance(out, ColoringResult) else out
+    bad = verify_coloring(graph, coloring, separation)
     if bad:
         raise ValueError(f"strategy {method!r} returned an invalid colouring: {bad[0]}")
-    return result
+    if isinstance(out, ColoringResult):
+        return out
+    # a user strategy's plain colouring: shift to start at 0, bound it
+    low = min(out.values(), default=0)
+    coloring = {v: int(c) - low for v, c in out.items()}
+    s = span(coloring)
+    lower = _lower_bound(_Problem.from_graph(graph, separation), s)
+    return ColoringResult(coloring, s, lower, s == lower,
+                          getattr(func, "__name__", repr(func)),
+                          time.perf_counter() - t0, "user strategy")
 
 
 def color_bandwidth(graph: nx.Graph, separation: str = "sep", method="auto",
