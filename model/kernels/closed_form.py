@@ -215,25 +215,29 @@ def _u_derivs(hd, t, out):
 
 
 @njit(cache=True)
-def _beat_terms(w, sigma, delta, t):
-    """F = e^{i w t} E1(t) and M = e^{mu t} of a beat tone at t [s, -].
+def _beat_terms(w, sigma, delta, t, t_ref):
+    """F = e^{i w t} E1(t - t_ref) and M = e^{i w t} e^{lambda (t - t_ref)} [s, -].
 
-    E1 = expm1(lambda t) / lambda with lambda = -sigma + i delta, evaluated without
-    cancellation: Re expm1 = expm1(-sigma t) cos(delta t) - (1 - cos(delta t)), the
-    last term written as sin^2 / (1 + cos) when cos > 0.
+    E1 = expm1(lambda tau) / lambda with lambda = -sigma + i delta, evaluated without
+    cancellation: Re expm1 = expm1(-sigma tau) cos(delta tau) - (1 - cos(delta tau)),
+    the last term written as sin^2 / (1 + cos) when cos > 0.  Re[G F] is a
+    particular solution for every t_ref (changing t_ref adds a homogeneous
+    solution); it vanishes at t_ref, so referred to the start of a free flight it
+    stays as small as the flight is short, and so do the bounds on it.
     """
     c = math.cos(w * t)
     s = math.sin(w * t)
-    em = 0.0 if sigma == 0.0 else math.expm1(-sigma * t)
+    tau = t - t_ref
+    em = 0.0 if sigma == 0.0 else math.expm1(-sigma * tau)
     if delta == 0.0:
         cy = 1.0
         sy = 0.0
     else:
-        cy = math.cos(delta * t)
-        sy = math.sin(delta * t)
+        cy = math.cos(delta * tau)
+        sy = math.sin(delta * tau)
     den = sigma * sigma + delta * delta
     if den == 0.0:
-        e1 = complex(t, 0.0)
+        e1 = complex(tau, 0.0)
     else:
         omc = sy * sy / (1.0 + cy) if cy > 0.0 else 1.0 - cy
         z = complex(em * cy - omc, (1.0 + em) * sy)
@@ -245,6 +249,12 @@ def _beat_terms(w, sigma, delta, t):
 @njit(cache=True)
 def particular(coef, t):
     """x_p, x_p', x_p'' at absolute time t [s] (units m, m/s, m/s^2)."""
+    return particular_ref(coef, t, 0.0)
+
+
+@njit(cache=True)
+def particular_ref(coef, t, t_ref):
+    """x_p, x_p', x_p'' at t [s], beat tones referred to t_ref [s] (see _beat_terms)."""
     x = 0.0
     v = 0.0
     acc = 0.0
@@ -258,7 +268,7 @@ def particular(coef, t):
             v += w * (coef[i, 2] * c - coef[i, 1] * s)
             acc -= w * w * f0
         else:
-            f0, m = _beat_terms(w, coef[i, 4], coef[i, 5], t)
+            f0, m = _beat_terms(w, coef[i, 4], coef[i, 5], t, t_ref)
             g = complex(coef[i, 1], coef[i, 2])
             iw = complex(0.0, w)
             mu = complex(-coef[i, 4], w + coef[i, 5])
@@ -280,6 +290,12 @@ def particular_jet(coef, t):
         [m, m/s, m/s^2, m/s^3].  One sine and cosine per regular tone, two
         pairs per beat tone: the event finder's per-step cost.
     """
+    return particular_jet_ref(coef, t, 0.0)
+
+
+@njit(cache=True)
+def particular_jet_ref(coef, t, t_ref):
+    """:func:`particular_jet` with the beat tones referred to t_ref [s]."""
     x = 0.0
     v = 0.0
     acc = 0.0
@@ -297,7 +313,7 @@ def particular_jet(coef, t):
             acc -= ww * f0
             jerk -= ww * f1
         else:
-            f0, m = _beat_terms(w, coef[i, 4], coef[i, 5], t)
+            f0, m = _beat_terms(w, coef[i, 4], coef[i, 5], t, t_ref)
             g = complex(coef[i, 1], coef[i, 2])
             iw = complex(0.0, w)
             mu = complex(-coef[i, 4], w + coef[i, 5])
@@ -327,7 +343,7 @@ def particular_derivative(coef, t, order):
                 scale *= w
             total += scale * (a * math.cos(w * t) + b * math.sin(w * t))
         else:
-            f, m = _beat_terms(w, coef[i, 4], coef[i, 5], t)
+            f, m = _beat_terms(w, coef[i, 4], coef[i, 5], t, 0.0)
             iw = complex(0.0, w)
             mu = complex(-coef[i, 4], w + coef[i, 5])
             for _ in range(order):
@@ -342,7 +358,8 @@ def particular_bound(coef, order, tmax):
     """Bound on |x_p^(order)| over t in [0, tmax] [m/s^order].
 
     Beat tones: |F^(n)| <= w^n |E1| + sum_{j<n} w^(n-1-j) |mu|^j |M| with |M| <= 1
-    and |E1| <= min(t, 2 / |lambda|).
+    and |E1| <= min(t, 2 / |lambda|).  Referred to t_ref, the bound holds over
+    [t_ref, t_ref + tmax].
     """
     total = 0.0
     for i in range(coef.shape[0]):

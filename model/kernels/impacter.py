@@ -41,10 +41,9 @@ from model.kernels.closed_form import (
     homogeneous_basis,
     homogeneous_bound,
     homogeneous_regime,
-    particular,
     particular_bound,
-    particular_derivative,
-    particular_jet,
+    particular_jet_ref,
+    particular_ref,
     tone_coefficients,
 )
 
@@ -288,15 +287,14 @@ def _envelope_step(zhr, zhi, zpr, zpi, amp_p2, delta, level):
 
 @njit(cache=True)
 def _basis(regime, sigma, fr, tau):
-    """(E C, E S, decay) at tau [s]; decay = e^{-sigma tau} scales UNDER bounds.
-
-    Same values as :func:`homogeneous_basis`; the exponential is skipped when
-    the impacter is undamped (sigma == 0).
+    """(E C, E S s, decay) at tau [s], s = wd (UNDER) or 1: :func:`homogeneous_basis`
+    with E S scaled so that the step needs no division; decay = e^{-sigma tau}
+    scales UNDER bounds.  The exponential is skipped when sigma == 0.
     """
     if regime == UNDER:
         env = 1.0 if sigma == 0.0 else math.exp(-sigma * tau)
         arg = fr * tau
-        return env * math.cos(arg), env * math.sin(arg) / fr, env
+        return env * math.cos(arg), env * math.sin(arg), env
     ec, es = homogeneous_basis(regime, sigma, fr, tau)
     return ec, es, 1.0
 
@@ -325,7 +323,7 @@ def _fill_free(sample_t, sample_x, si, t_b, regime, sigma, fr, p, q, seg_t0, coe
     while si < ns and sample_t[si] < t_b:
         ts = sample_t[si]
         ec, es = homogeneous_basis(regime, sigma, fr, ts - seg_t0)
-        xp, _, _ = particular(coef, ts)
+        xp, _, _ = particular_ref(coef, ts, seg_t0)
         sample_x[si] = p * ec + q * es + xp
         si += 1
     return si
@@ -407,6 +405,11 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
     chatter_time = CHATTER_TIME * 2.0 * math.pi / wmax
     tolf = NOISE * EPS * (wn * wn * gap + fmax)
     series = np.empty(CHATTER_ORDER + 1)
+    inv_s = 1.0 / fr if regime == UNDER else 1.0
+    has_beat = False
+    for i in range(coef.shape[0]):
+        if coef[i, 3] != REGULAR:
+            has_beat = True
     # one regular tone (every sweep): the beat envelope bounds x, see _envelope_step
     one_tone = regime == UNDER and coef.shape[0] == 1 and coef[0, 3] == REGULAR
     tone_w = coef[0, 0] if one_tone else 1.0
@@ -460,7 +463,7 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
         seg_t0 = t
         x_start = x
         v_start = v
-        xp, vp, ap, jp = particular_jet(coef, t)
+        xp, vp, ap, jp = particular_jet_ref(coef, t, seg_t0)
         p = x - xp
         q = (v - vp) + sigma * p
         p1, q1 = derive(p, q, sigma, kappa)
@@ -468,6 +471,19 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
         p3, q3 = derive(p2, q2, sigma, kappa)
         p4, q4 = derive(p3, q3, sigma, kappa)
         tau_end = t_end - seg_t0
+        # coefficients of E S wd (see _basis)
+        qs = q * inv_s
+        q1s = q1 * inv_s
+        q2s = q2 * inv_s
+        q3s = q3 * inv_s
+        if has_beat:
+            # beat tones are referred to the segment's start: their bounds grow only
+            # with the segment's length, not with the time since t = 0
+            pb0 = particular_bound(coef, 0, tau_end)
+            pb1 = particular_bound(coef, 1, tau_end)
+            pb2 = particular_bound(coef, 2, tau_end)
+            pb3 = particular_bound(coef, 3, tau_end)
+            pb4 = particular_bound(coef, 4, tau_end)
         # per-segment constants of the UNDER bounds (times e^{-sigma tau} each step)
         amp0 = _amplitude(regime, fr, p, q, tau_end)
         amp2 = _amplitude(regime, fr, p2, q2, tau_end)
@@ -496,10 +512,11 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
                 x = x_start
                 v = v_start
             else:
+                # es carries the factor wd of UNDER bases (no division per step)
                 ec, es, env = _basis(regime, sigma, fr, tau)
-                xp, vp, ap, jp = particular_jet(coef, t)
-                x = p * ec + q * es + xp
-                v = p1 * ec + q1 * es + vp
+                xp, vp, ap, jp = particular_jet_ref(coef, t, seg_t0)
+                x = p * ec + qs * es + xp
+                v = p1 * ec + q1s * es + vp
             if not (math.isfinite(x) and math.isfinite(v)):
                 status = NONFINITE
                 break
@@ -518,8 +535,8 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
                     else:
                         if v > 0.0:
                             # approaching: the fourth-order bound converges faster
-                            acc = p2 * ec + q2 * es + ap
-                            jerk = p3 * ec + q3 * es + jp
+                            acc = p2 * ec + q2s * es + ap
+                            jerk = p3 * ec + q3s * es + jp
                             m4 = _hbound(regime, sigma, fr, p4, q4, tau, tau_end, env,
                                          amp4) + pb4
                             h = max(h, _window_step(g, v, acc + tola, jerk + tolj, m2, m4,
@@ -539,7 +556,7 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
                     # and a rounded t + h may land just past the wall): take v- at the
                     # wall, v^2 + 2 x'' (gap - x), so that resetting x to the wall
                     # neither adds nor removes energy (it drifted by 4e-11 per impact)
-                    acc = p2 * ec + q2 * es + ap
+                    acc = p2 * ec + q2s * es + ap
                     vminus = math.sqrt(max(v * v - 2.0 * acc * g, v * v * 0.25))
                 while True:
                     status = _push_event(imp_t, imp_v, imp_kind, n_events, t, vminus,
@@ -601,8 +618,8 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
                 break
             if contact:
                 # at the wall and not approaching it: leave, or stick if pressed on it
-                acc = p2 * ec + q2 * es + ap
-                jerk = p3 * ec + q3 * es + jp
+                acc = p2 * ec + q2s * es + ap
+                jerk = p3 * ec + q3s * es + jp
                 m4 = _hbound(regime, sigma, fr, p4, q4, tau, tau_end, env, amp4) + pb4
                 h = 0.0
                 if v < 0.0:
@@ -634,7 +651,7 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
                 si = _fill_free(sample_t, sample_x, si, t_end, regime, sigma, fr, p, q,
                                 seg_t0, coef)
                 ec, es = homogeneous_basis(regime, sigma, fr, t_end - seg_t0)
-                xp, vp, _ = particular(coef, t_end)
+                xp, vp, _ = particular_ref(coef, t_end, seg_t0)
                 x = min(p * ec + q * es + xp, gap)
                 v = p1 * ec + q1 * es + vp
                 t = t_end
