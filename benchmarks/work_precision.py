@@ -48,7 +48,6 @@ from _timing import machine, measure  # noqa: E402
 import model  # noqa: E402
 from model import Drive, Impacter  # noqa: E402
 from model.kernels import impacter as kern  # noqa: E402
-from model.kernels.closed_form import tone_coefficients  # noqa: E402
 from model.kernels.rk4 import rk4_response, run_rk4  # noqa: E402
 from model.mpref import reference  # noqa: E402
 from model.simulation import impacter_forcing  # noqa: E402
@@ -562,7 +561,8 @@ def run(out_dir=RESULTS, quick=False, echo=print):
         targets.append((f"({case.key}) at error 1e-6, >= 100x faster than RK4 (numba)", msg,
                         ok(t_rk4 is not None and t_rk4 / t_exact >= 100)))
         for method in IVP_METHODS:
-            ivp = [r for r in case_rows if r["method"] == method and r["setting"] == "rtol=1e-10"]
+            ivp = [r for r in case_rows
+                   if r["method"] == method and r["setting"] == "rtol=1e-10"]
             if ivp:
                 ratio = ivp[0]["time_s"] / t_exact
                 targets.append((f"({case.key}) >= 1000x faster than solve_ivp {method} at "

@@ -74,6 +74,9 @@ MAX_STEPS = 50_000_000
 CHATTER_LOCAL = 0.5
 CHATTER_ORDER = 24
 _FACTORIALS = np.array([float(math.factorial(k)) for k in range(CHATTER_ORDER + 1)])
+#: With beat tones, bounds hold over windows of this many shortest periods (the
+#: step is capped there): a beat tone's bound grows with its time since t_ref.
+BEAT_WINDOW = 0.75
 #: Window of the fourth-order safe step, as a multiple of the second-order one:
 #: the bound is tried once on [0, TAYLOR_WINDOW h2] (a second try costs as much
 #: latency as a third of a step and gains less).
@@ -111,6 +114,59 @@ def _window_step(g, v, acc, jerk, m2, m4, big_h):
     """
     m2e = max(acc, acc + big_h * (jerk / 3.0 + m4 * big_h / 12.0))
     return min(big_h, safe_step(g, v, min(m2e, m2)))
+
+
+@njit(cache=True)
+def _window_tables(coef):
+    """Constants of :func:`_window_bounds`, per run.
+
+    Returns
+    -------
+    const : ndarray, shape (3,)
+        The parts of the bounds of orders 0, 2, 4 that do not grow with tau.
+    grow : ndarray, shape (n_tones, 3)
+        |G| w^n of each beat tone (0 for regular tones), multiplying min(tau, lim).
+    lim : ndarray, shape (n_tones,)
+        2 / |lambda| of each beat tone (see :func:`particular_bound`).
+    """
+    n = coef.shape[0]
+    const = np.zeros(3)
+    grow = np.zeros((n, 3))
+    lim = np.full(n, math.inf)
+    for i in range(n):
+        w = coef[i, 0]
+        amp = math.sqrt(coef[i, 1] ** 2 + coef[i, 2] ** 2)
+        for k in range(3):
+            order = 2 * k
+            if coef[i, 3] == REGULAR:
+                const[k] += amp * w ** order
+            else:
+                sg = coef[i, 4]
+                dl = coef[i, 5]
+                lam = math.sqrt(sg * sg + dl * dl)
+                if lam > 0.0:
+                    lim[i] = 2.0 / lam
+                mu = math.sqrt(sg * sg + (w + dl) ** 2)
+                grow[i, k] = amp * w ** order
+                for j in range(order):
+                    const[k] += amp * w ** (order - 1 - j) * mu ** j
+    return const, grow, lim
+
+
+@njit(cache=True)
+def _window_bounds(const, grow, lim, tau_w):
+    """Bounds on the particular part and its second and fourth derivatives over
+    [t_ref, t_ref + tau_w], beat tones referred to t_ref: particular_bound with
+    tmax = tau_w, from the tables of :func:`_window_tables`."""
+    b0 = const[0]
+    b2 = const[1]
+    b4 = const[2]
+    for i in range(grow.shape[0]):
+        e1 = min(tau_w, lim[i])
+        b0 += grow[i, 0] * e1
+        b2 += grow[i, 1] * e1
+        b4 += grow[i, 2] * e1
+    return b0, b2, b4
 
 
 @njit(cache=True)
@@ -403,9 +459,11 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
     for i in range(w.shape[0]):
         wmax = max(wmax, w[i])
     chatter_time = CHATTER_TIME * 2.0 * math.pi / wmax
+    window = BEAT_WINDOW * 2.0 * math.pi / wmax
     tolf = NOISE * EPS * (wn * wn * gap + fmax)
     series = np.empty(CHATTER_ORDER + 1)
     inv_s = 1.0 / fr if regime == UNDER else 1.0
+    w_const, w_grow, w_lim = _window_tables(coef)
     has_beat = False
     for i in range(coef.shape[0]):
         if coef[i, 3] != REGULAR:
@@ -488,13 +546,16 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
         amp0 = _amplitude(regime, fr, p, q, tau_end)
         amp2 = _amplitude(regime, fr, p2, q2, tau_end)
         amp4 = _amplitude(regime, fr, p4, q4, tau_end)
-        amp = homogeneous_bound(regime, sigma, fr, p, q, 0.0, tau_end)
+        # (UNDER: at tau = 0 the bound is the segment constant itself)
+        amp = _hbound(regime, sigma, fr, p, q, 0.0, tau_end, 1.0, amp0)
         tolx = NOISE * EPS * (abs(gap) + amp + pb0)
         tola = NOISE * EPS * (wn * wn * (abs(gap) + amp) + pb2 + fmax)
         # an impact needs v above the rounding noise of v: a contact at a velocity
         # within it is a touch at rest (stick or leave), not an impact
-        tolv = NOISE * EPS * (homogeneous_bound(regime, sigma, fr, p1, q1, 0.0, tau_end) + pb1)
-        tolj = NOISE * EPS * (homogeneous_bound(regime, sigma, fr, p3, q3, 0.0, tau_end)
+        tolv = NOISE * EPS * (_hbound(regime, sigma, fr, p1, q1, 0.0, tau_end, 1.0,
+                                      _amplitude(regime, fr, p1, q1, tau_end)) + pb1)
+        tolj = NOISE * EPS * (_hbound(regime, sigma, fr, p3, q3, 0.0, tau_end, 1.0,
+                                      _amplitude(regime, fr, p3, q3, tau_end))
                               + pb3 + wn * tola)
         new_segment = False
         while True:
@@ -521,15 +582,25 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
                 status = NONFINITE
                 break
             g = x - gap
-            m2 = _hbound(regime, sigma, fr, p2, q2, tau, tau_end, env, amp2) + pb2
+            if has_beat:
+                # bounds over the window [tau, tau + window] only: a beat tone's grows
+                # with the time since the segment's start (secular at resonance)
+                h_cap = window
+                wb0, wb2, wb4 = _window_bounds(w_const, w_grow, w_lim, tau + window)
+            else:
+                h_cap = math.inf
+                wb0 = pb0
+                wb2 = pb2
+                wb4 = pb4
+            m2 = _hbound(regime, sigma, fr, p2, q2, tau, tau_end, env, amp2) + wb2
             contact = g >= -tolx
             if not contact:
-                x_hi = _hbound(regime, sigma, fr, p, q, tau, tau_end, env, amp0) + pb0
+                x_hi = _hbound(regime, sigma, fr, p, q, tau, tau_end, env, amp0) + wb0
                 if x_hi < gap - tolx:
-                    # x stays below the wall for the rest of the run: no impact
-                    h = math.inf
+                    # x stays below the wall over the rest of the run (or the window)
+                    h = h_cap
                 else:
-                    h = safe_step(g, v, m2)
+                    h = min(safe_step(g, v, m2), h_cap)
                     if t + h == t:  # within time resolution of the wall: contact
                         contact = True
                     else:
@@ -538,9 +609,9 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
                             acc = p2 * ec + q2s * es + ap
                             jerk = p3 * ec + q3s * es + jp
                             m4 = _hbound(regime, sigma, fr, p4, q4, tau, tau_end, env,
-                                         amp4) + pb4
+                                         amp4) + wb4
                             h = max(h, _window_step(g, v, acc + tola, jerk + tolj, m2, m4,
-                                                    TAYLOR_WINDOW * h))
+                                                    min(TAYLOR_WINDOW * h, h_cap)))
                         if one_tone:
                             xh = x - xp
                             vh = v - vp
