@@ -214,7 +214,7 @@ def _u_derivs(hd, t, out):
         out[4] = hd * hd * hd * s
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _beat_terms(w, sigma, delta, t, t_ref):
     """F = e^{i w t} E1(t - t_ref) and M = e^{i w t} e^{lambda (t - t_ref)} [s, -].
 
@@ -293,7 +293,7 @@ def particular_jet(coef, t):
     return particular_jet_ref(coef, t, 0.0)
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def particular_jet_ref(coef, t, t_ref):
     """:func:`particular_jet` with the beat tones referred to t_ref [s]."""
     x = 0.0

@@ -83,7 +83,7 @@ BEAT_WINDOW = 0.75
 TAYLOR_WINDOW = 2.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def safe_step(g, g1, m2):
     """Largest h with g + g1 h + m2 h^2 / 2 < 0 on [0, h), for g < 0 [s].
 
@@ -101,7 +101,7 @@ def safe_step(g, g1, m2):
     return (-g1 + sq) / m2
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _window_step(g, v, acc, jerk, m2, m4, big_h):
     """A safe step of at most big_h from the fourth-order Taylor bound [s].
 
@@ -153,7 +153,7 @@ def _window_tables(coef):
     return const, grow, lim
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _window_bounds(const, grow, lim, tau_w):
     """Bounds on the particular part and its second and fourth derivatives over
     [t_ref, t_ref + tau_w], beat tones referred to t_ref: particular_bound with
@@ -167,6 +167,35 @@ def _window_bounds(const, grow, lim, tau_w):
         b2 += grow[i, 1] * e1
         b4 += grow[i, 2] * e1
     return b0, b2, b4
+
+
+@njit(cache=True, inline='always')
+def _landing(g, v, acc, jerk, m4, tola, tolj, tolx):
+    """Time s* to the wall when an approach is within a step of it [s]; -1 if not.
+
+    Approaching (g < 0 < v), g(s) = T(s) + R(s) with T = g + v s + acc s^2 / 2 +
+    jerk s^3 / 6 and |R| <= m4 s^4 / 24 + tola s^2 / 2 + tolj s^3 / 6 (remainder and
+    the rounding of acc and jerk).  When T increases on [0, s*] (T' >= v / 2), |R(s*)|
+    is below half the rounding noise of x and the error of T'(s*) as v- is below
+    NOISE * EPS * v, x stays below the wall (up to its noise) until s* and reaches it
+    there: the impact is at s* with v- = T'(s*), which saves the last step of the
+    approach.
+    """
+    s = -g / v
+    for _ in range(3):
+        dt = v + s * (acc + 0.5 * s * jerk)
+        if not dt > 0.0:
+            return -1.0
+        s -= (g + s * (v + s * (0.5 * acc + s * jerk / 6.0))) / dt
+    if not s > 0.0:
+        return -1.0
+    if abs(acc) * s + 0.5 * abs(jerk) * s * s > 0.5 * v:
+        return -1.0
+    if not s * s * (0.5 * tola + s * (tolj / 6.0 + s * m4 / 24.0)) <= 0.5 * tolx:
+        return -1.0
+    if not s * (tola + s * (0.5 * tolj + s * m4 / 6.0)) <= NOISE * EPS * v:
+        return -1.0
+    return s
 
 
 @njit(cache=True)
@@ -298,7 +327,7 @@ def _fill_series(sample_t, sample_x, si, t_b, t_a, series):
     return si
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _envelope_step(zhr, zhi, zpr, zpi, amp_p2, delta, level):
     """A safe step from the beat envelope, for one regular tone [s].
 
@@ -341,7 +370,7 @@ def _envelope_step(zhr, zhi, zpr, zpi, amp_p2, delta, level):
                      2.0 * delta * delta * math.sqrt(amp_p2 * amp_h2))
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _basis(regime, sigma, fr, tau):
     """(E C, E S s, decay) at tau [s], s = wd (UNDER) or 1: :func:`homogeneous_basis`
     with E S scaled so that the step needs no division; decay = e^{-sigma tau}
@@ -355,7 +384,7 @@ def _basis(regime, sigma, fr, tau):
     return ec, es, 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _hbound(regime, sigma, fr, p, q, tau, tau_end, env, amp):
     """Bound on |E (p C + q S)| over [tau, tau_end]; amp from :func:`_amplitude`."""
     if regime == UNDER:
@@ -363,7 +392,7 @@ def _hbound(regime, sigma, fr, p, q, tau, tau_end, env, amp):
     return homogeneous_bound(regime, sigma, fr, p, q, tau, tau_end)
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _amplitude(regime, fr, p, q, tau_end):
     """Segment constant of an UNDER bound: homogeneous_bound / e^{-sigma tau}."""
     if regime != UNDER:
@@ -463,6 +492,7 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
     tolf = NOISE * EPS * (wn * wn * gap + fmax)
     series = np.empty(CHATTER_ORDER + 1)
     inv_s = 1.0 / fr if regime == UNDER else 1.0
+    n_samples = sample_t.shape[0]
     w_const, w_grow, w_lim = _window_tables(coef)
     has_beat = False
     for i in range(coef.shape[0]):
@@ -612,7 +642,20 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
                                          amp4) + wb4
                             h = max(h, _window_step(g, v, acc + tola, jerk + tolj, m2, m4,
                                                     min(TAYLOR_WINDOW * h, h_cap)))
-                        if one_tone:
+                            s_lin = -g / v
+                            if m4 * s_lin * s_lin * s_lin <= 6.0 * NOISE * EPS * v:
+                                s_land = _landing(g, v, acc, jerk, m4, tola, tolj, tolx)
+                                if 0.0 < s_land and t + s_land < t_end:
+                                    # the wall is reached at t + s_land, and within the
+                                    # rounding noise of x before: land on it there
+                                    t_new = t + s_land
+                                    si = _fill_free(sample_t, sample_x, si, t_new, regime,
+                                                    sigma, fr, p, q, seg_t0, coef)
+                                    v = v + s_land * (acc + 0.5 * s_land * jerk)
+                                    t = t_new
+                                    g = 0.0
+                                    contact = True
+                        if not contact and one_tone:
                             xh = x - xp
                             vh = v - vp
                             h = max(h, _envelope_step(xh, -(vh + sigma * xh) / fr, xp,
@@ -727,8 +770,9 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
                 v = p1 * ec + q1 * es + vp
                 t = t_end
                 break
-            si = _fill_free(sample_t, sample_x, si, t_new, regime, sigma, fr, p, q,
-                            seg_t0, coef)
+            if si < n_samples:
+                si = _fill_free(sample_t, sample_x, si, t_new, regime, sigma, fr, p, q,
+                                seg_t0, coef)
             t = t_new
         if status != OK or not new_segment:
             break
