@@ -69,7 +69,8 @@ class DesignSection(_Strict):
     @classmethod
     def _odd(cls, value):
         if value is not None and value % 2 == 0:
-            raise ValueError(f"must be odd (so that -c, 0 and +c are grid nodes), {value} was given")
+            raise ValueError(f"must be odd (so that -c, 0 and +c are grid nodes), {value} "
+                             "was given")
         return value
 
     @model_validator(mode="after")

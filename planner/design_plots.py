@@ -39,7 +39,7 @@ def pair_response(pair, path, *, power=50.0, amplitude=None, window=3e-3, freque
     from planner.designer import response_curves, x0_grid
 
     designs = [("forward", pair.forward, "tab:blue"), ("backward", pair.backward, "tab:orange")]
-    marks = [d.frequency_hz for _, d, _ in designs] + [d.natural_frequency_hz for _, d, _ in designs]
+    marks = [v for _, d, _ in designs for v in (d.frequency_hz, d.natural_frequency_hz)]
     if frequencies is None:
         frequencies = np.linspace(0.5 * min(marks), 1.4 * max(marks), CURVE_POINTS)
     f = np.asarray(frequencies, dtype=float)

@@ -55,8 +55,9 @@ response is refined by bisection wherever it jumps between neighbours (Fig. 9's
 discontinuities, the paper's "bifurcations").  x0 = +c is evaluated at
 c (1 - WALL_OFFSET): the limit x0 -> c from inside is the stricter case (from just
 inside, a drive that presses on the wall at t0 produces counted chatter; a start
-stuck on the wall produces none) and it avoids a solver fault at x0 == gap exactly
-(spurious zero-time impacts, see the project notes).
+stuck on the wall produces none).  It also kept the designer clear of a solver fault
+at x0 == gap exactly (spurious zero-time impacts of noise velocity when the net force
+pulls away from the wall), fixed in the kernels since.
 
 **Constraint checks are cheap.**  A forbidden frequency is checked with
 ``stop_at_first`` (a run stops at its first counted impact), frequencies are tried
@@ -97,7 +98,16 @@ import numba
 import numpy as np
 from scipy import optimize, stats
 
-from model import Drive, Geometry, Impacter, Slider, SolverWarning, responses, simulate_slider, sweep
+from model import (
+    Drive,
+    Geometry,
+    Impacter,
+    Slider,
+    SolverWarning,
+    responses,
+    simulate_slider,
+    sweep,
+)
 from model import devices as _d
 from model.drive import POWER
 
@@ -108,8 +118,8 @@ UM = 1e-6
 
 #: Tier offset of the annealing energy; far above any difference of ln r [-].
 PENALTY = 1.0e3
-#: x0 = +c is simulated at c (1 - WALL_OFFSET): the inner limit, and clear of the
-#: solver's fault at x0 == gap exactly [-].
+#: x0 = +c is simulated at c (1 - WALL_OFFSET): the limit from inside the gap, the
+#: stricter case for (14) (see the module notes) [-].
 WALL_OFFSET = 1e-9
 #: Extra points just inside the wall, as fractions of c: a drive that presses on the
 #: wall at t0 makes starts there chatter, in a zone that can be far thinner than the
@@ -270,19 +280,28 @@ class Budget:
         nearest responding one is then bisected).
     guard_points : int
         Frequencies checked across each forbidden frequency's guard band (odd).
+    escalations : int
+        Further searches, each with 4x the samples and 2x the moves of the last, when a
+        search finds no feasible design at all.
+    area_face : float
+        Share of the initial samples placed at the largest area (see ``_search``).
+    violations_counted : int or None
+        The constraint check of a candidate stops at this many violated frequencies
+        (None: checks all): 1 is cheapest; more gives the annealer a slope towards
+        feasibility when many frequencies are forbidden.
     """
 
-    x0_points: int = 33
-    forbidden_x0_points: int = 65
+    x0_points: int = 65
+    forbidden_x0_points: int = 129
     refine_levels: int = 3
-    initial: int = 64
-    chains: int = 2
-    anneal_steps: int = 600
+    initial: int = 128
+    chains: int = 4
+    anneal_steps: int = 1000
     t_start: float = 0.3
     t_end: float = 0.003
     step: float = 0.08
     sqp_maxiter: int = 20
-    verify_x0_points: int = 513
+    verify_x0_points: int = 1025
     verify_refine_levels: int = 5
     rounds: int = 4
     resume_steps: int = 150
@@ -290,6 +309,9 @@ class Budget:
     active_forbidden: int | None = None
     margin_points: int = 48
     guard_points: int = 5
+    escalations: int = 1
+    area_face: float = 0.25
+    violations_counted: int | None = 1
 
     def __post_init__(self):
         for name in ("x0_points", "forbidden_x0_points", "verify_x0_points"):
@@ -313,14 +335,16 @@ BUDGETS = {
                    chains=1, anneal_steps=160, t_start=0.3, t_end=0.01, step=0.1,
                    sqp_maxiter=4, verify_x0_points=129, verify_refine_levels=3, rounds=3,
                    resume_steps=40, archive=3, active_forbidden=6, margin_points=8,
-                   guard_points=3),
+                   guard_points=3, escalations=2, area_face=0.5,
+                   violations_counted=3),
 }
 
 
 def _as_budget(budget, x0_points=None):
     b = BUDGETS.get(budget, budget) if isinstance(budget, str) else budget
     if not isinstance(b, Budget):
-        raise ValueError(f"budget must be one of {sorted(BUDGETS)} or a Budget, {budget!r} was given")
+        raise ValueError(f"budget must be one of {sorted(BUDGETS)} or a Budget, "
+                         f"{budget!r} was given")
     if x0_points is not None:
         n = int(x0_points)
         b = replace(b, x0_points=n, forbidden_x0_points=max(n, b.forbidden_x0_points),
@@ -822,21 +846,35 @@ class _Problem:
             u, r = u[order], r[order]
         return u, r
 
-    def violation(self, geometry, u, window, indices):
-        """(fraction of x0 responding, check index) at the first violated check frequency."""
+    def violation(self, geometry, u, window, indices, count=1):
+        """How badly (14) fails, and the first violated check (index), or (0, None).
+
+        Checks frequencies in the order given, each on the x0 grid u with
+        ``stop_at_first``, and stops after ``count`` violated ones (None: checks all).
+        The measure is (violations found - 1) + the fraction of x0 responding at the
+        first: in (0, 1] with count=1, larger the more frequencies respond.
+        """
         if u.size == 0:
             return 0.0, None
+        first, frac, found = None, 0.0, 0
         for j in indices:
             r, status = self.runs_of(geometry, self.check_hz[j], u, window, True)
             hit = r > 0
             if np.any(hit):
-                return float(np.mean(hit)), j
-        return 0.0, None
+                if first is None:
+                    first, frac = j, float(np.mean(hit))
+                found += 1
+                if count is not None and found >= count:
+                    break
+        if first is None:
+            return 0.0, None
+        return found - 1 + frac, first
 
     def add_points(self, u_target=(), u_forbid=(), u_long=()):
         """Exchange step: grow the grids by the x0 where a re-check failed."""
         self.u = np.unique(np.concatenate([self.u, np.asarray(u_target, dtype=float)]))
-        self.u_forbid = np.unique(np.concatenate([self.u_forbid, np.asarray(u_forbid, dtype=float)]))
+        self.u_forbid = np.unique(np.concatenate([self.u_forbid,
+                                                  np.asarray(u_forbid, dtype=float)]))
         self.u_long = np.unique(np.concatenate([self.u_long, np.asarray(u_long, dtype=float)]))
         self.evals = {}          # energies on the old grids no longer hold
         self.archive = []
@@ -849,7 +887,8 @@ class _Problem:
         if ev is not None:
             return ev
         self.evaluations += 1
-        frac, j = self.violation(geometry, self.u_forbid, self.window, self.active)
+        frac, j = self.violation(geometry, self.u_forbid, self.window, self.active,
+                                 self.budget.violations_counted)
         if j is None:
             frac, j = self.violation(geometry, self.u_long, LONG_WINDOW_FACTOR * self.window,
                                      self.active)
@@ -958,8 +997,14 @@ def _search(problem, rng, budget, tick, starts=None):
     grids and anneals shorter chains from them.
     """
     if starts is None:
-        sobol = stats.qmc.Sobol(4, scramble=True, seed=rng)
-        pool = [problem.evaluate(z) for z in sobol.random(budget.initial)]
+        samples = stats.qmc.Sobol(4, scramble=True, seed=rng).random(budget.initial)
+        # a share of the samples on the face A = A_max: r grows with m, and the damping
+        # b / 2m = mu A / (2 d m) is largest when the plate outweighs the beams, which
+        # narrows the response band (air); both favour the largest area
+        if budget.area_face > 0:
+            k = max(1, round(1.0 / budget.area_face))
+            samples[k - 1::k, 0] = 1.0
+        pool = [problem.evaluate(z) for z in samples]
         steps = budget.anneal_steps
     else:
         pool = [problem.evaluate(z) for z in starts]
@@ -1149,6 +1194,12 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
     (17) A >= 20 um^2, w >= 2 um, l >= 8 um, c >= 2 um;  (18) D = {-c <= x(t0) <= c,
     v(t0) = 0}.  r is eq. (12) with k, m, b from eqs. (2)-(4) as printed.
 
+    In vacuum (mu = 0, the default environment) the problem is usually infeasible: an
+    undamped impacter released from x0 = -c swings back to +c by itself, and the drive
+    brings it to the wall again within the window at almost any frequency.  The result
+    then has ``status == "infeasible"`` and a message saying where it responds; the
+    paper's optimisation example (Table II) is in air.
+
     Examples
     --------
     >>> res = design_impacter(6000.0, (3000.0,), budget="fast")   # doctest: +SKIP
@@ -1219,6 +1270,15 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
     starts = None
     for _round in range(budget.rounds):
         _search(problem, rng, budget, tick, starts)
+        if starts is None:
+            # no feasible design on the optimiser's grid: the feasible region may be
+            # small (a narrow band of (nu_n, c)); search again with more samples
+            for k in range(budget.escalations):
+                if problem.archive:
+                    break
+                grown = replace(budget, initial=budget.initial * 4 ** (k + 1),
+                                anneal_steps=budget.anneal_steps * 2 ** (k + 1))
+                _search(problem, rng, grown, tick)
         checked = []
         for ev in problem.archive:          # best first; the first that passes wins
             chk = _recheck(problem, ev.geometry)
@@ -1292,8 +1352,13 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
             message += (f"; responds at {chk['long_violated_hz']:g} Hz within the "
                         f"{LONG_WINDOW_FACTOR * window * 1e3:g} ms re-check window")
     else:
+        bad = [f"{f:g} Hz (r_max {r:.3g} N)" for f, r in zip(forbidden, chk["r_max"]) if r > 0]
         message = ("no design met the constraints within the bounds and budget; the least "
-                   "violating design is returned")
+                   "violating design is returned: "
+                   + (f"responds at {', '.join(bad)}" if bad else "")
+                   + ("" if chk["r_min"] > 0 else
+                      (", and " if bad else "")
+                      + f"does not respond at {frequency:g} Hz from every x0"))
     report(1.0)
     return DesignResult(
         impacter=imp, frequency_hz=frequency, forbidden_hz=forbidden,
