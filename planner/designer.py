@@ -278,6 +278,8 @@ class Budget:
     margin_points : int
         Frequencies per side of each forbidden frequency scanned for its margin (the
         nearest responding one is then bisected).
+    margin_tol : float
+        Tolerance of the margins' bisection, relative to the forbidden frequency.
     guard_points : int
         Frequencies checked across each forbidden frequency's guard band (odd).
     escalations : int
@@ -308,6 +310,7 @@ class Budget:
     archive: int = 6
     active_forbidden: int | None = None
     margin_points: int = 48
+    margin_tol: float = 1e-4
     guard_points: int = 5
     escalations: int = 1
     area_face: float = 0.25
@@ -335,7 +338,7 @@ BUDGETS = {
                    chains=1, anneal_steps=160, t_start=0.3, t_end=0.01, step=0.1,
                    sqp_maxiter=4, verify_x0_points=129, verify_refine_levels=3, rounds=3,
                    resume_steps=40, archive=3, active_forbidden=6, margin_points=8,
-                   guard_points=3, escalations=2, area_face=0.5,
+                   margin_tol=2e-3, guard_points=3, escalations=2, area_face=0.5,
                    violations_counted=3),
 }
 
@@ -389,7 +392,9 @@ class DesignResult:
         (0 where the design is feasible).
     margins_hz : tuple of float
         Distance from each forbidden frequency to the nearest frequency where the
-        design responds from some x0 [Hz] (0 if it responds there).
+        design responds from some x0 of the optimiser's constraint grid [Hz] (0 if it
+        responds there); scanned on both sides out to the target's distance, then
+        bisected (``Budget.margin_points``, ``Budget.margin_tol``).
     predicted_slider_speed_m_s : float
         Mean slider speed over the window when driven at nu from the worst x0 [m/s].
     feasible : bool
@@ -519,10 +524,16 @@ class _Tones:
                 raise ValueError(f"amplitude must be finite and > 0, {self.amplitude!r} was given")
             object.__setattr__(self, "amplitude", a)
 
+    # Drive objects already built, by frequency (validation costs more than a short run)
+    built: dict = field(default_factory=dict, compare=False, repr=False)
+
     def drive(self, frequency):
-        if self.amplitude is None:
-            return Drive.tone(frequency, self.power)
-        return Drive([frequency], [self.amplitude])
+        d = self.built.get(frequency)
+        if d is None:
+            d = (Drive.tone(frequency, self.power) if self.amplitude is None
+                 else Drive([frequency], [self.amplitude]))
+            self.built[frequency] = d
+        return d
 
 
 @contextlib.contextmanager
@@ -1070,11 +1081,12 @@ def _sparse(u, count=8):
     return u[np.linspace(0, u.size - 1, count).round().astype(int)]
 
 
-def _margins(impacter, tones, frequency, forbidden, x0s, window, points):
+def _margins(impacter, tones, frequency, forbidden, x0s, window, points, tol_rel):
     """Distance from each forbidden frequency to the nearest responding frequency [Hz].
 
     Scans ``points`` frequencies on each side of nu_j, out to |nu - nu_j| (the target
-    responds, so no margin is larger), then bisects the nearest responding one.
+    responds, so no margin is larger), then bisects the nearest responding one to
+    ``tol_rel`` nu_j (the side whose first response is nearer; both on a tie).
     """
     out = []
     for f in forbidden:
@@ -1087,15 +1099,20 @@ def _margins(impacter, tones, frequency, forbidden, x0s, window, points):
         if hit[0]:
             out.append(0.0)
             continue
-        best = d
-        tol = 1e-4 * f
+        sides = []
         for grid, h in ((near, hit[1:1 + near.size]), (far, hit[1 + near.size:])):
             idx = np.flatnonzero(h)
             if idx.size:
-                i = idx[0]
-                f_out = f if i == 0 else grid[i - 1]
-                edge = _bisect_edge(impacter, tones, x0s, window, grid[i], f_out, tol)
-                best = min(best, abs(edge - f))
+                sides.append((int(idx[0]), grid))
+        best = d
+        if sides:
+            first = min(i for i, _ in sides)
+            for i, grid in sides:
+                if i == first:
+                    f_out = f if i == 0 else grid[i - 1]
+                    edge = _bisect_edge(impacter, tones, x0s, window, grid[i], f_out,
+                                        tol_rel * f)
+                    best = min(best, abs(edge - f))
         out.append(float(best))
     return out
 
@@ -1321,11 +1338,12 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
     # report: band, margins and slider speed (the only slider simulation)
     nu_n = imp.natural_frequency
     span = [frequency, nu_n] + list(forbidden)
-    scan_x0s = _u_grid(min(65, budget.verify_x0_points)) * imp.gap
+    scan_x0s = _u_grid(budget.forbidden_x0_points) * imp.gap
     band = response_band(imp, scan_x0s, tones.power, window, 0.5 * min(span), 1.5 * max(span),
                          amplitude=tones.amplitude, points=8 * budget.margin_points,
                          tol_hz=1e-4 * frequency)
-    margins = _margins(imp, tones, frequency, forbidden, scan_x0s, window, budget.margin_points)
+    margins = _margins(imp, tones, frequency, forbidden, scan_x0s, window, budget.margin_points,
+                       budget.margin_tol)
     worst_x0 = chk["worst_u"] * imp.gap
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SolverWarning)
