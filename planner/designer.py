@@ -1081,40 +1081,66 @@ def _sparse(u, count=8):
     return u[np.linspace(0, u.size - 1, count).round().astype(int)]
 
 
-def _margins(impacter, tones, frequency, forbidden, x0s, window, points, tol_rel):
-    """Distance from each forbidden frequency to the nearest responding frequency [Hz].
+def _band_and_margins(impacter, tones, frequency, forbidden, x0s, window, budget):
+    """The response band around the target and each forbidden frequency's margin.
 
-    Scans ``points`` frequencies on each side of nu_j, out to |nu - nu_j| (the target
-    responds, so no margin is larger), then bisects the nearest responding one to
-    ``tol_rel`` nu_j (the side whose first response is nearer; both on a tie).
+    One scan serves both, so they agree: ``8 margin_points`` frequencies over 0.5x the
+    lowest to 1.5x the highest of the target, nu_n and the forbidden frequencies,
+    plus ``margin_points`` on each side of every nu_j out to |nu - nu_j| (the target
+    responds, so no margin is larger).  The band's edges and, for each nu_j, the
+    nearest responding scan frequency (on either side; both when within a scan step
+    of each other) are then bisected to ``margin_tol`` times the frequency.
+
+    Returns
+    -------
+    band : (float, float)
+        Lowest and highest responding frequency of the scan range [Hz] (nan if none).
+    margins : list of float
+        [Hz]; 0 where the design responds at nu_j itself.
     """
-    out = []
+    points = budget.margin_points
+    span = [frequency, impacter.natural_frequency] + list(forbidden)
+    grids = [np.linspace(0.5 * min(span), 1.5 * max(span), 8 * points), [frequency],
+             list(forbidden)]
     for f in forbidden:
-        d = abs(frequency - f)
-        k = np.arange(1, points + 1) * (d / points)
-        side = math.copysign(1.0, frequency - f)
-        near, far = f + side * k, f - side * k       # towards and away from the target
-        far = far[far > 0]
-        hit = _responds(impacter, tones, np.concatenate([[f], near, far]), x0s, window)
-        if hit[0]:
-            out.append(0.0)
+        k = np.arange(1, points + 1) * (abs(frequency - f) / points)
+        grids += [f + k, f - k]
+    scan = np.unique(np.concatenate([np.asarray(g, dtype=float) for g in grids]))
+    scan = scan[scan > 0]
+    hit = _responds(impacter, tones, scan, x0s, window)
+
+    def edge(i, toward):
+        """Bisect between responding scan[i] and its neighbour in direction ``toward``."""
+        j = i + toward
+        if j < 0 or j >= scan.size:
+            return float(scan[i])
+        return _bisect_edge(impacter, tones, x0s, window, scan[i], scan[j],
+                            budget.margin_tol * scan[i])
+
+    idx = np.flatnonzero(hit)
+    if idx.size == 0:
+        return (math.nan, math.nan), [abs(frequency - f) for f in forbidden]
+    band = (edge(idx[0], -1), edge(idx[-1], +1))
+    margins = []
+    for f in forbidden:
+        i0 = int(np.searchsorted(scan, f))          # scan[i0] == f
+        if hit[i0]:
+            margins.append(0.0)
             continue
-        sides = []
-        for grid, h in ((near, hit[1:1 + near.size]), (far, hit[1 + near.size:])):
-            idx = np.flatnonzero(h)
-            if idx.size:
-                sides.append((int(idx[0]), grid))
-        best = d
-        if sides:
-            first = min(i for i, _ in sides)
-            for i, grid in sides:
-                if i == first:
-                    f_out = f if i == 0 else grid[i - 1]
-                    edge = _bisect_edge(impacter, tones, x0s, window, grid[i], f_out,
-                                        tol_rel * f)
-                    best = min(best, abs(edge - f))
-        out.append(float(best))
-    return out
+        below, above = idx[idx < i0], idx[idx > i0]
+        cands = []
+        if below.size:
+            cands.append((f - scan[below[-1]], below[-1], +1))
+        if above.size:
+            cands.append((scan[above[0]] - f, above[0], -1))
+        nearest = min(c[0] for c in cands)
+        best = abs(frequency - f)
+        for dist, i, toward in cands:
+            # the edge lies between scan[i] and its neighbour towards nu_j
+            if dist - abs(scan[i] - scan[i + toward]) <= nearest:
+                best = min(best, abs(edge(i, toward) - f))
+        margins.append(float(best))
+    return band, margins
 
 
 def _impacter_factory(process, environment, impact_angle, restitution):
@@ -1337,13 +1363,8 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
 
     # report: band, margins and slider speed (the only slider simulation)
     nu_n = imp.natural_frequency
-    span = [frequency, nu_n] + list(forbidden)
-    scan_x0s = _u_grid(budget.forbidden_x0_points) * imp.gap
-    band = response_band(imp, scan_x0s, tones.power, window, 0.5 * min(span), 1.5 * max(span),
-                         amplitude=tones.amplitude, points=8 * budget.margin_points,
-                         tol_hz=1e-4 * frequency)
-    margins = _margins(imp, tones, frequency, forbidden, scan_x0s, window, budget.margin_points,
-                       budget.margin_tol)
+    band, margins = _band_and_margins(imp, tones, frequency, forbidden,
+                                      _u_grid(budget.forbidden_x0_points) * imp.gap, window, budget)
     worst_x0 = chk["worst_u"] * imp.gap
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SolverWarning)

@@ -21,6 +21,7 @@ from planner.cli import main
 from planner.config import EnvironmentConfig
 from planner.design_config import load_design_config
 from planner.designer import (
+    BUDGETS,
     PAPER_LOWER,
     DesignBounds,
     DesignResult,
@@ -159,8 +160,9 @@ def test_table2_report_fields(table2_pair):
         # margin: at least the guard band, and the design really responds there
         (margin,) = d.margins_hz
         assert 0.02 * other <= margin <= abs(own - other)
-        # (on either side: the nearest response may lie away from the target)
-        x0s = x0_grid(d.gap_m, 65)
+        # (on either side: the nearest response may lie away from the target), on the
+        # x0 grid the margins are measured on
+        x0s = x0_grid(d.gap_m, BUDGETS["full"].forbidden_x0_points)
         edges = [other - margin - 1.0, other - margin + 1.0, other + margin - 1.0,
                  other + margin + 1.0]
         assert np.any(sweep(d.impacter, edges, x0s, stop_at_first=True) > 0)
@@ -168,6 +170,8 @@ def test_table2_report_fields(table2_pair):
         assert np.all(sweep(d.impacter, inside, x0s, stop_at_first=True) == 0)
         lo, hi = d.response_band_hz
         assert lo < own < hi
+        if not lo <= other <= hi:     # band and margin come from one scan: they agree
+            assert min(abs(lo - other), abs(hi - other)) == pytest.approx(margin, abs=1.0)
         assert d.predicted_slider_speed_m_s > 0
         assert d.evaluations > 100 and d.seconds > 0
 
