@@ -26,8 +26,12 @@ def _find_script():
 
 
 def _load(path):
-    spec = importlib.util.spec_from_file_location("vibroplan_work_precision", path)
+    import sys
+
+    name = "vibroplan_work_precision"
+    spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up while it runs
     spec.loader.exec_module(module)
     return module
 
