@@ -35,7 +35,7 @@ import pandas as pd
 from planner.coloring import read_band, solve_bandwidth, verify_coloring
 
 HERE = Path(__file__).resolve().parent
-DEFAULT_GEOM_DIR = Path(__file__).resolve().parents[1].parent / "shared/reference/geom"
+DEFAULT_GEOM_DIR = Path(__file__).resolve().parents[1] / "tests" / "data" / "geom"
 RESULTS = HERE / "results"
 
 #: Proven optimal spans of the public instances (GEOM README; Trick's

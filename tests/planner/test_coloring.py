@@ -3,7 +3,7 @@
 Reference spans: hand-derived for the small graphs (derivation in each comment),
 brute force over colour orders for random small graphs, and the proven optima of
 the public GEOM instances (Trick's COLOR02/03/04 bandwidth series; table in
-/work/shared/reference/geom/README.md).
+tests/data/geom/README.md).
 """
 
 from __future__ import annotations
@@ -31,7 +31,8 @@ from planner.coloring import (
     verify_coloring,
 )
 
-GEOM_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "reference" / "geom"
+#: The three public GEOM instances, vendored from ../shared/reference/geom (tiny text files).
+GEOM_DIR = Path(__file__).resolve().parents[1] / "data" / "geom"
 
 #: Proven optimal spans (README of the GEOM directory).
 GEOM_OPTIMA = {"GEOM20": 21, "GEOM20a": 20, "GEOM20b": 13}
