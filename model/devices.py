@@ -33,11 +33,27 @@ VISCOSITY_AIR = 0.0179e-3       #: mu of air at room temperature [Pa s]
 SLIDER_THICKNESS = 2.0e-6       #: Poly1 slider [m]
 
 
+def _number(name, value):
+    """``value`` as a float, or a ValueError naming ``name``."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, {value!r} was given") from None
+
+
 def _positive(name, value, allow_zero=False):
-    value = float(value)
+    value = _number(name, value)
     if not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
         bound = ">= 0" if allow_zero else "> 0"
         raise ValueError(f"{name} must be finite and {bound}, {value!r} was given")
+    return value
+
+
+def _acute(name, value):
+    """An angle in [0, pi/2) [rad]: at pi/2 the V-beam's cos(phi) and the impact's cos(theta) vanish."""
+    value = _number(name, value)
+    if not (math.isfinite(value) and 0.0 <= value < math.pi / 2):
+        raise ValueError(f"{name} must be in [0, pi/2) rad, {value!r} was given")
     return value
 
 
@@ -106,11 +122,8 @@ class Impacter:
         object.__setattr__(self, "stiffness", _positive("stiffness", self.stiffness))
         object.__setattr__(self, "damping", _positive("damping", self.damping, allow_zero=True))
         object.__setattr__(self, "gap", _positive("gap", self.gap))
-        theta = float(self.impact_angle)
-        if not (math.isfinite(theta) and 0.0 <= theta < math.pi / 2):
-            raise ValueError(f"impact_angle must be in [0, pi/2) rad, {theta!r} was given")
-        object.__setattr__(self, "impact_angle", theta)
-        e = float(self.restitution)
+        object.__setattr__(self, "impact_angle", _acute("impact_angle", self.impact_angle))
+        e = _number("restitution", self.restitution)
         if not (math.isfinite(e) and 0.0 <= e <= 1.0):
             raise ValueError(f"restitution must be in [0, 1], {e!r} was given")
         object.__setattr__(self, "restitution", e)
@@ -139,9 +152,21 @@ class Impacter:
         substrate_gap : float
             d [m].
         beam_angle : float
-            phi [rad].
+            phi [rad], in [0, pi/2).
+        impact_angle : float
+            theta [rad], in [0, pi/2).
+        restitution : float
+            e [-], in [0, 1].
         natural_frequency : float, optional
             If given, k = m (2 pi nu_n)^2 replaces eq. (4) [Hz].
+
+        Raises
+        ------
+        ValueError
+            Naming the argument, if a length, area or material constant is not finite
+            and > 0 (``viscosity`` may be 0), an angle is outside [0, pi/2) or ``e``
+            outside [0, 1].  Every argument is checked here, before it is combined into
+            m, b and k, so the message names what the caller passed.
 
         Notes
         -----
@@ -153,13 +178,22 @@ class Impacter:
         width = _positive("width", width)
         length = _positive("length", length)
         gap = _positive("gap", gap)
+        thickness = _positive("thickness", thickness)
+        beam_height = _positive("beam_height", beam_height)
+        density = _positive("density", density)
+        youngs_modulus = _positive("youngs_modulus", youngs_modulus)
+        viscosity = _positive("viscosity", viscosity, allow_zero=True)
+        substrate_gap = _positive("substrate_gap", substrate_gap)
+        beam_angle = _acute("beam_angle", beam_angle)
+        if natural_frequency is not None:
+            natural_frequency = _positive("natural_frequency", natural_frequency)
         mass = density * area * thickness + 2.0 * density * beam_height * width * length
         damping = viscosity * area / substrate_gap
         cphi = math.cos(beam_angle)
         stiffness = (youngs_modulus * beam_height * (width / length) ** 3
                      * (4.0 / cphi) * (2.0 / cphi + 1.0))
         if natural_frequency is not None:
-            stiffness = mass * (2.0 * math.pi * _positive("natural_frequency", natural_frequency)) ** 2
+            stiffness = mass * (2.0 * math.pi * natural_frequency) ** 2
         return cls(mass, stiffness, damping, gap, impact_angle, restitution,
                    Geometry(area, width, length, gap))
 
@@ -224,9 +258,13 @@ class Slider:
                       static_friction=STATIC_FRICTION, dynamic_friction=DYNAMIC_FRICTION):
         """Slider from its planar area [m^2] and thickness [m], "similarly to (2) and (3)".
 
-        M = rho A t_s and B = mu A / d.
+        M = rho A t_s and B = mu A / d.  Every argument is checked before it is combined,
+        so a ValueError names what the caller passed.
         """
         area = _positive("area", area)
         thickness = _positive("thickness", thickness)
+        density = _positive("density", density)
+        viscosity = _positive("viscosity", viscosity, allow_zero=True)
+        substrate_gap = _positive("substrate_gap", substrate_gap)
         return cls(density * area * thickness, viscosity * area / substrate_gap,
                    static_friction, dynamic_friction)

@@ -14,15 +14,43 @@ POWER = 50.0
 def amplitude_from_power(frequency, power=POWER):
     """Tone amplitude Z0 = sqrt(power / w^3) [m] at ``frequency`` [Hz].
 
+    Parameters
+    ----------
+    frequency : float or array_like
+        f [Hz], finite and > 0.
+    power : float
+        Z0^2 w^3 [m^2/s^3], finite and > 0.
+
+    Raises
+    ------
+    ValueError
+        Naming ``frequency`` or ``power`` if it is not finite and > 0 (a negative
+        power would otherwise pass through sqrt as NaN and be blamed on the amplitude).
+
     >>> round(amplitude_from_power(5000.0) * 1e6, 2)   # footnote 3: 1.27 um at 5 kHz
     1.27
     """
-    w = 2.0 * np.pi * np.asarray(frequency, dtype=float)
-    return np.sqrt(power / w**3)
+    try:
+        f = np.asarray(frequency, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"frequency must be numbers, {frequency!r} was given") from None
+    if not (np.all(np.isfinite(f)) and np.all(f > 0)):
+        raise ValueError(f"frequency must be finite and > 0, {f.tolist()!r} was given")
+    try:
+        p = float(power)
+    except (TypeError, ValueError):
+        raise ValueError(f"power must be a number, {power!r} was given") from None
+    if not (math.isfinite(p) and p > 0):
+        raise ValueError(f"power must be finite and > 0 [m^2/s^3], {p!r} was given")
+    w = 2.0 * np.pi * f
+    return np.sqrt(p / w**3)
 
 
 def _vector(name, values, *, positive=False, nonnegative=False):
-    arr = np.atleast_1d(np.asarray(values, dtype=float)).copy()
+    try:
+        arr = np.atleast_1d(np.asarray(values, dtype=float)).copy()
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be numbers, {values!r} was given") from None
     if arr.ndim != 1:
         raise ValueError(f"{name} must be one-dimensional, shape {arr.shape} was given")
     if not np.all(np.isfinite(arr)):
@@ -77,12 +105,15 @@ class Drive:
 
     @classmethod
     def tone(cls, frequency, power=POWER, phase=0.0):
-        """One tone at ``frequency`` [Hz] with Z0 = sqrt(power / w^3) [m]."""
+        """One tone at ``frequency`` [Hz] with Z0 = sqrt(power / w^3) [m].
+
+        ``power`` [m^2/s^3] must be finite and > 0; a ValueError names it otherwise.
+        """
         return cls([frequency], [float(amplitude_from_power(frequency, power))], [phase])
 
     @classmethod
     def from_power(cls, frequencies, power=POWER, phases=None):
-        """Several tones, each with Z0^2 w^3 = power [m^2/s^3]."""
+        """Several tones, each with Z0^2 w^3 = power [m^2/s^3] (finite, > 0)."""
         f = _vector("frequencies", frequencies, positive=True)
         return cls(f, amplitude_from_power(f, power), phases)
 

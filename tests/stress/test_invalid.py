@@ -51,12 +51,10 @@ def test_geometry_fields(field, bad):
 
 @pytest.mark.parametrize("field, bad", [
     ("viscosity", -1.0), ("viscosity", NAN), ("density", 0.0), ("thickness", INF),
-    ("beam_angle", math.pi / 2),
+    ("beam_angle", math.pi / 2), ("beam_angle", -0.1), ("beam_angle", NAN),
+    ("beam_height", 0.0), ("youngs_modulus", -1.0), ("substrate_gap", 0.0),
+    ("impact_angle", math.pi / 2), ("density", "poly"),
 ])
-@pytest.mark.xfail(strict=True, reason="model/devices.py (not the stress suite's file): "
-                   "from_geometry validates the derived mass/damping/stiffness, so the "
-                   "message names 'mass' or 'damping' instead of the argument, and "
-                   "beam_angle = pi/2 gives k = 4.6e31 without an error; reported")
 def test_geometry_material_fields_are_named(field, bad):
     with pytest.raises(ValueError, match=field):
         Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6, **{field: bad})
@@ -77,11 +75,22 @@ def test_drive_fields(kwargs, name):
         Drive(**kwargs)
 
 
-@pytest.mark.xfail(strict=True, reason="model/drive.py: Drive.tone(power=-1) warns "
-                   "'invalid value in sqrt' and then blames 'amplitudes'; reported")
-def test_drive_power_is_named():
-    with np.errstate(invalid="ignore"), pytest.raises(ValueError, match="power"):
-        Drive.tone(1e3, power=-1.0)
+@pytest.mark.parametrize("power", [-1.0, 0.0, NAN, INF, None])
+@pytest.mark.parametrize("make", [
+    lambda power: Drive.tone(1e3, power=power),
+    lambda power: Drive.from_power([1e3, 2e3], power=power),
+    lambda power: model.amplitude_from_power(1e3, power),
+])
+def test_drive_power_is_named(make, power):
+    # checked before the sqrt, so no 'invalid value' warning and no blame on 'amplitudes'
+    with pytest.raises(ValueError, match="power"):
+        make(power)
+
+
+@pytest.mark.parametrize("bad", [-1e3, 0.0, NAN])
+def test_tone_frequency_is_named(bad):
+    with pytest.raises(ValueError, match="frequency"):
+        Drive.tone(bad)
 
 
 @pytest.mark.parametrize("kwargs, name", [
@@ -130,3 +139,11 @@ def test_api_arguments(call, name):
 def test_slider_fields(field, bad):
     with pytest.raises(ValueError, match=field):
         Slider(**{**dict(mass=1e-9), field: bad})
+
+
+@pytest.mark.parametrize("field, bad", [
+    ("thickness", 0.0), ("density", NAN), ("viscosity", -1.0), ("substrate_gap", INF),
+])
+def test_slider_geometry_fields(field, bad):
+    with pytest.raises(ValueError, match=field):
+        Slider.from_geometry(8.0e-8, **{field: bad})
