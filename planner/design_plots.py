@@ -50,14 +50,17 @@ def pair_response(pair, path, *, power=50.0, amplitude=None, window=3e-3, freque
                                        amplitude=amplitude)
         ax.fill_between(f / 1e3, 0.0, r_max * 1e9, color=colour, alpha=0.18, lw=0,
                         label=f"{name}: max over x0")
+        # outline too: where the two shadings overlap, a tail of one design under the
+        # other's (a response at the forbidden frequency) would otherwise be invisible
+        ax.plot(f / 1e3, r_max * 1e9, color=colour, lw=0.7, alpha=0.7)
         ax.plot(f / 1e3, r_min * 1e9, color=colour, lw=1.8, label=f"{name}: min over x0")
         ax.axvline(d.natural_frequency_hz / 1e3, color=colour, ls=":", lw=1.2)
         ax.axvline(d.frequency_hz / 1e3, color=colour, ls="--", lw=1.2)
     top = ax.get_ylim()[1]
     for name, d, colour in designs:
-        ax.annotate(f" nu_{name[0]} = {d.frequency_hz / 1e3:g} kHz", (d.frequency_hz / 1e3, top),
+        ax.annotate(rf" $\nu_{name[0]}$ = {d.frequency_hz / 1e3:g} kHz", (d.frequency_hz / 1e3, top),
                     rotation=90, va="top", ha="right", fontsize=8, color=colour)
-        ax.annotate(f" nu_n = {d.natural_frequency_hz / 1e3:.3g} kHz",
+        ax.annotate(rf" $\nu_{{n,{name[0]}}}$ = {d.natural_frequency_hz / 1e3:.3g} kHz",
                     (d.natural_frequency_hz / 1e3, top), rotation=90, va="top", ha="right",
                     fontsize=8, color=colour, alpha=0.8)
     ax.set_xlim(f[0] / 1e3, f[-1] / 1e3)
