@@ -62,7 +62,8 @@ def activity(steps) -> dict[str, tuple[bool, ...]]:
     return out
 
 
-def conflict_graph(steps, separation=1, pair_separation=None) -> tuple[nx.Graph, dict]:
+def conflict_graph(steps, separation=1, pair_separation=None,
+                   ensemble_separation=None) -> tuple[nx.Graph, dict]:
     """Build the conflict graph.
 
     Parameters
@@ -73,6 +74,9 @@ def conflict_graph(steps, separation=1, pair_separation=None) -> tuple[nx.Graph,
     pair_separation : dict, optional
         ``frozenset({node_u, node_v}) -> separation`` overriding the default (the
         repair loop widens offending pairs this way).
+    ensemble_separation : int, optional
+        Separation between a node idle in a step that plays two or more tones and
+        every node that plays in it (off-resonant responses to a step's tones add up).
 
     Returns
     -------
@@ -92,9 +96,20 @@ def conflict_graph(steps, separation=1, pair_separation=None) -> tuple[nx.Graph,
     for g in groups:
         graph.add_node(g, members=groups[g])
     names = sorted(groups)
+    member_of = {n: g for g, members in groups.items() for n in members}
+    ensemble = set()
+    if ensemble_separation:
+        for st in steps:
+            playing = {member_of[node_id(d, dr)] for d, dr in st.active_nodes()}
+            if len(playing) < 2:
+                continue
+            for idle in set(groups) - playing:
+                ensemble.update(frozenset((idle, p)) for p in playing)
     for a, b in itertools.combinations(names, 2):
         # different activity patterns: some step drives one and not the other
         sep = separation
+        if frozenset((a, b)) in ensemble:
+            sep = max(sep, ensemble_separation)
         for u in groups[a]:
             for v in groups[b]:
                 sep = max(sep, pair_separation.get(frozenset((u, v)), 0))
@@ -231,7 +246,8 @@ def assign(loaded: LoadedSpec, steps, *, separation=None, pair_separation=None,
 
     spec = loaded.spec
     sep = spec.drive.guard.separation_channels if separation is None else int(separation)
-    graph, groups = conflict_graph(steps, sep, pair_separation)
+    graph, groups = conflict_graph(steps, sep, pair_separation,
+                                   spec.drive.guard.ensemble_separation_channels)
     if graph.number_of_nodes() == 0:
         raise PlanningError("no step drives any impacter: nothing to assign")
     result = solve_bandwidth(graph, "sep", method=method, time_limit=time_limit, seed=0)
@@ -247,11 +263,17 @@ def assign(loaded: LoadedSpec, steps, *, separation=None, pair_separation=None,
             f"band (drive.band_hz), more channels (drive.channels.count) with a narrower response "
             f"band (drive.guard.separation_channels), fewer independently addressable devices "
             f"(independent: false), or scenes in which devices move together and share a channel.")
+    # orientation: a colouring read upward or downward is equally valid; choose the one
+    # that puts the tones of multi-tone steps below the impacters idle in them
+    top = max(result.coloring.values())
+    flipped = {g: top - c for g, c in result.coloring.items()}
+    coloring = min((result.coloring, flipped),
+                   key=lambda col: _ensemble_exposure(steps, groups, col))
     best = None
     for q, o in _mapping_candidates(result.span, count):
         freqs = {}
         chans = {}
-        for g, colour in result.coloring.items():
+        for g, colour in coloring.items():
             for n in groups[g]:
                 chans[n] = o + q * colour
                 freqs[n] = float(grid[chans[n]])
@@ -261,8 +283,27 @@ def assign(loaded: LoadedSpec, steps, *, separation=None, pair_separation=None,
         if not viol:
             break
     q, o, chans, freqs, viol = best
-    return Assignment(graph, groups, dict(result.coloring), result.span, result.lower_bound,
+    return Assignment(graph, groups, dict(coloring), result.span, result.lower_bound,
                       result.optimal, result.method, result.seconds, q, o, chans, freqs, viol)
+
+
+def _ensemble_exposure(steps, groups, coloring):
+    """Pairs (idle impacter, tone above it) over the steps that play several tones.
+
+    Above its resonance an impacter follows a tone with about the tone's amplitude
+    (the mass line), below it with (f / nu_n)^2 of it; so the sum of a step's tones
+    stirs an idle impacter below them more than one above them.
+    """
+    member_of = {n: g for g, members in groups.items() for n in members}
+    count = 0
+    for st in steps:
+        playing = {member_of[node_id(d, dr)] for d, dr in st.active_nodes()
+                   if node_id(d, dr) in member_of}
+        if len(playing) < 2:
+            continue
+        for g in set(groups) - playing:
+            count += sum(coloring[p] > coloring[g] for p in playing)
+    return count
 
 
 def verify_assignment(assignment: Assignment) -> list[str]:

@@ -506,6 +506,36 @@ class PairDesign:
 # the drive convention and kernel calls
 
 
+@dataclass(frozen=True, eq=False)
+class Ensemble:
+    """A forbidden drive of several tones: a step's summed drive in which the design is idle.
+
+    Off-resonant responses to the tones of a step add up, so a design silent under
+    each tone alone can still hit its slider under their sum; the array planner
+    passes every multi-tone step in which an impacter must be idle as one of these.
+
+    Attributes
+    ----------
+    drive : model.Drive
+        The summed drive, amplitudes and phases as synthesised.
+    label : str
+        Name for reports (the step).
+    """
+
+    drive: Drive
+    label: str = "ensemble"
+
+    def __float__(self):          # for sorting and reports: the lowest tone
+        return float(np.min(self.drive.frequencies))
+
+    def __repr__(self):
+        return f"Ensemble({self.label!r}, {self.drive.frequencies.size} tones)"
+
+
+def _freq_key(frequency):
+    return frequency if isinstance(frequency, Ensemble) else float(frequency)
+
+
 @dataclass(frozen=True)
 class _Tones:
     """One tone per frequency: Z0^2 w^3 = power, or a fixed amplitude [m]."""
@@ -528,6 +558,8 @@ class _Tones:
     built: dict = field(default_factory=dict, compare=False, repr=False)
 
     def drive(self, frequency):
+        if isinstance(frequency, Ensemble):
+            return frequency.drive
         d = self.built.get(frequency)
         if d is None:
             d = (Drive.tone(frequency, self.power) if self.amplitude is None
@@ -752,10 +784,32 @@ class _Eval:
         return self.violation == 0.0 and self.r_min > 0.0
 
 
+def natural_ratio(frequency, forbidden):
+    """Search range of nu_n / nu: NATURAL_RATIO, narrowed when forbidden tones are near.
+
+    A design that responds at nu but not at a forbidden nu_j a relative distance
+    delta = |ln(nu_j / nu)| away has its resonance within a few delta of nu (the
+    response band lies around nu_n, skewed upward by the hardening of the impacts).
+    With the array's close neighbours (delta ~ 2 %) the feasible nu_n fill a sliver of
+    NATURAL_RATIO that random sampling would rarely hit, so the range shrinks to
+    [exp(-3 delta), exp(2 delta)] (never wider than NATURAL_RATIO).  For the paper's
+    pair (delta = ln 2) this leaves NATURAL_RATIO unchanged.
+
+    >>> natural_ratio(6000.0, [3000.0])
+    (0.4, 1.4)
+    """
+    lo, hi = NATURAL_RATIO
+    if len(forbidden):
+        delta = min(abs(math.log(f / frequency)) for f in forbidden)
+        lo, hi = max(lo, math.exp(-3.0 * delta)), min(hi, math.exp(2.0 * delta))
+    return (lo, hi)
+
+
 class _Problem:
     """Geometry <-> search coordinates, cached simulations and the tiered energy."""
 
-    def __init__(self, frequency, forbidden, factory, tones, bounds, window, budget, guard):
+    def __init__(self, frequency, forbidden, factory, tones, bounds, window, budget, guard,
+                 ensembles=()):
         self.frequency = frequency
         self.forbidden = forbidden
         self.factory = factory
@@ -767,18 +821,24 @@ class _Problem:
         # in danger order (nearest the target in log frequency, centre first)
         offsets = _guard_offsets(guard, budget.guard_points)
         near = sorted(range(len(forbidden)), key=lambda j: abs(math.log(forbidden[j] / frequency)))
-        self.check_hz = [forbidden[j] * (1.0 + o) for j in near for o in offsets]
-        self.owner = [j for j in near for _ in offsets]
+        # the summed drives of multi-tone steps come first: they are what fails when
+        # every tone alone is harmless
+        self.ensembles = tuple(ensembles)
+        self.check_hz = list(self.ensembles) + [forbidden[j] * (1.0 + o) for j in near
+                                                for o in offsets]
+        self.owner = [-1] * len(self.ensembles) + [j for j in near for _ in offsets]
         self.order = list(range(len(self.check_hz)))
         k = budget.active_forbidden
         # checked during the search, with move-to-front on a violation
-        self.active = list(self.order if k is None else self.order[:k * len(offsets)])
+        self.active = list(self.order if k is None else
+                           self.order[:len(self.ensembles) + k * len(offsets)])
         self.u = _u_grid(budget.x0_points)                # objective grid (u = x0 / c)
         self.u_forbid = _u_grid(budget.forbidden_x0_points)  # constraint grid
         self.u_long = np.zeros(0)     # constraint points checked over the long window
-        self.lo = np.log([bounds.area[0], bounds.width[0], NATURAL_RATIO[0] * frequency,
+        ratio = natural_ratio(frequency, forbidden)
+        self.lo = np.log([bounds.area[0], bounds.width[0], ratio[0] * frequency,
                           bounds.gap[0]])
-        self.hi = np.log([bounds.area[1], bounds.width[1], NATURAL_RATIO[1] * frequency,
+        self.hi = np.log([bounds.area[1], bounds.width[1], ratio[1] * frequency,
                           bounds.gap[1]])
         self.evals = {}      # geometry -> _Eval (on the current grids)
         self.runs = {}       # (geometry, f, window, stop, u bytes) -> (r, status)
@@ -829,7 +889,7 @@ class _Problem:
 
     # simulations -------------------------------------------------------------------
     def runs_of(self, geometry, frequency, u, window, stop):
-        key = (geometry, float(frequency), float(window), bool(stop), u.tobytes())
+        key = (geometry, _freq_key(frequency), float(window), bool(stop), u.tobytes())
         hit = self.runs.get(key)
         if hit is None:
             imp = self.factory(*geometry)
@@ -907,8 +967,8 @@ class _Problem:
             # move-to-front: the frequency that just failed is the likeliest next time
             self.active.remove(j)
             self.active.insert(0, j)
-            ev = _Eval(zz, geometry, 2 * PENALTY + frac, frac, self.check_hz[j], 0.0, 0.0,
-                       math.nan)
+            ev = _Eval(zz, geometry, 2 * PENALTY + frac, frac, float(self.check_hz[j]), 0.0,
+                       0.0, math.nan)
         else:
             u, r = self.target(geometry, self.u, self.budget.refine_levels)
             i = int(np.argmin(r))
@@ -1057,13 +1117,13 @@ def _recheck(problem, geometry):
     long_window = LONG_WINDOW_FACTOR * problem.window
     bad_long, long_hz = [], None
     for j, f in enumerate(problem.check_hz):
-        if problem.check_hz[j] not in problem.forbidden:
+        if problem.check_hz[j] not in problem.forbidden and not isinstance(f, Ensemble):
             continue   # the long window is checked at the forbidden frequencies themselves
         rl = problem.runs_of(geometry, f, u_fine, long_window, True)[0]
         if np.any(rl > 0):
             bad_long.append(u_fine[rl > 0])
             violated.append(j)
-            long_hz = f if long_hz is None else long_hz
+            long_hz = float(f) if long_hz is None else long_hz
     fine_ok = not bad_forbid and float(r[i]) > 0
     return {"r_min": float(r[i]), "worst_u": float(u[i]), "r_max": r_max,
             "fine_ok": fine_ok, "long_ok": not bad_long, "points": int(u.size),
@@ -1177,7 +1237,8 @@ def _progress_hook(progress):
 def design_impacter(frequency, forbidden=(), *, process=None, environment=None, power=POWER,
                     amplitude=None, bounds=None, window=3e-3, seed=0, budget="full",
                     slider=None, progress=None, x0_points=None, guard=GUARD,
-                    impact_angle=_d.IMPACT_ANGLE, restitution=_d.RESTITUTION):
+                    impact_angle=_d.IMPACT_ANGLE, restitution=_d.RESTITUTION,
+                    forbidden_drives=()):
     """Design one impacter by the paper's max-min problem, eqs. (13)-(18).
 
     Maximise the worst response over initial positions at ``frequency`` subject to
@@ -1226,6 +1287,10 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         theta [rad].
     restitution : float
         e [-].
+    forbidden_drives : sequence of model.Drive or Ensemble
+        Multi-tone drives (the summed drives of the steps in which the impacter must be
+        idle) under which the design must also be silent, from every x0, over the
+        window and the long re-check window; checked before the single tones.
 
     Returns
     -------
@@ -1293,7 +1358,10 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         if f * (1.0 - guard) <= frequency <= f * (1.0 + guard):
             raise ValueError(f"the target {frequency:g} Hz lies in the guard band of the "
                              f"forbidden frequency {f:g} Hz (guard {guard:g})")
-    problem = _Problem(frequency, forbidden, factory, tones, bounds, window, budget, guard)
+    ensembles = tuple(e if isinstance(e, Ensemble) else Ensemble(e, f"drive {i}")
+                      for i, e in enumerate(forbidden_drives))
+    problem = _Problem(frequency, forbidden, factory, tones, bounds, window, budget, guard,
+                       ensembles)
 
     report = _progress_hook(progress)
     expected = (budget.initial + budget.chains * budget.anneal_steps

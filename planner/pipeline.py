@@ -42,6 +42,7 @@ from planner.assign import (
     verify_assignment,
 )
 from planner.config import build_impacter, build_slider
+from planner.errors import PlanningError
 from planner.spec import LoadedSpec, default_spec_path, load_spec, separation_for_bandwidth
 
 UM = 1e-6
@@ -127,28 +128,98 @@ def _bounds(spec):
     return DesignBounds.from_spec(**kwargs) if kwargs else DesignBounds()
 
 
-def design_all(loaded, steps, assignment, cache, progress=None):
-    """Design every driven impacter; ``cache`` maps (frequency, forbidden) -> result."""
+def _idle_ensembles(steps, frequencies, waveforms):
+    """Node -> keys of the multi-tone steps in which it is idle (their summed drives)."""
+    out = {n: [] for n in frequencies}
+    for st in steps:
+        active = {node_id(d, dr) for d, dr in st.active_nodes()}
+        if len({frequencies[n] for n in active if n in frequencies}) < 2:
+            continue
+        for n in frequencies:
+            if n not in active:
+                out[n].append(st.key)
+    return {n: tuple(v) for n, v in out.items()}
+
+
+#: Extra seeds tried for a design that is infeasible or slower than the spec's minimum.
+DESIGN_RETRIES = 2
+
+
+def _design_task(kwargs, min_speed):
+    """One impacter's design; retried with the next seeds while it is infeasible or
+    predicted slower than ``min_speed`` [m/s] (the search is stochastic; the best of
+    the tries is kept: feasible first, then the fastest)."""
     from planner.designer import design_impacter
+
+    best = None
+    for k in range(DESIGN_RETRIES + 1):
+        res = design_impacter(**{**kwargs, "seed": kwargs["seed"] + k})
+        rank = (bool(res.feasible), float(res.predicted_slider_speed_m_s))
+        if best is None or rank > best[0]:
+            best = (rank, res)
+        if res.feasible and res.predicted_slider_speed_m_s >= min_speed:
+            break
+    return best[1]
+
+
+def design_all(loaded, steps, assignment, cache, progress=None, waveforms=None, jobs=1):
+    """Design every driven impacter; ``cache`` maps the design inputs -> result.
+
+    With ``waveforms`` (step key -> Waveform), the summed drive of every multi-tone
+    step in which an impacter is idle is a forbidden drive of its design too.  Designs
+    sharing a target and forbidden set are designed once; with ``jobs`` > 1 the
+    distinct designs run in that many worker processes (same results as serial: each
+    design is seeded by the spec alone).
+    """
+    from planner.designer import Ensemble
 
     spec = loaded.spec
     forbidden = _forbidden(steps, assignment.frequencies)
-    designs = {}
+    ensembles = (_idle_ensembles(steps, assignment.frequencies, waveforms)
+                 if waveforms is not None else {n: () for n in assignment.frequencies})
     bounds = _bounds(spec)
+    keys, tasks = {}, {}
     for n in sorted(assignment.frequencies):
-        key = (round(assignment.frequencies[n], 6), forbidden[n])
-        if key not in cache:
-            dev, direction = split_node(n)
-            cache[key] = design_impacter(
-                assignment.frequencies[n], forbidden[n], process=spec.process,
-                environment=spec.environment, power=spec.drive.power_m2_s3,
+        drives = tuple((k, tuple(np.round(waveforms[k].frequencies, 6)),
+                        tuple(np.round(waveforms[k].phases, 9))) for k in ensembles[n])
+        key = (round(assignment.frequencies[n], 6), forbidden[n], drives)
+        keys[n] = key
+        if key not in cache and key not in tasks:
+            tasks[key] = dict(
+                frequency=assignment.frequencies[n], forbidden=forbidden[n],
+                forbidden_drives=[Ensemble(_drive_of(waveforms[k]), k) for k in ensembles[n]],
+                process=spec.process, environment=spec.environment,
+                power=spec.drive.power_m2_s3,
                 amplitude=(spec.drive.amplitude_um * UM if spec.drive.amplitude_um else None),
                 bounds=bounds, window=spec.design.window_ms * 1e-3, seed=spec.design.seed,
-                budget=spec.design.budget)
-        designs[n] = cache[key]
-        if progress is not None:
+                budget=spec.design.budget, guard=spec.design.guard)
+    min_speed = spec.verification.min_speed_mm_s * 1e-3
+    users = {}
+    for n, key in keys.items():
+        users.setdefault(key, []).append(n)
+    for n, key in keys.items():
+        if key in cache and progress is not None:
             progress(n)
-    return designs
+    if jobs > 1 and len(tasks) > 1:
+        import concurrent.futures as cf
+        import multiprocessing
+
+        ctx = multiprocessing.get_context("spawn")
+        with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
+            futures = {pool.submit(_design_task, kw, min_speed): key for key, kw in tasks.items()}
+            for fut in cf.as_completed(futures):
+                key = futures[fut]
+                cache[key] = fut.result()
+                for n in users[key]:
+                    if progress is not None:
+                        progress(n)
+    else:
+        for key, kw in tasks.items():
+            cache[key] = _design_task(kw, min_speed)
+            for n in users[key]:
+                if progress is not None:
+                    progress(n)
+    return {n: cache[key] for n, key in keys.items()}
 
 
 # ----------------------------------------------------------------------------------
@@ -343,8 +414,12 @@ def _impacter_record(n, assignment, design):
     return rec
 
 
-def run_plan(loaded: LoadedSpec, *, seed=None, progress=None):
-    """Run every stage; returns a :class:`Plan` (files are written by :func:`plan`)."""
+def run_plan(loaded: LoadedSpec, *, seed=None, progress=None, jobs=None):
+    """Run every stage; returns a :class:`Plan` (files are written by :func:`plan`).
+
+    ``jobs``: worker processes for the designs (default 1).
+    """
+    jobs = max(1, int(jobs or 1))
     spec = loaded.spec
     seed = spec.design.seed if seed is None else int(seed)
     tick = progress or (lambda stage, item=None, total=None: None)
@@ -357,20 +432,32 @@ def run_plan(loaded: LoadedSpec, *, seed=None, progress=None):
     sep = spec.drive.guard.separation_channels
     for round_ in range(spec.verification.repair_rounds + 1):
         ts = time.perf_counter()
-        assignment = assign(loaded, steps, separation=sep, pair_separation=pair_sep)
+        try:
+            assignment = assign(loaded, steps, separation=sep, pair_separation=pair_sep)
+        except PlanningError as exc:
+            if round_ == 0:
+                raise
+            # the widened separations no longer fit the band: keep the last plan and
+            # report what still fails
+            rounds.append({"round": round_, "span": None, "failures": None,
+                           "stopped": str(exc)})
+            break
         timings["assign"] = timings.get("assign", 0.0) + time.perf_counter() - ts
+        # the drives depend on the frequencies only, so they come before the designs,
+        # which must be silent under the summed drive of every step they sit out
+        ts = time.perf_counter()
+        waveforms = synthesize_steps(loaded, steps, assignment, seed)
+        timings["drive"] = timings.get("drive", 0.0) + time.perf_counter() - ts
         ts = time.perf_counter()
         tick("design", total=len(assignment.frequencies))
         designs = design_all(loaded, steps, assignment, cache,
-                             progress=lambda n: tick("design", n))
+                             progress=lambda n: tick("design", n), waveforms=waveforms,
+                             jobs=jobs)
         timings["design"] = timings.get("design", 0.0) + time.perf_counter() - ts
         impacters = {n: d.impacter for n, d in designs.items()}
         devices = sorted({split_node(n)[0] for n in impacters}, key=lambda d: (d[0], int(d[1:])))
         sliders = {d: build_slider(spec.slider_config(d), spec.process, spec.environment)
                    for d in devices}
-        ts = time.perf_counter()
-        waveforms = synthesize_steps(loaded, steps, assignment, seed)
-        timings["drive"] = timings.get("drive", 0.0) + time.perf_counter() - ts
         ts = time.perf_counter()
         tick("verify", total=len(steps))
         ver_rows = []
@@ -607,7 +694,7 @@ def _has_tabulate():
         return False
 
 
-def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True):
+def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, jobs=None):
     """Plan an array: the whole pipeline, optionally writing every output.
 
     Parameters
@@ -622,6 +709,10 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True):
     seed : int, optional
         Overrides the spec's ``design.seed``; same spec and seed give a
         byte-identical plan.json.
+    jobs : int, optional
+        Worker processes for the designs (default 1; the CLI uses every core).  The
+        plan does not depend on it.  As with any ``multiprocessing`` code, a script
+        that passes jobs > 1 needs an ``if __name__ == "__main__":`` guard.
 
     Returns
     -------
@@ -632,7 +723,7 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True):
     else:
         loaded = load_spec(Path(spec) if spec is None or isinstance(spec, Path) or "\n" not in str(spec)
                            else spec) if spec is not None else load_spec(default_spec_path())
-    result = run_plan(loaded, seed=seed, progress=progress)
+    result = run_plan(loaded, seed=seed, progress=progress, jobs=jobs)
     if out_dir is not None:
         from planner.cli._common import atomic_path
 

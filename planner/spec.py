@@ -80,9 +80,15 @@ class GuardRules(_Strict):
         used to reject harmonic and intermodulation products landing in it.
     harmonics : reject f_i ~ n f_j and f_i ~ f_j / n (n = 2, 3).
     intermodulation : reject f_i + f_j - f_k and 2 f_i - f_j of tones that play together.
+    ensemble_separation_channels : the separation [channels] between an impacter that is
+        idle in a step playing several tones and each of those tones (None: the default
+        separation).  Off-resonant responses to the tones of a step add up, so an
+        impacter that is silent under each tone alone can hit its slider under their
+        sum when two of them sit at the default separation on either side of it.
     """
 
     separation_channels: Annotated[int, Field(ge=1)] = 8
+    ensemble_separation_channels: Annotated[int, Field(ge=1)] | None = None
     relative_bandwidth: Annotated[float, Field(gt=0, lt=0.5)] = 0.02
     harmonics: bool = True
     intermodulation: bool = True
@@ -133,6 +139,10 @@ class DesignSpec(_Strict):
     window_ms: PositiveFloat = 3.0
     seed: Annotated[int, Field(ge=0)] = 0
     budget: Literal["fast", "full"] = "fast"
+    #: Relative half-width of the band around every forbidden tone in which a design
+    #: must also be silent: the margin for model and fabrication error (the paper's
+    #: Section V) [-].
+    guard: Annotated[float, Field(ge=0, lt=0.5)] = 0.02
 
 
 class VerificationSpec(_Strict):

@@ -41,7 +41,8 @@ class _Bars:
               show_default=True, help="Output folder (replaced only when the plan is complete).")
 @click.option("--seed", type=int, default=None, help="Seed (default: the spec's design.seed).")
 @click.option("--jobs", type=int, default=None,
-              help="Threads for the parallel simulation kernels (default: all cores).")
+              help="Worker processes for the designs and threads for the simulation "
+                   "kernels (default: all cores). The plan does not depend on it.")
 @click.option("--no-figures", is_flag=True, help="Skip the PNG figures (faster).")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @handle_errors
@@ -66,10 +67,13 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet):
         if not 1 <= jobs <= numba.config.NUMBA_NUM_THREADS:
             raise ValueError(f"--jobs must be between 1 and {numba.config.NUMBA_NUM_THREADS}")
         numba.set_num_threads(jobs)
+    else:
+        jobs = numba.config.NUMBA_NUM_THREADS
     bars = _Bars(quiet)
     path = Path(spec) if spec else default_spec_path()
     try:
-        result = plan(path, out_dir=out_dir, seed=seed, progress=bars, figures=not no_figures)
+        result = plan(path, out_dir=out_dir, seed=seed, progress=bars, figures=not no_figures,
+                      jobs=jobs)
     except KeyboardInterrupt:
         bars.close()
         click.echo("interrupted: no output written", err=True)

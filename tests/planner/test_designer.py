@@ -334,3 +334,36 @@ def test_table2_without_guard_band():
     pair = design_pair(6000.0, 3000.0, **{**cfg.design_kwargs(), "guard": 0.0})
     assert check_design(pair.forward, 6000.0, [3000.0]) >= PAPER_R_MIN_FORWARD
     assert check_design(pair.backward, 3000.0, [6000.0]) >= PAPER_R_MIN_BACKWARD
+
+
+def test_natural_ratio_narrows_only_for_close_neighbours():
+    from planner.designer import NATURAL_RATIO, natural_ratio
+
+    assert natural_ratio(6000.0, [3000.0]) == NATURAL_RATIO
+    lo, hi = natural_ratio(20000.0, [19500.0, 20500.0, 30000.0])
+    delta = math.log(20500.0 / 20000.0)
+    assert lo == pytest.approx(math.exp(-3 * delta)) and hi == pytest.approx(math.exp(2 * delta))
+
+
+def test_forbidden_drive_is_held_under_the_summed_tones():
+    """A design silent under two neighbouring tones *together*, not only one at a time.
+
+    The array's failure mode: an impacter between two tones that play in the same
+    step.  The design must be silent under their sum from every x0 of a grid finer
+    than the optimiser's, over the re-check's long window.
+    """
+    from planner.designer import Ensemble
+
+    env = EnvironmentConfig(viscosity_mpa_s=0.0179)
+    f, lo, hi = 10000.0, 9000.0, 11000.0
+    pair = Drive.from_power([lo, hi], 50.0)
+    res = design_impacter(f, (lo, hi), forbidden_drives=[Ensemble(pair, "both")],
+                          environment=env, budget="fast", guard=0.01, seed=0)
+    assert res.feasible and res.r_min_n > 0
+    imp = res.impacter
+    x0 = np.linspace(-imp.gap, imp.gap, 257)
+    x0[-1] = imp.gap * (1 - 1e-9)
+    assert np.all(responses(imp, pair, x0, duration=0.03) == 0.0)
+    # and it still responds to its own tone from every x0
+    own = responses(imp, Drive.tone(f, 50.0), x0, duration=0.003)
+    assert np.all(own > 0)

@@ -116,3 +116,25 @@ def test_separation_for_bandwidth_log_grid():
     loaded = load_spec("drive:\n  channels: {count: 241}\n")
     # 240 log steps over a decade: ratio 10^(1/240); +-2% needs ln(1.02/0.98)/ln(rho) = 4.2 -> 5
     assert separation_for_bandwidth(loaded.spec, 0.02) == 5
+
+
+def test_ensemble_separation_between_a_steps_tones_and_its_idle_impacters():
+    loaded = load_spec(GOOD + """\
+    - name: c
+      duration_ms: 5
+      forward: [A1]
+      backward: [B3]
+""")
+    steps = plan_steps(loaded, 0.01)
+    plain, groups = conflict_graph(steps, 3)
+    wide, _ = conflict_graph(steps, 3, ensemble_separation=9)
+    member_of = {n: g for g, ms in groups.items() for n in ms}
+    multi = [st for st in steps
+             if len({member_of[f"{d}.{r}"] for d, r in st.active_nodes()}) >= 2]
+    assert multi, "the fixture must have a step playing several tones"
+    st = multi[0]
+    playing = {member_of[f"{d}.{r}"] for d, r in st.active_nodes()}
+    for idle in set(groups) - playing:
+        for p in playing:
+            assert wide.edges[idle, p]["sep"] == 9
+            assert plain.edges[idle, p]["sep"] == 3
