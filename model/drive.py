@@ -7,6 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from model.devices import _positive
+
 #: The paper's power convention Z0^2 w^3 [m^2/s^3] (Section III-B, footnote 3).
 POWER = 50.0
 
@@ -36,12 +38,7 @@ def amplitude_from_power(frequency, power=POWER):
         raise ValueError(f"frequency must be numbers, {frequency!r} was given") from None
     if not (np.all(np.isfinite(f)) and np.all(f > 0)):
         raise ValueError(f"frequency must be finite and > 0, {f.tolist()!r} was given")
-    try:
-        p = float(power)
-    except (TypeError, ValueError):
-        raise ValueError(f"power must be a number, {power!r} was given") from None
-    if not (math.isfinite(p) and p > 0):
-        raise ValueError(f"power must be finite and > 0 [m^2/s^3], {p!r} was given")
+    p = _positive("power", power)
     w = 2.0 * np.pi * f
     return np.sqrt(p / w**3)
 

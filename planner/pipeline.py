@@ -43,6 +43,7 @@ from planner.assign import (
 )
 from planner.config import build_impacter, build_slider
 from planner.errors import PlanningError
+from planner.exporters import EXPORTERS
 from planner.spec import LoadedSpec, default_spec_path, load_spec, separation_for_bandwidth
 
 UM = 1e-6
@@ -510,7 +511,7 @@ def run_plan(loaded: LoadedSpec, *, seed=None, progress=None, jobs=None):
                       for f, z, p in zip(w.frequencies, w.amplitudes, w.phases)],
             "crest_factor": float(w.crest_factor), "scale": float(w.scale),
             "loop_length_s": float(w.loop_length),
-            "files": {fmt: f"waveforms/{stem}{_suffix(fmt)}" for fmt in EXPORT_FORMATS},
+            "files": {fmt: f"waveforms/{stem}{EXPORTERS[fmt].suffix}" for fmt in EXPORT_FORMATS},
         })
     per_step = {}
     for r in ver_rows:
@@ -546,15 +547,12 @@ def run_plan(loaded: LoadedSpec, *, seed=None, progress=None, jobs=None):
     return result
 
 
-def _suffix(fmt):
-    return {"wav": ".wav", "wav16": ".int16.wav", "csv": ".csv", "arb": ".arb"}[fmt]
-
-
 def write_outputs(result: Plan, out_dir: Path, *, figures=True):
     """Write plan.json, CSVs, waveforms, figures and report.md into ``out_dir``."""
     import warnings
 
-    export = _exporter()
+    from planner.exporters import export
+
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "plan.json").write_text(json.dumps(result.data, indent=2, sort_keys=False) + "\n")
@@ -574,31 +572,6 @@ def write_outputs(result: Plan, out_dir: Path, *, figures=True):
     if figures:
         _figures(result, out_dir)
     _report(result, out_dir)
-
-
-def _csv_export(waveform, path, fmt):
-    """CSV (time [s], displacement [m]) with a JSON sidecar: used when planner.exporters
-    is not installed; only the csv format is written then."""
-    path = Path(path)
-    if fmt != "csv":
-        return None
-    t = np.arange(waveform.samples.size) / waveform.sample_rate
-    np.savetxt(path, np.column_stack([t, waveform.samples]), delimiter=",", fmt="%.10g",
-               header="time_s,displacement_m", comments="")
-    Path(str(path) + ".json").write_text(json.dumps(_round({
-        "tones": [{"frequency_hz": float(f), "amplitude_m": float(z), "phase_rad": float(ph)}
-                  for f, z, ph in zip(waveform.frequencies, waveform.amplitudes, waveform.phases)],
-        "sample_rate_hz": waveform.sample_rate, "loop_length_s": waveform.loop_length,
-        "crest_factor": waveform.crest_factor, "scale": waveform.scale}), indent=2))
-    return path
-
-
-def _exporter():
-    try:
-        from planner.exporters import export
-    except ImportError:
-        return _csv_export
-    return export
 
 
 def _figures(result, out_dir):
