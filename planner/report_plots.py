@@ -85,7 +85,7 @@ def coupling_heatmap(matrix, impacters, tones, path):
     ax.set_xticklabels([f"{t / 1e3:.2f}" for t in tones], rotation=90, fontsize=5)
     ax.set_xlabel("tone [kHz]")
     fig.colorbar(im, ax=ax, label="log10 worst r [nN] (-3: no response)")
-    ax.set_title("cross-coupling: impacter x tone (own tone on the diagonal)")
+    ax.set_title("cross-coupling: impacter x tone\n(bright: each impacter's own tone; no other cell may light up)")
     save(fig, path)
 
 

@@ -18,7 +18,7 @@ def _floats(text):
         raise click.BadParameter(f"expected comma-separated numbers, got {text!r}") from None
 
 
-@click.command("sweep")
+@click.command("sweep", short_help="Sweep the response r (eq. 12) over frequency and initial position.")
 @click.argument("config", type=click.Path(dir_okay=False))
 @click.option("--from", "f_from", type=float, required=True, help="First frequency [Hz].")
 @click.option("--to", "f_to", type=float, required=True, help="Last frequency [Hz] (included).")
