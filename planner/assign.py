@@ -263,14 +263,19 @@ def assign(loaded: LoadedSpec, steps, *, separation=None, pair_separation=None,
             f"band (drive.band_hz), more channels (drive.channels.count) with a narrower response "
             f"band (drive.guard.separation_channels), fewer independently addressable devices "
             f"(independent: false), or scenes in which devices move together and share a channel.")
-    # orientation: a colouring read upward or downward is equally valid; choose the one
-    # that puts the tones of multi-tone steps below the impacters idle in them
-    top = max(result.coloring.values())
-    flipped = {g: top - c for g, c in result.coloring.items()}
-    coloring = min((result.coloring, flipped),
-                   key=lambda col: _ensemble_exposure(steps, groups, col))
+    # layout: a colouring read upward or downward is equally valid, and so is any order
+    # of its blocks (runs of channels set apart by wide gaps) that keeps every
+    # separation within the span; choose the one whose multi-tone steps stir their
+    # idle impacters least (see _ensemble_severity)
+    mapping = _mapping_candidates(result.span, count)
+    q0, o0 = mapping[0]
+    freq_of = lambda col: {g: float(grid[o0 + q0 * c]) for g, c in col.items()}  # noqa: E731
+    candidates = _block_layouts(graph, result.coloring, result.span)
+    coloring = min(candidates,
+                   key=lambda col: (_ensemble_severity(steps, groups, freq_of(col)),
+                                    _ensemble_exposure(steps, groups, col)))
     best = None
-    for q, o in _mapping_candidates(result.span, count):
+    for q, o in mapping:
         freqs = {}
         chans = {}
         for g, colour in coloring.items():
@@ -285,6 +290,97 @@ def assign(loaded: LoadedSpec, steps, *, separation=None, pair_separation=None,
     q, o, chans, freqs, viol = best
     return Assignment(graph, groups, dict(coloring), result.span, result.lower_bound,
                       result.optimal, result.method, result.seconds, q, o, chans, freqs, viol)
+
+
+def _blocks(coloring, gap):
+    """The colouring's groups in runs whose consecutive colours are < ``gap`` apart."""
+    order = sorted(coloring, key=lambda g: (coloring[g], g))
+    blocks = [[order[0]]]
+    for a, b in zip(order, order[1:]):
+        if coloring[b] - coloring[a] >= gap:
+            blocks.append([])
+        blocks[-1].append(b)
+    return blocks
+
+
+#: At most this many blocks are permuted (their orders times per-block mirrors).
+MAX_LAYOUT_BLOCKS = 5
+
+
+def _block_layouts(graph, coloring, span, attr="sep"):
+    """Valid colourings of no greater span made by reordering and mirroring blocks.
+
+    The blocks are the runs of the colouring split where two consecutive colours are
+    further apart than the graph's smallest separation (the wide gaps the ensemble
+    separations open).  Each order of the blocks, each block read up or down, is
+    packed bottom-up as tightly as every edge's separation allows; the packings that
+    fit in ``span`` channels are returned, the given colouring and its mirror first.
+    """
+    top = max(coloring.values())
+    out = [dict(coloring), {g: top - c for g, c in coloring.items()}]
+    if graph.number_of_edges() == 0:
+        return out
+    seps = [d[attr] for _, _, d in graph.edges(data=True)]
+    blocks = _blocks(coloring, min(seps) + 1)
+    if not 2 <= len(blocks) <= MAX_LAYOUT_BLOCKS:
+        return out
+    names = sorted(coloring)
+    index = {g: i for i, g in enumerate(names)}
+    sep = np.zeros((len(names), len(names)), dtype=np.int64)
+    for a, b, d in graph.edges(data=True):
+        sep[index[a], index[b]] = sep[index[b], index[a]] = d[attr]
+    seen = {tuple(sorted(c.items())) for c in out}
+    for perm in itertools.permutations(range(len(blocks))):
+        for flips in itertools.product((False, True), repeat=len(blocks)):
+            placed_idx, placed_col, col = [], [], {}
+            for bi, flip in zip(perm, flips):
+                blk = blocks[bi]
+                rel = np.array([coloring[g] - coloring[blk[0]] for g in blk])
+                if flip:
+                    rel = rel.max() - rel
+                idx = np.array([index[g] for g in blk])
+                base = 0
+                if placed_idx:
+                    pi, pc = np.array(placed_idx), np.array(placed_col)
+                    # every new colour at least sep above each placed one
+                    need = pc[None, :] + sep[np.ix_(idx, pi)] - rel[:, None]
+                    base = max(0, int(need.max()))
+                for g, r in zip(blk, rel):
+                    col[g] = base + int(r)
+                placed_idx += list(idx)
+                placed_col += [col[g] for g in blk]
+            if max(col.values()) + 1 > span:
+                continue
+            key = tuple(sorted(col.items()))
+            if key not in seen:
+                seen.add(key)
+                out.append(col)
+    return out
+
+
+def _ensemble_severity(steps, groups, freqs):
+    """How hard the multi-tone steps shake the impacters idle in them.
+
+    For an idle impacter at f and a tone at f_p > f of the same step, ``(f_p / f)^0.5
+    / ((f_p / f)^2 - 1)`` is the tone's forced relative amplitude near f at the
+    drive's constant power (amplitude ~ f_p^-1.5, base-excitation gain rho^2 /
+    |1 - rho^2|), summed in squares over the step's tones above and over the idle
+    impacters.  Tones below an idle impacter are left out: the designer and the
+    verification find those far easier to stay silent under (the mass line, and a
+    lower drive force m w^2 Z ~ f^0.5).
+    """
+    member_of = {n: g for g, members in groups.items() for n in members}
+    total = 0.0
+    for st in steps:
+        playing = {member_of[node_id(d, dr)] for d, dr in st.active_nodes()
+                   if node_id(d, dr) in member_of}
+        if len(playing) < 2:
+            continue
+        fp = np.array(sorted(freqs[p] for p in playing))
+        for g in set(groups) - playing:
+            rho = fp[fp > freqs[g]] / freqs[g]
+            total += float(np.sum(rho / (rho ** 2 - 1.0) ** 2))
+    return round(total, 9)
 
 
 def _ensemble_exposure(steps, groups, coloring):
