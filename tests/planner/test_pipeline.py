@@ -138,3 +138,28 @@ def test_row_assembly_config_shares_channels_and_verifies():
     # rows that always move together share one channel: four tones for 40 impacters
     assert imp["channel"].nunique() == 4 and len(imp) == 40
     assert res.passed, res.verification[~res.verification.passed].cause.tolist()
+
+
+def test_default_plan_verifies_end_to_end(tmp_path):
+    """The README's first command: the embedded 5 x 5 default plans, every step of every
+    scene passes re-simulation (exit 0), and the report's figures and the drive files
+    exist.  ~1 min on 2 cores (the designs run in worker processes)."""
+    out = tmp_path / "plan_out"
+    proc = subprocess.run([sys.executable, "-m", "planner.cli", "plan", "--out", str(out)],
+                          capture_output=True, text=True, timeout=1200, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "verification: PASSED (1300/1300 checks)" in proc.stdout
+    data = json.loads((out / "plan.json").read_text())
+    assert data["verification"]["passed"] is True
+    checks = [r for step in data["verification"]["steps"].values() for r in step.values()]
+    assert len(checks) == 1300 and all(r["passed"] for r in checks)
+    assert len(data["impacters"]) == 50 and len({i["channel"] for i in data["impacters"]}) == 50
+    report = (out / "report.md").read_text()
+    figures = [line.split("](", 1)[1].rstrip(")") for line in report.splitlines()
+               if line.startswith("![")]
+    assert len(figures) >= 5
+    for fig in figures:
+        assert (out / fig).stat().st_size > 10_000, fig
+    for step in data["steps"]:
+        for rel in step["files"].values():
+            assert (out / rel).is_file(), rel

@@ -138,3 +138,53 @@ def test_ensemble_separation_between_a_steps_tones_and_its_idle_impacters():
         for p in playing:
             assert wide.edges[idle, p]["sep"] == 9
             assert plain.edges[idle, p]["sep"] == 3
+
+
+def _separations_hold(graph, coloring):
+    return all(abs(coloring[a] - coloring[b]) >= d["sep"] for a, b, d in graph.edges(data=True))
+
+
+def test_block_layouts_keep_every_separation_and_the_span():
+    from planner.assign import _block_layouts
+    from planner.coloring import solve_bandwidth
+
+    loaded = load_spec(default_spec_path())
+    steps = plan_steps(loaded, 0.01)
+    graph, _ = conflict_graph(steps, 5, ensemble_separation=40)
+    result = solve_bandwidth(graph, "sep", seed=0)
+    layouts = _block_layouts(graph, result.coloring, result.span)
+    # three blocks (the forward cluster, the row-C release cluster, the other backward
+    # impacters): 3! orders x 2^3 mirrors, several coincide with the given two
+    assert len(layouts) > 2
+    for col in layouts:
+        assert _separations_hold(graph, col)
+        assert min(col.values()) == 0 and max(col.values()) + 1 <= result.span
+
+
+def test_default_layout_puts_multi_tone_steps_below_their_idle_impacters():
+    """The 25-tone positioning step and the 5-tone release of row C: the chosen layout
+    has no idle impacter of either step below one of its tones except the row-C
+    backward impacters under the positioning cluster, at a wide relative gap."""
+    from planner.assign import _ensemble_severity
+
+    loaded = load_spec(default_spec_path())
+    steps = plan_steps(loaded, 0.01)
+    a = assign(loaded, steps)
+    assert verify_assignment(a) == []
+    f = a.frequencies
+    position, release = steps[0], steps[1]
+    pos_tones = [f[f"{d}.forward"] for d in position.forward]
+    rel_tones = [f[f"{d}.backward"] for d in release.backward]
+    others = [f[n] for n in f if n.endswith(".backward") and not n.startswith("C")]
+    assert max(rel_tones) < min(pos_tones) and max(pos_tones) < min(others)
+    # the wide gap below the positioning cluster: >= 1.5x in frequency
+    assert min(pos_tones) / max(rel_tones) >= 1.5
+    # and the choice is less severe than the colouring's mirror image
+    from planner.spec import channel_grid
+
+    grid = channel_grid(loaded.spec)
+    top = max(a.coloring.values())
+    freq = lambda col: {g: float(grid[a.offset + a.stride * c]) for g, c in col.items()}  # noqa: E731
+    mirror = {g: top - c for g, c in a.coloring.items()}
+    assert (_ensemble_severity(steps, a.groups, freq(a.coloring))
+            < _ensemble_severity(steps, a.groups, freq(mirror)))
