@@ -1451,6 +1451,10 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         "short_window_only_designs": int(rejected_long),
         "rounds": int(_round + 1),
         "solver_faults": int(problem.faults),
+        # the forbidden drives (Ensemble labels) the returned design responds under, on
+        # the re-check grid or its long window: what an array planner must move away
+        "violated_drives": sorted({problem.check_hz[j].label for j in chk["violated"]
+                                   if isinstance(problem.check_hz[j], Ensemble)}),
     }
     if status == "ok":
         message = (f"feasible: r_min = {chk['r_min']:.4g} N at x0 = {worst_x0 / UM:.4g} um; "
@@ -1460,6 +1464,7 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
                         f"{LONG_WINDOW_FACTOR * window * 1e3:g} ms re-check window")
     else:
         bad = [f"{f:g} Hz (r_max {r:.3g} N)" for f, r in zip(forbidden, chk["r_max"]) if r > 0]
+        bad += [f"the summed drive {label!r}" for label in checks["violated_drives"]]
         message = ("no design met the constraints within the bounds and budget; the least "
                    "violating design is returned: "
                    + (f"responds at {', '.join(bad)}" if bad else "")

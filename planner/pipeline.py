@@ -142,6 +142,33 @@ def _idle_ensembles(steps, frequencies, waveforms):
     return {n: tuple(v) for n, v in out.items()}
 
 
+def _design_offenders(designs, steps, assignment):
+    """(node, (node, offender)) for every infeasible design: the node playing each
+    forbidden frequency it responds at, and the nearest tone of each summed drive
+    (step) it responds under."""
+    by_freq = {}
+    for m, f in assignment.frequencies.items():
+        by_freq.setdefault(round(f, 6), []).append(m)
+    by_key = {st.key: st for st in steps}
+    out = []
+    for n in sorted(designs):
+        d = designs[n]
+        if d.feasible:
+            continue
+        f = assignment.frequencies[n]
+        for hz, r in zip(d.forbidden_hz, d.r_max_forbidden_n):
+            if r > 0:
+                out += [(n, (n, m)) for m in by_freq.get(round(float(hz), 6), []) if m != n]
+        for label in d.checks.get("violated_drives", ()):
+            st = by_key.get(label)
+            if st is None:
+                continue
+            playing = sorted(node_id(dv, dr) for dv, dr in st.active_nodes())
+            near = min(playing, key=lambda a: abs(math.log(assignment.frequencies[a] / f)))
+            out.append((n, (n, near)))
+    return out
+
+
 #: Extra seeds tried for a design that is infeasible or slower than the target speed.
 DESIGN_RETRIES = 3
 #: A design is retried while its predicted speed is below this multiple of the spec's
@@ -476,8 +503,15 @@ def run_plan(loaded: LoadedSpec, *, seed=None, progress=None, jobs=None):
         if not failures or round_ == spec.verification.repair_rounds:
             break
         # repair: widen the separation between each failing idle impacter and the
-        # nearest tone of the step it responds in, then re-colour and re-design
+        # nearest tone of the step it responds in, and between each impacter whose
+        # design is infeasible and the tones it could not be made silent under; then
+        # re-colour and re-design
         changed = False
+        for n, key in _design_offenders(designs, steps, assignment):
+            now = abs(assignment.channels[n] - assignment.channels[key[1]]) // max(assignment.stride, 1)
+            pair = frozenset(key)
+            pair_sep[pair] = max(pair_sep.get(pair, sep), now + max(1, sep // 2))
+            changed = True
         for r in failures:
             st = steps[r["index"]]
             active = sorted(node_id(d, dr) for d, dr in st.active_nodes())
