@@ -320,7 +320,7 @@ def response(impacter, drive, x0=0.0, v0=0.0, duration=3e-3, *, stop_at_first=Fa
 
 
 def responses(impacter, drive, x0s, v0s=None, duration=3e-3, *, stop_at_first=False,
-              return_status=False):
+              return_status=False, check_input=True):
     """r of eq. (12) from many initial states at once (parallel kernel).
 
     Parameters
@@ -329,24 +329,32 @@ def responses(impacter, drive, x0s, v0s=None, duration=3e-3, *, stop_at_first=Fa
         Initial positions [m].
     v0s : array_like, shape (n,), optional
         Initial velocities [m/s]; zeros by default.
+    check_input : bool, default True
+        Validate the arguments.  An optimiser that calls this thousands of times with
+        arguments it built itself (finite x0s inside the gap, a positive duration) may
+        pass False to skip the checks, as scipy's ``check_finite=False``; invalid input
+        then gives undefined results.
 
     Returns
     -------
     r : ndarray, shape (n,)
         [N].  With ``return_status``, also the status codes (0 = ok).
     """
-    _check_impacter(impacter)
-    _check_drive(drive)
     x0s = np.ascontiguousarray(np.atleast_1d(np.asarray(x0s, dtype=float)))
     v0s = np.zeros_like(x0s) if v0s is None else np.ascontiguousarray(
         np.broadcast_to(np.asarray(v0s, dtype=float), x0s.shape))
-    duration = _check_float("duration", duration)
-    if duration <= 0:
-        raise ValueError(f"duration must be > 0, {duration!r} was given")
-    if not (np.all(np.isfinite(x0s)) and np.all(np.isfinite(v0s))):
-        raise ValueError("x0s and v0s must be finite")
-    if np.any(x0s > impacter.gap):
-        raise ValueError(f"x0s must be <= the gap {impacter.gap!r} m")
+    if check_input:
+        _check_impacter(impacter)
+        _check_drive(drive)
+        duration = _check_float("duration", duration)
+        if duration <= 0:
+            raise ValueError(f"duration must be > 0, {duration!r} was given")
+        if not (np.all(np.isfinite(x0s)) and np.all(np.isfinite(v0s))):
+            raise ValueError("x0s and v0s must be finite")
+        if np.any(x0s > impacter.gap):
+            raise ValueError(f"x0s must be <= the gap {impacter.gap!r} m")
+    else:
+        duration = float(duration)     # one kernel specialisation, whatever was passed
     w, a, phi = impacter_forcing(impacter, drive)
     sum_v, n, status = _k.response_batch(
         impacter.omega_n, impacter.sigma, impacter.gap, impacter.restitution, w, a, phi,

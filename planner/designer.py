@@ -842,6 +842,9 @@ class _Problem:
                           bounds.gap[1]])
         self.evals = {}      # geometry -> _Eval (on the current grids)
         self.runs = {}       # (geometry, f, window, stop, u bytes) -> (r, status)
+        self.impacters = {}  # geometry -> model.Impacter (validation costs as much as a run)
+        self.threads_full = numba.get_num_threads()
+        self.threads_now = self.threads_full
         self.evaluations = 0
         self.simulations = 0
         self.faults = 0
@@ -888,12 +891,45 @@ class _Problem:
         return (v - self.lo) / (self.hi - self.lo)
 
     # simulations -------------------------------------------------------------------
+    def impacter(self, geometry):
+        imp = self.impacters.get(geometry)
+        if imp is None:
+            imp = self.impacters[geometry] = self.factory(*geometry)
+        return imp
+
+    def _threads_for(self, n_runs):
+        """The thread policy of :func:`_kernel_threads`, switched only when it changes
+        (the search makes tens of thousands of ~100 us calls)."""
+        want = self.threads_full if n_runs >= PARALLEL_MIN_RUNS else 1
+        if want != self.threads_now:
+            numba.set_num_threads(want)
+            self.threads_now = want
+
+    @contextlib.contextmanager
+    def kernel_scope(self):
+        """Where the search runs: solver warnings off (status codes are counted in
+        ``faults``) and the caller's numba thread count restored afterwards."""
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SolverWarning)
+                yield
+        finally:
+            if self.threads_now != self.threads_full:
+                numba.set_num_threads(self.threads_full)
+                self.threads_now = self.threads_full
+
     def runs_of(self, geometry, frequency, u, window, stop):
+        """r [N] and status of one check from each u = x0 / c (cached; called inside
+        :meth:`kernel_scope`)."""
         key = (geometry, _freq_key(frequency), float(window), bool(stop), u.tobytes())
         hit = self.runs.get(key)
         if hit is None:
-            imp = self.factory(*geometry)
-            r, status = _runs(imp, self.tones, frequency, u * imp.gap, window, stop)
+            imp = self.impacter(geometry)
+            self._threads_for(u.size)
+            # arguments built here (x0 = u c with |u| <= 1, window > 0): no re-validation
+            r, status = responses(imp, self.tones.drive(frequency), u * imp.gap,
+                                  duration=window, stop_at_first=stop, return_status=True,
+                                  check_input=False)
             self.simulations += u.size
             self.faults += int(np.count_nonzero(status))
             hit = self.runs[key] = (r, status)
@@ -1203,6 +1239,47 @@ def _band_and_margins(impacter, tones, frequency, forbidden, x0s, window, budget
     return band, margins
 
 
+def _search_and_recheck(problem, rng, budget, tick, history):
+    """Search; re-check the archive on a finer grid and a longer window; where every
+    archived design fails, add the failing x0 (and any forbidden frequency the search
+    skipped) to the optimiser's problem and resume (exchange method).
+
+    Appends (evaluation, re-check) of every re-checked design to ``history`` and stops
+    at the first that passes both checks.  Returns the number of rounds run.
+    """
+    starts = None
+    for round_ in range(budget.rounds):
+        _search(problem, rng, budget, tick, starts)
+        if starts is None:
+            # no feasible design on the optimiser's grid: the feasible region may be
+            # small (a narrow band of (nu_n, c)); search again with more samples
+            for k in range(budget.escalations):
+                if problem.archive:
+                    break
+                grown = replace(budget, initial=budget.initial * 4 ** (k + 1),
+                                anneal_steps=budget.anneal_steps * 2 ** (k + 1))
+                _search(problem, rng, grown, tick)
+        checked = []
+        for ev in problem.archive:          # best first; the first that passes wins
+            chk = _recheck(problem, ev.geometry)
+            checked.append((ev, chk))
+            if chk["fine_ok"] and chk["long_ok"]:
+                break
+        history += checked
+        if not checked or (checked[-1][1]["fine_ok"] and checked[-1][1]["long_ok"]):
+            break
+        for _, c in checked:
+            for j in c["violated"]:
+                if j not in problem.active:
+                    problem.active.append(j)
+        starts = [ev.z for ev, _ in checked]
+        problem.add_points(
+            u_target=np.concatenate([_sparse(c["bad_target"]) for _, c in checked]),
+            u_forbid=np.concatenate([_sparse(c["bad_forbid"]) for _, c in checked]),
+            u_long=np.concatenate([_sparse(c["bad_long"]) for _, c in checked]))
+    return round_ + 1
+
+
 def _impacter_factory(process, environment, impact_angle, restitution):
     """(A, w, l, c) [SI] -> model.Impacter by eqs. (2)-(4), with the process constants."""
     kwargs = dict(
@@ -1373,42 +1450,11 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         if count[0] % 8 == 0:
             report(min(0.97, count[0] / expected))
 
-    # search; re-check the archive on a finer grid and a longer window; where every
-    # archived design fails, add the failing x0 (and any forbidden frequency the
-    # search skipped) to the optimiser's problem and resume (exchange method)
-    chosen = None
     history = []          # (evaluation, re-check) of every archived design re-checked
-    starts = None
-    for _round in range(budget.rounds):
-        _search(problem, rng, budget, tick, starts)
-        if starts is None:
-            # no feasible design on the optimiser's grid: the feasible region may be
-            # small (a narrow band of (nu_n, c)); search again with more samples
-            for k in range(budget.escalations):
-                if problem.archive:
-                    break
-                grown = replace(budget, initial=budget.initial * 4 ** (k + 1),
-                                anneal_steps=budget.anneal_steps * 2 ** (k + 1))
-                _search(problem, rng, grown, tick)
-        checked = []
-        for ev in problem.archive:          # best first; the first that passes wins
-            chk = _recheck(problem, ev.geometry)
-            checked.append((ev, chk))
-            if chk["fine_ok"] and chk["long_ok"]:
-                chosen = (ev, chk)
-                break
-        history += checked
-        if chosen is not None or not checked:
-            break
-        for _, c in checked:
-            for j in c["violated"]:
-                if j not in problem.active:
-                    problem.active.append(j)
-        starts = [ev.z for ev, _ in checked]
-        problem.add_points(
-            u_target=np.concatenate([_sparse(c["bad_target"]) for _, c in checked]),
-            u_forbid=np.concatenate([_sparse(c["bad_forbid"]) for _, c in checked]),
-            u_long=np.concatenate([_sparse(c["bad_long"]) for _, c in checked]))
+    with problem.kernel_scope():
+        rounds = _search_and_recheck(problem, rng, budget, tick, history)
+    # the first re-checked design that passes both checks (the search stops there)
+    chosen = next(((ev, c) for ev, c in history if c["fine_ok"] and c["long_ok"]), None)
     rejected = sum(1 for _, c in history if not c["fine_ok"])
     rejected_long = sum(1 for _, c in history if c["fine_ok"] and not c["long_ok"])
     status = "ok"
@@ -1421,7 +1467,8 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
             status = "infeasible"
         else:
             ev = problem.best_any
-            chosen = (ev, _recheck(problem, ev.geometry))
+            with problem.kernel_scope():
+                chosen = (ev, _recheck(problem, ev.geometry))
             status = "infeasible"
     ev, chk = chosen
     imp = factory(*ev.geometry)
@@ -1449,7 +1496,7 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         "long_window_passed": bool(chk["long_ok"]),
         "coarse_only_designs": int(rejected),
         "short_window_only_designs": int(rejected_long),
-        "rounds": int(_round + 1),
+        "rounds": int(rounds),
         "solver_faults": int(problem.faults),
         # the forbidden drives (Ensemble labels) the returned design responds under, on
         # the re-check grid or its long window: what an array planner must move away

@@ -237,9 +237,14 @@ def design_all(loaded, steps, assignment, cache, progress=None, waveforms=None, 
         import concurrent.futures as cf
         import multiprocessing
 
+        # longest first, so that no worker is left with a long design at the end: a
+        # design's cost grows with the summed drives it checks and with the drive
+        # cycles in its window (its frequency).  Results do not depend on the order.
+        order = sorted(tasks, key=lambda k: (-len(tasks[k]["forbidden_drives"]),
+                                             -tasks[k]["frequency"]))
         ctx = multiprocessing.get_context("spawn")
         with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-            futures = {pool.submit(_design_task, kw, min_speed): key for key, kw in tasks.items()}
+            futures = {pool.submit(_design_task, tasks[key], min_speed): key for key in order}
             for fut in cf.as_completed(futures):
                 key = futures[fut]
                 cache[key] = fut.result()

@@ -183,6 +183,23 @@ def test_batch_and_sweep_agree_with_single_runs(fig7):
     np.testing.assert_allclose(grid[0], batch, rtol=1e-14)
 
 
+def test_unchecked_batch_equals_checked(fig7):
+    # check_input=False only skips validation: same kernel, same numbers, even when the
+    # duration is given as an int (it is still converted to one float specialisation)
+    x0s = np.linspace(-fig7.gap, fig7.gap, 9)
+    drive = Drive.tone(6200.0) + Drive([7100.0], [0.3e-6], [0.4])
+    for stop in (False, True):
+        r, st = model.responses(fig7, drive, x0s, duration=3e-3, stop_at_first=stop,
+                                return_status=True)
+        r2, st2 = model.responses(fig7, drive, x0s, duration=3e-3, stop_at_first=stop,
+                                  return_status=True, check_input=False)
+        np.testing.assert_array_equal(r2, r)
+        np.testing.assert_array_equal(st2, st)
+    assert np.all(model.responses(fig7, drive, x0s, duration=1, check_input=False) > 0)
+    with pytest.raises(ValueError, match="x0s must be <= the gap"):
+        model.responses(fig7, drive, [2 * fig7.gap])
+
+
 def test_multitone_drive_superposes(fig7):
     # with a zero-amplitude second tone, results equal the one-tone run exactly
     one = model.simulate(fig7, Drive.tone(6200.0))

@@ -212,6 +212,18 @@ def test_same_seed_same_design():
     assert a.evaluations == b.evaluations
 
 
+def test_design_restores_the_callers_numba_threads():
+    # the search runs its many small batches on one thread; the caller's setting must
+    # survive it
+    import numba
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("needs two numba threads to tell the settings apart")
+    numba.set_num_threads(2)
+    design_impacter(6000.0, (3000.0,), environment=AIR, budget="fast", seed=11)
+    assert numba.get_num_threads() == 2
+
+
 def test_progress_reaches_one():
     seen = []
     design_impacter(3000.0, (6000.0,), environment=AIR, budget="fast", seed=0,
