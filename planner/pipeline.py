@@ -51,6 +51,11 @@ UM = 1e-6
 SINGLE_STEP_S = 0.01
 #: Formats every step's waveform is exported in.
 EXPORT_FORMATS = ("wav", "wav16", "csv", "arb")
+#: Response-curve figure: points over the band, half-width of the fine grid across each
+#: design's own peak (relative), and initial positions over [-c, c].
+RESPONSE_GRID_POINTS = 160
+RESPONSE_PEAK_SPAN = 0.04
+RESPONSE_X0_POINTS = 5
 
 
 def _version():
@@ -371,36 +376,90 @@ def verify_step(loaded, step, waveform, impacters, sliders):
     return rows
 
 
+#: Undriven time simulated after a scene's last step [s].  An impacter still ringing when
+#: its tone stops keeps hitting its slider until its swing no longer reaches the wall;
+#: every impact takes (1 - e^2) of its kinetic energy, so the hits die out within a few
+#: of its periods, and 10 ms is hundreds of periods anywhere in the band.
+SETTLE_S = 0.01
+#: Step name of that undriven tail in the scene rows (``"driven": false``).
+SETTLE_NAME = "(drive off)"
+#: |v| [m/s] above which an impacter counts as still ringing at the end of a step.
+RINGING_V = 1e-6
+
+
+def _scene_phase(impacters, sliders, drive, duration, states, sl_states, active,
+                 idle_tolerance):
+    """Advance every impacter and slider through one phase (a step, or the undriven
+    tail) from the carried states; updates them in place and returns the scene row's
+    fields.  ``idle_tolerance`` [m]: a slider none of whose impacters is driven and that
+    moves more than this is listed in ``idle_moved_m``."""
+    kicks = {d: ([], []) for d in sliders}
+    idle_hits = {}
+    for n, imp in impacters.items():
+        x0, v0, stuck = states[n]
+        res = model.simulate(imp, drive, x0, v0, duration, stuck=stuck or None,
+                             max_events=1_000_000)
+        states[n] = (min(res.x_end, imp.gap), res.v_end, res.stuck_end)
+        dev, direction = split_node(n)
+        t, dv = _kicks(imp, sliders[dev], res, 1.0 if direction == "forward" else -1.0)
+        kicks[dev][0].append(t)
+        kicks[dev][1].append(dv)
+        hits = res.times.size + res.chatter_times.size
+        if hits and n not in active:
+            idle_hits[n] = int(hits)
+    positions, moved = {}, {}
+    for dev, slider in sliders.items():
+        z0, v0 = sl_states[dev]
+        t = np.concatenate(kicks[dev][0]) if kicks[dev][0] else np.empty(0)
+        dv = np.concatenate(kicks[dev][1]) if kicks[dev][1] else np.empty(0)
+        _, _, z, v, _ = model.slider_motion(slider, drive, t, dv, duration, z0, v0)
+        sl_states[dev] = (z, v)
+        positions[dev] = float(z)
+        if abs(z - z0) > idle_tolerance and not any(split_node(n)[0] == dev for n in active):
+            moved[dev] = float(z - z0)
+    ringing = sorted(n for n, (x, v, s) in states.items()
+                     if abs(v) > RINGING_V and n not in active)
+    return {"positions_m": positions, "ringing_impacters": ringing, "idle_hits": idle_hits,
+            "idle_moved_m": moved}
+
+
 def simulate_scenes(loaded, steps, waveforms, impacters, sliders):
-    """Each scene in order, carrying impacter and slider states across steps."""
+    """Each scene in order, carrying impacter and slider states across steps.
+
+    Every scene starts from rest; each step starts from the state the previous one
+    left, so an impacter that keeps ringing after its tone stops moves its slider in
+    the next step.  After the last step the drive is switched off for
+    :data:`SETTLE_S` so that the overshoot of that ringing is counted too.
+
+    Returns
+    -------
+    list of dict
+        One row per step and one for the undriven tail of each scene (step
+        :data:`SETTLE_NAME`, ``driven`` false): slider positions [m] at its end,
+        the impacters still ringing then (idle ones moving faster than
+        :data:`RINGING_V`), ``idle_hits``: impacter -> impacts of every impacter that
+        hit its slider while its step did not drive it, and ``idle_moved_m``: device ->
+        displacement [m] of every slider that moved more than the spec's idle tolerance
+        in a phase that drove none of its impacters (in the undriven tail: the
+        overshoot).  The per-step verification starts every impacter from rest or
+        the x0 grid; this is where the state a previous step left shows.
+    """
+    tol = loaded.spec.verification.idle_tolerance_um * UM
     rows = []
+    rest = Drive([1.0], [0.0])      # the drive switched off
     for scene in loaded.spec.scenes:
         states = {n: (0.0, 0.0, False) for n in impacters}
         sl_states = {d: (0.0, 0.0) for d in sliders}
         for st in [s for s in steps if s.scene == scene]:
-            drive = _drive_of(waveforms[st.key])
-            kicks = {d: ([], []) for d in sliders}
-            for n, imp in impacters.items():
-                x0, v0, stuck = states[n]
-                res = model.simulate(imp, drive, x0, v0, st.duration_s, stuck=stuck or None,
-                                     max_events=1_000_000)
-                states[n] = (min(res.x_end, imp.gap), res.v_end, res.stuck_end)
-                dev, direction = split_node(n)
-                t, dv = _kicks(imp, sliders[dev], res, 1.0 if direction == "forward" else -1.0)
-                kicks[dev][0].append(t)
-                kicks[dev][1].append(dv)
-            positions = {}
-            for dev, slider in sliders.items():
-                z0, v0 = sl_states[dev]
-                t = np.concatenate(kicks[dev][0]) if kicks[dev][0] else np.empty(0)
-                dv = np.concatenate(kicks[dev][1]) if kicks[dev][1] else np.empty(0)
-                _, _, z, v, _ = model.slider_motion(slider, drive, t, dv, st.duration_s, z0, v0)
-                sl_states[dev] = (z, v)
-                positions[dev] = float(z)
-            ringing = sorted(n for n, (x, v, s) in states.items() if abs(v) > 1e-6 and
-                             n not in {node_id(d, r) for d, r in st.active_nodes()})
-            rows.append({"scene": scene, "step": st.name, "positions_m": positions,
-                         "ringing_impacters": ringing})
+            active = {node_id(d, r) for d, r in st.active_nodes()}
+            fields = _scene_phase(impacters, sliders, _drive_of(waveforms[st.key]),
+                                  st.duration_s, states, sl_states, active, tol)
+            rows.append({"scene": scene, "step": st.name, "driven": True,
+                         "duration_s": st.duration_s, **fields})
+        fields = _scene_phase(impacters, sliders, rest, SETTLE_S, states, sl_states, set(),
+                              tol)
+        rows.append({"scene": scene, "step": SETTLE_NAME, "driven": False,
+                     "duration_s": SETTLE_S, **fields})
     return rows
 
 
@@ -597,6 +656,7 @@ def write_outputs(result: Plan, out_dir: Path, *, figures=True):
 
     from planner.exporters import export
 
+    t0 = time.perf_counter()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "plan.json").write_text(json.dumps(result.data, indent=2, sort_keys=False) + "\n")
@@ -615,7 +675,12 @@ def write_outputs(result: Plan, out_dir: Path, *, figures=True):
                 export(w, out_dir / rel, fmt)
     if figures:
         _figures(result, out_dir)
+    result.timings["outputs"] = time.perf_counter() - t0
     _report(result, out_dir)
+
+
+def _drive_figure_name(step_key):
+    return f"drive_{step_key.replace('/', '__')}.png"
 
 
 def _figures(result, out_dir):
@@ -628,24 +693,64 @@ def _figures(result, out_dir):
     tones = [float(c) for c in result.coupling.columns]
     rp.coupling_heatmap(result.coupling.to_numpy(), list(result.coupling.index), tones,
                         figs / "coupling.png")
-    # response curves: worst r over x0 against frequency around every design
+    # response curves: worst r over x0 against frequency, on the band grid plus every
+    # tone of the plan exactly plus a fine grid across the design's own peak (in air a
+    # peak is a few hundred Hz wide: a coarse grid alone misses its top)
     curves = []
     spec = loaded.spec
     lo, hi = spec.drive.band_hz
-    grid = np.geomspace(lo, hi, 160)
+    band = np.geomspace(lo, hi, RESPONSE_GRID_POINTS)
     for n, d in sorted(result._designs.items()):
         imp = d.impacter
-        r = model.sweep(imp, grid, np.linspace(-imp.gap, imp.gap, 5), spec.drive.power_m2_s3,
-                        spec.design.window_ms * 1e-3).max(axis=1)
-        curves.append((n, grid, r, result._assignment.frequencies[n]))
+        own = result._assignment.frequencies[n]
+        peak = own * (1.0 + np.linspace(-RESPONSE_PEAK_SPAN, RESPONSE_PEAK_SPAN, 41))
+        grid = np.unique(np.concatenate([band, tones, peak[(peak >= lo) & (peak <= hi)]]))
+        r = model.sweep(imp, grid, np.linspace(-imp.gap, imp.gap, RESPONSE_X0_POINTS),
+                        spec.drive.power_m2_s3, spec.design.window_ms * 1e-3).max(axis=1)
+        curves.append((n, grid, r, own))
     rp.response_curves(curves, tones, figs / "response_curves.png",
-                       "designed impacters: worst-case response over x0 (dots: own tone)")
-    shown = [k for k in result._waveforms if not k.startswith("independent/")][:4]
+                       f"worst-case response over {RESPONSE_X0_POINTS} x0 in "
+                       f"{spec.design.window_ms:g} ms (dots: own tone)")
+    shown = [k for k in result._waveforms if not k.startswith("independent/")]
     shown = shown or list(result._waveforms)[:1]
     for k in shown:
-        rp.waveform_and_spectrum(result._waveforms[k], figs / f"drive_{k.replace('/', '__')}.png", k)
+        rp.waveform_and_spectrum(result._waveforms[k], figs / _drive_figure_name(k), k)
     if result.data["scenes"]:
         rp.slider_positions(result.data["scenes"], figs / "slider_positions.png")
+
+
+def _md_table(header, rows):
+    """Lines of a markdown table."""
+    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    return out + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+
+
+def _fmt(x, spec):
+    """A number for a report table; '-' where there is none."""
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "-"
+    return format(x, spec)
+
+
+def _step_summary(ver):
+    """(scene, step) -> slowest mover [m/s], largest idle displacement [m], checks."""
+    out = {}
+    for (scene, step), g in ver.groupby(["scene", "step"], sort=False):
+        movers = g[g["expected"] != "idle"]
+        idle = g[g["expected"] == "idle"]
+        out[(scene, step)] = {
+            "slowest": float(movers["min_speed_m_s"].min()) if len(movers) else math.nan,
+            "idle_disp": (float(idle["predicted_displacement_m"].abs().max()) if len(idle)
+                          else math.nan),
+            "passed": int(g["passed"].sum()), "checks": len(g)}
+    return out
+
+
+def _moves(rec):
+    names = rec["forward"] + rec["backward"]
+    if len(names) <= 6:
+        return ", ".join([f"{n} fwd" for n in rec["forward"]] + [f"{n} bwd" for n in rec["backward"]])
+    return f"{len(rec['forward'])} fwd, {len(rec['backward'])} bwd"
 
 
 def _report(result, out_dir):
@@ -654,7 +759,9 @@ def _report(result, out_dir):
     lines = [f"# vibroplan plan: {d['spec']['name']}", "",
              f"vibroplan {d['vibroplan_version']}, seed {d['seed']}.", "",
              f"**Verification: {'PASSED' if result.passed else 'FAILED'}** "
-             f"({int(ver['passed'].sum())} of {len(ver)} step x device checks pass).", ""]
+             f"({int(ver['passed'].sum())} of {len(ver)} step x device checks pass): every step "
+             "re-simulated with its summed drive for its whole duration, from "
+             f"{d['spec']['verification']['x0_points']} initial positions over [-c, c].", ""]
     a = d["assignment"]
     lines += ["## Frequency assignment", "",
               f"Conflict graph: {a['graph_nodes']} channel groups, {a['graph_edges']} edges; span "
@@ -663,33 +770,71 @@ def _report(result, out_dir):
               "![array map](figures/array_map.png)", ""]
     if a["guard_violations"]:
         lines += [f"Guard-rule warnings ({len(a['guard_violations'])}): harmonic or intermodulation "
-                  "products of tones that play together land near an idle impacter's frequency "
-                  "(the verification below simulates the real drive; these matter if the piezo "
-                  "distorts):", ""]
+                  "products of tones that play together land near an idle impacter's frequency. "
+                  "The verification simulates the ideal summed drive; these matter only if the "
+                  "piezo or its amplifier distorts.", "",
+                  "<details><summary>the first 15</summary>", ""]
         lines += [f"- {v}" for v in a["guard_violations"][:15]]
-        if len(a["guard_violations"]) > 15:
-            lines.append(f"- ... and {len(a['guard_violations']) - 15} more (plan.json)")
-        lines.append("")
-    lines += ["## Designs", "", result.impacters.drop(columns=["geometry"]).to_markdown(index=False)
-              if _has_tabulate() else result.impacters.drop(columns=["geometry"]).to_string(index=False),
-              "", "![response curves](figures/response_curves.png)", "",
-              "## Cross-coupling", "", "![coupling](figures/coupling.png)", "",
-              "## Steps", ""]
+        lines += ["", f"All {len(a['guard_violations'])} are in plan.json.", "", "</details>", ""]
+    lines += ["## Designs", "",
+              "r_min (worst response over x0 at the impacter's own tone) and the slider speed are "
+              "the designer's short-window predictions; the verification below is the check.", ""]
+    rows = []
+    for r in d["impacters"]:
+        g = r["geometry"]
+        rows.append([r["id"], r["channel"], _fmt(r["frequency_hz"] / 1e3, ".2f"),
+                     _fmt(r["natural_frequency_hz"] / 1e3, ".3f"),
+                     _fmt(g["area_m2"] / UM**2, ".0f"), _fmt(g["width_m"] / UM, ".2f"),
+                     _fmt(g["length_m"] / UM, ".0f"), _fmt(r["gap_m"] / UM, ".2f"),
+                     _fmt(r["mass_kg"] * 1e12, ".3f"),
+                     _fmt(r.get("r_min_n", math.nan) * 1e9, ".1f"),
+                     _fmt(r.get("predicted_slider_speed_m_s", math.nan) * 1e3, ".2f"),
+                     "yes" if r.get("feasible", True) else "**no**"])
+    lines += _md_table(["impacter", "channel", "tone [kHz]", "nu_n [kHz]", "A [um^2]", "w [um]",
+                        "l [um]", "gap [um]", "mass [ng]", "r_min [nN]", "speed [mm/s]",
+                        "feasible"], rows)
+    lines += ["", "![response curves](figures/response_curves.png)", "",
+              "## Cross-coupling", "",
+              "Worst response of every impacter to every tone alone, over the x0 grid "
+              "(coupling.csv).", "", "![coupling](figures/coupling.png)", "", "## Steps", ""]
+    summary = _step_summary(ver)
+    rows = []
     for rec in d["steps"]:
         if rec["scene"] == "independent":
             continue
-        lines.append(f"- {rec['scene']}/{rec['name']}: {len(rec['tones'])} tones, crest factor "
-                     f"{rec['crest_factor']:.2f}, scale {rec['scale']:.3f}, {rec['duration_s'] * 1e3:g} ms")
-    figs = sorted((out_dir / "figures").glob("drive_*.png")) if (out_dir / "figures").exists() else []
-    lines += [""] + [f"![{p.stem}](figures/{p.name})" for p in figs] + [""]
-    if d["scenes"]:
-        lines += ["## Scenes (state carried across steps)", "",
-                  "![slider positions](figures/slider_positions.png)", ""]
-        for row in d["scenes"]:
-            moved = {k: v for k, v in row["positions_m"].items() if abs(v) > 0.5e-6}
-            lines.append(f"- {row['scene']}/{row['step']}: {len(moved)} sliders displaced > 0.5 um; "
-                         f"still ringing: {', '.join(row['ringing_impacters'][:8]) or 'none'}")
+        sm = summary[(rec["scene"], rec["name"])]
+        rows.append([f"{rec['scene']}/{rec['name']}", _fmt(rec["duration_s"] * 1e3, "g"),
+                     len(rec["tones"]), _fmt(rec["crest_factor"], ".2f"), _moves(rec),
+                     _fmt(sm["slowest"] * 1e3, ".2f"), _fmt(sm["idle_disp"] / UM, ".3f"),
+                     f"{sm['passed']}/{sm['checks']}"])
+    if rows:
+        lines += _md_table(["step", "ms", "tones", "crest factor", "moves",
+                            "slowest mover [mm/s]", "largest idle displacement [um]",
+                            "checks passed"], rows)
         lines.append("")
+    for rec in d["steps"]:         # in step order
+        name = _drive_figure_name(f"{rec['scene']}/{rec['name']}")
+        if (out_dir / "figures" / name).exists():
+            lines.append(f"![{rec['scene']}/{rec['name']}](figures/{name})")
+    lines.append("")
+    independent = [rec for rec in d["steps"] if rec["scene"] == "independent"]
+    if independent:
+        lines += ["### Every impacter alone", "",
+                  f"One {independent[0]['duration_s'] * 1e3:g} ms step per impacter (the spec asks "
+                  "for every impacter to be independently addressable): its slider must move at "
+                  "the minimum speed from every initial position of its impacter, and every other "
+                  "slider stay within the idle tolerance.", ""]
+        rows = []
+        for rec in independent:
+            sm = summary[(rec["scene"], rec["name"])]
+            rows.append([rec["name"], _fmt(rec["tones"][0]["frequency_hz"] / 1e3, ".2f"),
+                         _fmt(sm["slowest"] * 1e3, ".2f"), _fmt(sm["idle_disp"] / UM, ".3f"),
+                         f"{sm['passed']}/{sm['checks']}"])
+        lines += _md_table(["impacter", "tone [kHz]", "slowest over x0 [mm/s]",
+                            "largest idle displacement [um]", "checks passed"], rows)
+        lines.append("")
+    if d["scenes"]:
+        lines += _scene_section(d["scenes"])
     fails = ver[~ver["passed"]]
     lines += ["## Failures", ""]
     if fails.empty:
@@ -699,16 +844,53 @@ def _report(result, out_dir):
             lines.append(f"- {r['scene']}/{r['step']} {r['device']} ({r['expected']}): {r['cause']}")
         if len(fails) > 60:
             lines.append(f"- ... and {len(fails) - 60} more (plan.json)")
-    lines += ["", "## Timings", ""] + [f"- {k}: {v:.2f} s" for k, v in result.timings.items()]
+    lines += ["", "## Timings", ""]
+    lines += _md_table(["stage", "seconds"], [[k, f"{v:.2f}"] for k, v in result.timings.items()])
     (out_dir / "report.md").write_text("\n".join(lines) + "\n")
 
 
-def _has_tabulate():
-    try:
-        import tabulate  # noqa: F401
-        return True
-    except ImportError:
-        return False
+def _scene_section(scene_rows):
+    """Slider positions after each step of each scene, the overshoot once the drive
+    stops, and the impacters that hit while their step did not drive them."""
+    lines = ["## Scenes (state carried across steps)", "",
+             "Each scene from rest, every step from the state the previous one left; after the "
+             f"last step the drive is off for {SETTLE_S * 1e3:g} ms, and the overshoot is how far "
+             "each slider moves then, pushed by impacters still ringing.", "",
+             "![slider positions](figures/slider_positions.png)", ""]
+    for scene in dict.fromkeys(r["scene"] for r in scene_rows):
+        rows = [r for r in scene_rows if r["scene"] == scene]
+        steps = [r for r in rows if r["driven"]]
+        tail = [r for r in rows if not r["driven"]]
+        devices = sorted(rows[0]["positions_m"], key=lambda dv: (dv[0], int(dv[1:])))
+        header = ["device"] + [f"after {r['step']} [um]" for r in steps]
+        if tail:
+            header.append("overshoot [um]")
+        table = []
+        for dev in devices:
+            row = [dev] + [_fmt(r["positions_m"][dev] / UM, ".1f") for r in steps]
+            if tail:
+                last = steps[-1]["positions_m"][dev] if steps else 0.0
+                row.append(_fmt((tail[0]["positions_m"][dev] - last) / UM, ".3f"))
+            table.append(row)
+        lines += [f"**{scene}**", ""] + _md_table(header, table) + [""]
+        for r in rows:
+            hits, moved = r["idle_hits"], r["idle_moved_m"]
+            what = ("after the drive stopped" if not r["driven"] else
+                    f"in {r['step']}, which does not drive them")
+            if hits:
+                shown = sorted(hits.items())
+                lines.append(f"- impacters that hit their slider {what}: "
+                             + ", ".join(f"{n} ({k} impact{'s' if k > 1 else ''})"
+                                         for n, k in shown[:10])
+                             + (f" and {len(hits) - 10} more" if len(hits) > 10 else ""))
+            if moved and r["driven"]:
+                shown = sorted(moved.items(), key=lambda kv: -abs(kv[1]))
+                lines.append(f"- **idle sliders moved more than the idle tolerance {what}** "
+                             "(state carried from the previous step): "
+                             + ", ".join(f"{dv} {z / UM:+.2f} um" for dv, z in shown[:10])
+                             + (f" and {len(moved) - 10} more" if len(moved) > 10 else ""))
+        lines.append("")
+    return lines
 
 
 def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, jobs=None):
@@ -745,10 +927,7 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, job
         from planner.cli._common import atomic_path
 
         with atomic_path(out_dir) as tmp:
-            ts = time.perf_counter()
             write_outputs(result, tmp, figures=figures)
-            result.timings["outputs"] = time.perf_counter() - ts
-            _report(result, tmp)
         result.out_dir = Path(out_dir)
     return result
 

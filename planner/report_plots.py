@@ -22,6 +22,8 @@ def array_map(spec, table, path):
     fig, ax = plt.subplots(figsize=(1.7 * len(cols) + 1.5, 1.2 * len(rows) + 1))
     cmap = plt.get_cmap("viridis")
     lo, hi = spec.drive.band_hz
+    log = spec.drive.channels.spacing == "log"
+    norm = (plt.matplotlib.colors.LogNorm if log else plt.matplotlib.colors.Normalize)(lo, hi)
     by_id = {r["id"]: r for r in table.to_dict(orient="records")}
     for i, r in enumerate(rows):
         for j, c in enumerate(cols):
@@ -33,7 +35,7 @@ def array_map(spec, table, path):
                 rec = by_id.get(f"{dev}.{direction}")
                 if rec is None:
                     continue
-                frac = np.log(rec["frequency_hz"] / lo) / np.log(hi / lo)
+                frac = float(norm(rec["frequency_hz"]))
                 ax.add_patch(plt.Rectangle((j + 0.05, y + 0.42 - 0.34 * k), 0.86, 0.3,
                                            color=cmap(frac), alpha=0.85))
                 ax.text(j + 0.48, y + 0.57 - 0.34 * k,
@@ -44,7 +46,7 @@ def array_map(spec, table, path):
     ax.set_ylim(-0.1, len(rows) + 0.1)
     ax.set_aspect("equal")
     ax.axis("off")
-    sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.matplotlib.colors.LogNorm(lo, hi))
+    sm = plt.cm.ScalarMappable(cmap=cmap, norm=norm)
     fig.colorbar(sm, ax=ax, fraction=0.04, label="drive frequency [Hz]")
     ax.set_title(f"{spec.name}: channels (F = forward, B = backward)")
     save(fig, path)
@@ -53,23 +55,36 @@ def array_map(spec, table, path):
 def response_curves(curves, tones, path, title):
     """Every designed impacter's response band against frequency with all tones marked.
 
+    Forward and backward impacters (labels ending in ``.forward`` / ``.backward``) get a
+    panel each, so neighbouring peaks stay apart.
+
     Parameters
     ----------
     curves : list of (label, frequencies [Hz], worst r [N], own frequency [Hz])
+        The own frequency should be one of the frequencies (its dot is read off exactly).
     tones : sequence of float
         Every tone of the plan [Hz].
     """
-    fig, ax = plt.subplots(figsize=(10, 5))
-    cmap = plt.get_cmap("tab20")
-    for i, (label, f, r, own) in enumerate(curves):
-        ax.semilogx(f, r * 1e9, color=cmap(i % 20), lw=0.9)
-        ax.plot([own], [np.interp(own, f, r) * 1e9], "o", color=cmap(i % 20), ms=3)
-    for t in tones:
-        ax.axvline(t, color="0.6", lw=0.4, zorder=0)
-    ax.set_xlabel("drive frequency [Hz] (grey lines: every tone of the plan)")
-    ax.set_ylabel("worst-case response r over x0 [nN]")
-    ax.set_title(title)
-    ax.grid(alpha=0.3, which="both")
+    groups = {}
+    for c in curves:
+        kind = c[0].rsplit(".", 1)[-1] if c[0].endswith((".forward", ".backward")) else ""
+        groups.setdefault(kind, []).append(c)
+    fig, axes = plt.subplots(len(groups), 1, figsize=(10, 3.6 * len(groups) + 0.6),
+                             squeeze=False, sharex=True)
+    cmap = plt.get_cmap("tab10")
+    for ax, (kind, group) in zip(axes[:, 0], groups.items()):
+        for i, (label, f, r, own) in enumerate(group):
+            color = cmap(i % 10)
+            ax.semilogx(f, r * 1e9, color=color, lw=0.9)
+            ax.plot([own], [np.interp(own, f, r) * 1e9], "o", color=color, ms=3.5)
+        for t in tones:
+            ax.axvline(t, color="0.75", lw=0.4, zorder=0)
+        ax.set_ylabel("worst r over x0 [nN]")
+        ax.set_title(f"{kind} impacters" if kind else "impacters", fontsize=10, loc="left")
+        ax.grid(alpha=0.3, which="both")
+    axes[-1, 0].set_xlabel("drive frequency [Hz] (grey lines: every tone of the plan)")
+    fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
     save(fig, path)
 
 

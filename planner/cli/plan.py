@@ -95,6 +95,8 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet):
     if not ind.empty:
         click.echo(f"independent single-impacter steps: {int((ind['passed'] == ind['devices']).sum())}"
                    f" of {len(ind)} pass")
+    for line in _scene_lines(d["scenes"]):
+        click.echo(line)
     t = result.timings
     click.echo("time: " + ", ".join(f"{k} {v:.1f} s" for k, v in t.items()))
     click.echo(f"verification: {'PASSED' if result.passed else 'FAILED'} "
@@ -102,3 +104,26 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet):
                f"(see {out_dir}/report.md)")
     if not result.passed:
         sys.exit(1)
+
+
+def _scene_lines(scene_rows):
+    """One line per scene: the largest overshoot once the drive stops, and the steps in
+    which idle sliders moved beyond the tolerance from the state they inherited."""
+    out = []
+    for scene in dict.fromkeys(r["scene"] for r in scene_rows):
+        rows = [r for r in scene_rows if r["scene"] == scene]
+        driven = [r for r in rows if r["driven"]]
+        tail = [r for r in rows if not r["driven"]]
+        text = f"scene {scene}:"
+        if driven and tail:
+            over = max(abs(tail[0]["positions_m"][dv] - driven[-1]["positions_m"][dv])
+                       for dv in tail[0]["positions_m"])
+            text += f" overshoot after the drive stops up to {over * 1e6:.2f} um;"
+        carried = [f"{r['step']} ({len(r['idle_moved_m'])} sliders, up to "
+                   f"{max(abs(z) for z in r['idle_moved_m'].values()) * 1e6:.1f} um)"
+                   for r in driven if r["idle_moved_m"]]
+        text += (" idle sliders moved beyond the idle tolerance from the state the previous "
+                 "step left in: " + ", ".join(carried) if carried else
+                 " no idle slider moved beyond the idle tolerance")
+        out.append(text)
+    return out

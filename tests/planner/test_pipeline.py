@@ -163,3 +163,70 @@ def test_default_plan_verifies_end_to_end(tmp_path):
     for step in data["steps"]:
         for rel in step["files"].values():
             assert (out / rel).is_file(), rel
+
+
+ONE = """\
+name: one
+array: {rows: 1, cols: 1}
+independent: false
+drive:
+  band_hz: [3000, 12000]
+  channels: {count: 60}
+scenes:
+  s:
+    - {name: go, duration_ms: 3, forward: [A1]}
+"""
+
+
+def test_scene_counts_the_overshoot_after_the_drive_stops():
+    # Fig. 7's device (nu_n = 5.2 kHz, vacuum) at 6.2 kHz hits its wall every cycle
+    # (paper, Fig. 7).  When the drive stops it is still swinging into the wall: the
+    # undriven tail must record those hits and the slider's extra travel forward.
+    import model
+    from planner.assign import plan_steps
+    from planner.config import build_slider
+    from planner.pipeline import SETTLE_NAME, SETTLE_S, SINGLE_STEP_S, simulate_scenes
+    from planner.spec import load_spec
+    from planner.synthesis import synthesize
+
+    loaded = load_spec(ONE)
+    spec = loaded.spec
+    steps = plan_steps(loaded, SINGLE_STEP_S)
+    imp = model.Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6).with_natural_frequency(5200)
+    slider = build_slider(spec.slider_config("A1"), spec.process, spec.environment)
+    w = synthesize([6200.0], model.amplitude_from_power([6200.0], 50.0), 200_000, seed=0)
+    rows = simulate_scenes(loaded, steps, {steps[0].key: w}, {"A1.forward": imp},
+                           {"A1": slider})
+    assert [r["step"] for r in rows] == ["go", SETTLE_NAME]
+    go, tail = rows
+    assert go["driven"] and not tail["driven"] and tail["duration_s"] == SETTLE_S
+    # the driven step from rest is exactly the one-device slider simulation
+    ref = model.simulate_slider(imp, slider, model.Drive(w.frequencies, w.amplitudes, w.phases),
+                                duration=3e-3)
+    assert go["positions_m"]["A1"] == pytest.approx(ref.displacement, rel=1e-12, abs=1e-15)
+    assert go["idle_hits"] == {}          # driven in its step: not an idle hit
+    assert tail["idle_hits"].get("A1.forward", 0) >= 1
+    overshoot = tail["positions_m"]["A1"] - go["positions_m"]["A1"]
+    assert overshoot > 0
+    tol = spec.verification.idle_tolerance_um * 1e-6
+    assert ("A1" in tail["idle_moved_m"]) == (overshoot > tol)
+
+
+def test_report_tables_and_figures(tiny_plan, tmp_path):
+    """report.md: markdown tables in lab units, and every figure it shows exists."""
+    from planner.pipeline import write_outputs
+
+    write_outputs(tiny_plan, tmp_path)
+    report = (tmp_path / "report.md").read_text()
+    assert "| impacter | channel | tone [kHz] |" in report
+    assert "overshoot [um]" in report and "after push [um]" in report
+    freq = tiny_plan.data["impacters"][0]["frequency_hz"]
+    assert f"| {freq / 1e3:.2f} |" in report
+    figures = [line.split("](", 1)[1].rstrip(")") for line in report.splitlines()
+               if line.startswith("![")]
+    names = {Path(f).name for f in figures}
+    assert {"array_map.png", "response_curves.png", "coupling.png",
+            "slider_positions.png", "drive_s__push.png", "drive_s__pull.png"} <= names
+    for fig in figures:
+        assert (tmp_path / fig).stat().st_size > 10_000, fig
+    assert "outputs" in tiny_plan.timings
