@@ -12,9 +12,10 @@ reads the previous stages' results:
 4. **drive** -- the summed-tone drive of every step, phases for a low crest factor,
    within the piezo's peak limit;
 5. **verify** -- every step re-simulated with its actual summed drive for its whole
-   duration, from a grid of initial states, plus every scene in order with the
-   state carried across steps; failures are repaired by widening the offending
-   pair's separation and re-colouring, for a bounded number of rounds;
+   duration, from a grid of initial states; failures are repaired by widening the
+   offending pair's separation and re-colouring, for a bounded number of rounds;
+   then every scene in order with the state carried across steps and the drive
+   switched off at the end, so that ringing impacters' overshoot is counted;
 6. **outputs** -- ``plan.json`` (the public contract), CSVs, waveform files, figures
    and ``report.md``, written to a temporary folder and moved into place at the end.
 """
@@ -84,7 +85,10 @@ class Plan:
         Cross-coupling matrix: worst response r [N] of every impacter (rows) to every
         tone (columns, Hz) alone.
     scenes : DataFrame
-        Predicted slider positions after each step of each scene.
+        Each scene simulated in order with the state carried across steps: one row per
+        step and one for the drive switched off afterwards (``driven`` false), with the
+        slider positions, the idle impacters that still hit and the idle sliders that
+        moved beyond the tolerance (see :func:`simulate_scenes`).
     passed : bool
         Every step passed re-simulation.
     data : dict
