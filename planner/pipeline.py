@@ -412,6 +412,7 @@ def _scene_phase(impacters, sliders, drive, duration, states, sl_states, active,
         if hits and n not in active:
             idle_hits[n] = int(hits)
     positions, moved = {}, {}
+    driven_devices = {split_node(n)[0] for n in active}
     for dev, slider in sliders.items():
         z0, v0 = sl_states[dev]
         t = np.concatenate(kicks[dev][0]) if kicks[dev][0] else np.empty(0)
@@ -419,7 +420,7 @@ def _scene_phase(impacters, sliders, drive, duration, states, sl_states, active,
         _, _, z, v, _ = model.slider_motion(slider, drive, t, dv, duration, z0, v0)
         sl_states[dev] = (z, v)
         positions[dev] = float(z)
-        if abs(z - z0) > idle_tolerance and not any(split_node(n)[0] == dev for n in active):
+        if abs(z - z0) > idle_tolerance and dev not in driven_devices:
             moved[dev] = float(z - z0)
     ringing = sorted(n for n, (x, v, s) in states.items()
                      if abs(v) > RINGING_V and n not in active)
@@ -465,6 +466,21 @@ def simulate_scenes(loaded, steps, waveforms, impacters, sliders):
         rows.append({"scene": scene, "step": SETTLE_NAME, "driven": False,
                      "duration_s": SETTLE_S, **fields})
     return rows
+
+
+def scene_overshoot(scene_rows):
+    """Scene -> {device: overshoot [m]}: how far each slider moved once the drive was
+    switched off after the scene's last step (the rows of :func:`simulate_scenes`)."""
+    out = {}
+    for scene in dict.fromkeys(r["scene"] for r in scene_rows):
+        rows = [r for r in scene_rows if r["scene"] == scene]
+        driven = [r for r in rows if r["driven"]]
+        tail = [r for r in rows if not r["driven"]]
+        if not tail:
+            continue
+        last = driven[-1]["positions_m"] if driven else {}
+        out[scene] = {dev: z - last.get(dev, 0.0) for dev, z in tail[0]["positions_m"].items()}
+    return out
 
 
 def coupling_matrix(impacters, tones, spec, duration):
@@ -861,20 +877,19 @@ def _scene_section(scene_rows):
              f"last step the drive is off for {SETTLE_S * 1e3:g} ms, and the overshoot is how far "
              "each slider moves then, pushed by impacters still ringing.", "",
              "![slider positions](figures/slider_positions.png)", ""]
+    overshoot = scene_overshoot(scene_rows)
     for scene in dict.fromkeys(r["scene"] for r in scene_rows):
         rows = [r for r in scene_rows if r["scene"] == scene]
         steps = [r for r in rows if r["driven"]]
-        tail = [r for r in rows if not r["driven"]]
         devices = sorted(rows[0]["positions_m"], key=lambda dv: (dv[0], int(dv[1:])))
         header = ["device"] + [f"after {r['step']} [um]" for r in steps]
-        if tail:
+        if scene in overshoot:
             header.append("overshoot [um]")
         table = []
         for dev in devices:
             row = [dev] + [_fmt(r["positions_m"][dev] / UM, ".1f") for r in steps]
-            if tail:
-                last = steps[-1]["positions_m"][dev] if steps else 0.0
-                row.append(_fmt((tail[0]["positions_m"][dev] - last) / UM, ".3f"))
+            if scene in overshoot:
+                row.append(_fmt(overshoot[scene][dev] / UM, ".3f"))
             table.append(row)
         lines += [f"**{scene}**", ""] + _md_table(header, table) + [""]
         for r in rows:

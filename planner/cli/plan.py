@@ -109,15 +109,15 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet):
 def _scene_lines(scene_rows):
     """One line per scene: the largest overshoot once the drive stops, and the steps in
     which idle sliders moved beyond the tolerance from the state they inherited."""
+    from planner.pipeline import scene_overshoot
+
+    overshoot = scene_overshoot(scene_rows)
     out = []
     for scene in dict.fromkeys(r["scene"] for r in scene_rows):
-        rows = [r for r in scene_rows if r["scene"] == scene]
-        driven = [r for r in rows if r["driven"]]
-        tail = [r for r in rows if not r["driven"]]
+        driven = [r for r in scene_rows if r["scene"] == scene and r["driven"]]
         text = f"scene {scene}:"
-        if driven and tail:
-            over = max(abs(tail[0]["positions_m"][dv] - driven[-1]["positions_m"][dv])
-                       for dv in tail[0]["positions_m"])
+        if driven and overshoot.get(scene):
+            over = max(abs(z) for z in overshoot[scene].values())
             text += f" overshoot after the drive stops up to {over * 1e6:.2f} um;"
         carried = [f"{r['step']} ({len(r['idle_moved_m'])} sliders, up to "
                    f"{max(abs(z) for z in r['idle_moved_m'].values()) * 1e6:.1f} um)"
