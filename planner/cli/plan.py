@@ -57,6 +57,10 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet):
     int16 WAV, CSV and Keysight .arb per step, each with a JSON sidecar), figures/
     and report.md.  Exit status 0 when every step passes re-simulation, 1 when some
     step fails (the report says which and why), 2 for a bad spec.
+
+    Each scene is also simulated in order with every state carried across steps and
+    the drive switched off at the end; the summary and report give the overshoot and
+    any idle slider moved by the state a previous step left.
     """
     import numba
 
