@@ -10,7 +10,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from model import Impacter, Slider, SolverWarning, simulate_slider
+from model import CONTACTS, Impacter, Slider, SolverWarning, simulate_slider
 from model import devices as _d
 from model.drive import POWER
 from planner.designer.bounds import UM, DesignBounds
@@ -73,7 +73,7 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
                     amplitude=None, bounds=None, window=3e-3, seed=0, budget="full",
                     slider=None, progress=None, x0_points=None, guard=GUARD,
                     impact_angle=_d.IMPACT_ANGLE, restitution=_d.RESTITUTION,
-                    forbidden_drives=()):
+                    forbidden_drives=(), max_mass_ratio=None, contact="paper"):
     """Design one impacter by the paper's max-min problem, eqs. (13)-(18).
 
     Maximise the worst response over initial positions at ``frequency`` subject to
@@ -126,6 +126,16 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         Multi-tone drives (the summed drives of the steps in which the impacter must be
         idle) under which the design must also be silent, from every x0, over the
         window and the long re-check window; checked before the single tones.
+    max_mass_ratio : float, optional
+        Upper bound on m / M, the impacter's mass over the slider's [-] (None: no
+        bound, the paper's problem).  Eq. (10) is the small-m/M limit of an impact.
+    contact : {"paper", "two_body"}
+        The contact law the slider is kicked by (:data:`model.CONTACTS`).  Under
+        ``"two_body"`` a kick gives the slider 1 / (1 + q) of eq. (10)'s momentum,
+        q = 2 (m/M) cos^2(theta), so the objective is r / (1 + q): a heavier impacter
+        hits harder but pushes a lighter slider less than r alone says, and the
+        designs no longer pile up at the area bound.  The predicted slider speed is
+        simulated under this law too.
 
     Returns
     -------
@@ -195,8 +205,20 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
                              f"forbidden frequency {f:g} Hz (guard {guard:g})")
     ensembles = tuple(e if isinstance(e, Ensemble) else Ensemble(e, f"drive {i}")
                       for i, e in enumerate(forbidden_drives))
+    if contact not in CONTACTS:
+        raise ValueError(f"contact must be one of {sorted(CONTACTS)}, {contact!r} was given")
+    if max_mass_ratio is None:
+        mass_cap = math.inf
+    else:
+        max_mass_ratio = float(max_mass_ratio)
+        if not (math.isfinite(max_mass_ratio) and max_mass_ratio > 0):
+            raise ValueError(f"max_mass_ratio must be finite and > 0, {max_mass_ratio!r} "
+                             "was given")
+        mass_cap = max_mass_ratio * slider.mass
+    q_per_kg = (2.0 * math.cos(float(impact_angle)) ** 2 / slider.mass
+                if contact == "two_body" else 0.0)
     problem = _Problem(frequency, forbidden, factory, tones, bounds, window, budget, guard,
-                       ensembles)
+                       ensembles, mass_cap=mass_cap, q_per_kg=q_per_kg)
 
     report = _progress_hook(progress)
     expected = (budget.initial + budget.chains * budget.anneal_steps
@@ -242,7 +264,7 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SolverWarning)
         speed = simulate_slider(imp, slider, tones.drive(frequency), min(worst_x0, imp.gap),
-                                duration=window).mean_velocity
+                                duration=window, contact=contact).mean_velocity
     checks = {
         "optimizer_x0_points": int(problem.u.size),
         "optimizer_forbidden_x0_points": int(problem.u_forbid.size),
@@ -287,7 +309,7 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         evaluations=problem.evaluations, seconds=time.perf_counter() - t_start,
         simulations=problem.simulations, checks=checks, response_band_hz=band, status=status,
         message=message, seed=seed if isinstance(seed, numbers.Integral) else None,
-        budget=budget_name, window_s=window)
+        budget=budget_name, window_s=window, mass_ratio=imp.mass / slider.mass, contact=contact)
 
 
 def design_pair(forward_hz, backward_hz, *, seed=0, progress=None, **kw):

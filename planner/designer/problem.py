@@ -73,8 +73,13 @@ class _Problem:
     """Geometry <-> search coordinates, cached simulations and the tiered energy."""
 
     def __init__(self, frequency, forbidden, factory, tones, bounds, window, budget, guard,
-                 ensembles=()):
+                 ensembles=(), mass_cap=math.inf, q_per_kg=0.0):
         self.frequency = frequency
+        # m <= mass_cap [kg] (design.max_mass_ratio times the slider mass); and under the
+        # two-body contact law a kick gives the slider only 1 / (1 + q) of what eq. (10)
+        # says, q = 2 (m/M) cos^2(theta) = q_per_kg * m: the objective is r / (1 + q)
+        self.mass_cap = float(mass_cap)
+        self.q_per_kg = float(q_per_kg)
         self.forbidden = forbidden
         self.factory = factory
         self.tones = tones
@@ -100,9 +105,23 @@ class _Problem:
         self.u_forbid = _u_grid(budget.forbidden_x0_points)  # constraint grid
         self.u_long = np.zeros(0)     # constraint points checked over the long window
         ratio = natural_ratio(frequency, forbidden)
+        area_hi = bounds.area[1]
+        if math.isfinite(self.mass_cap):
+            # the plate's mass alone (rho A t, eq. 2) must stay under the cap: no area
+            # above that can be feasible, so the search does not look there
+            a1, a2 = 1e-9, 2e-9
+            per_area = (factory(a2, bounds.width[0], bounds.length[0], bounds.gap[0]).mass
+                        - factory(a1, bounds.width[0], bounds.length[0], bounds.gap[0]).mass
+                        ) / (a2 - a1)
+            area_hi = min(area_hi, self.mass_cap / per_area)
+            if area_hi <= bounds.area[0]:
+                raise ValueError(
+                    f"max_mass_ratio allows an impacter of at most {self.mass_cap * 1e12:.4g} "
+                    f"ng, below the mass of the smallest area allowed ({bounds.area[0] * 1e12:g}"
+                    " um^2): raise max_mass_ratio, lower the area bound or use a heavier slider")
         self.lo = np.log([bounds.area[0], bounds.width[0], ratio[0] * frequency,
                           bounds.gap[0]])
-        self.hi = np.log([bounds.area[1], bounds.width[1], ratio[1] * frequency,
+        self.hi = np.log([area_hi, bounds.width[1], ratio[1] * frequency,
                           bounds.gap[1]])
         self.evals = {}      # geometry -> _Eval (on the current grids)
         self.runs = {}       # (geometry, f, window, stop, u bytes) -> (r, status)
@@ -258,6 +277,15 @@ class _Problem:
         if ev is not None:
             return ev
         self.evaluations += 1
+        mass = self.impacter(geometry).mass
+        if mass > self.mass_cap:
+            # over the mass cap (the beams' mass pushed it there): worse than any
+            # violation of (14), graded so that the search walks back under the cap
+            ev = _Eval(zz, geometry, 3 * PENALTY + math.log(mass / self.mass_cap), 1.0, None,
+                       0.0, 0.0, math.nan)
+            self.evals[geometry] = ev
+            self._remember(ev)
+            return ev
         frac, j = self.violation(geometry, self.u_forbid, self.window, self.active,
                                  self.budget.violations_counted)
         if j is None:
@@ -273,7 +301,8 @@ class _Problem:
             u, r = self.target(geometry, self.u, self.budget.refine_levels)
             i = int(np.argmin(r))
             zero = float(np.mean(r <= 0))
-            energy = PENALTY + zero if zero > 0 else -math.log(float(r[i]))
+            energy = (PENALTY + zero if zero > 0 else
+                      -math.log(float(r[i])) + math.log1p(self.q_per_kg * mass))
             ev = _Eval(zz, geometry, energy, 0.0, None, zero, float(r[i]), float(u[i]))
         self.evals[geometry] = ev
         self._remember(ev)

@@ -38,7 +38,13 @@ class DesignResult:
         responds there); scanned on both sides out to the target's distance, then
         bisected (``Budget.margin_points``, ``Budget.margin_tol``).
     predicted_slider_speed_m_s : float
-        Mean slider speed over the window when driven at nu from the worst x0 [m/s].
+        Mean slider speed over the window when driven at nu from the worst x0, under
+        the ``contact`` law [m/s].
+    mass_ratio : float
+        m / M, impacter mass over slider mass [-] (eq. 10 holds for m/M << 1; it
+        creates energy for m/M above about 1/3, see docs/contact.md).
+    contact : str
+        The contact law the design was made for (:data:`model.CONTACTS`).
     feasible : bool
         Responds at nu from every x0 and at no forbidden frequency from any x0, on
         the re-check grid over the design window.
@@ -87,6 +93,8 @@ class DesignResult:
     seed: int | None = None
     budget: str = "full"
     window_s: float = 3e-3
+    mass_ratio: float = math.nan
+    contact: str = "paper"
 
     def to_dict(self):
         """JSON-safe dict with the plan's impacter keys (SI units, unit-suffixed)."""
@@ -114,6 +122,8 @@ class DesignResult:
             "margins_hz": [num(m) for m in self.margins_hz],
             "response_band_hz": [num(f) for f in self.response_band_hz],
             "predicted_slider_speed_m_s": num(self.predicted_slider_speed_m_s),
+            "mass_ratio": num(self.mass_ratio),
+            "contact": self.contact,
             "feasible": bool(self.feasible),
             "status": self.status,
             "message": self.message,
