@@ -64,6 +64,15 @@ MAX_NU_REL_STD = 0.01
 #: mode, a drifting drive), whatever the parameters' formal errors say.
 MAX_RESIDUAL_RMS = 0.10
 
+#: Lowest z-score accepted for the number of runs of equal residual sign along the
+#: sweep (Wald-Wolfowitz): independent noise gives z ~ N(0, 1), so below -3.5
+#: (about 2e-4 by chance) the misfit is systematic: a peak clipped by impacts,
+#: bent by them (hardening), or a second mode, however small the scatter.
+MIN_RUNS_Z = -3.5
+#: Below this residual rms [-] the fit matches to better than any instrument reads,
+#: and residual signs are rounding noise: the runs test is skipped.
+RUNS_MIN_RMS = 1e-6
+
 #: Q is searched in [Q_MIN, Q_MAX]; a fit that ends on a bound has no finite Q.
 Q_MIN = 0.5
 Q_MAX = 1e6
@@ -293,7 +302,7 @@ def fit_resonance(frequency_hz, amplitude_m, drive_amplitude_m=None) -> Resonanc
     residual_rms = float(np.sqrt(np.mean(best.fun**2)))
     variance = float(2.0 * best.cost / dof) if dof > 0 else math.nan
     std_log, singular = _parameter_std(best.jac, variance)
-    nu_std, q_std, s_std = nu * std_log[0], q * std_log[1], s * std_log[2]
+    nu_std, q_std, s_std = (float(v * e) for v, e in zip((nu, q, s), std_log))
 
     half_band = nu / (2.0 * q)
     n_peak = int(np.sum(np.abs(f - nu) <= half_band))
@@ -316,13 +325,17 @@ def fit_resonance(frequency_hz, amplitude_m, drive_amplitude_m=None) -> Resonanc
     q_bound = p[1] >= math.log(Q_MAX) - 1e-6 or p[1] <= math.log(Q_MIN) + 1e-6
     if singular or q_bound or not q_std <= MAX_Q_REL_STD * q or not nu_std <= MAX_NU_REL_STD * nu:
         status.append("q_unbounded")
-        problems.append(f"the data do not determine Q (Q = {q:.4g} +- {q_std:.3g}"
+        problems.append(f"the data do not determine nu_n and Q (nu_n = {nu:.6g} +- "
+                        f"{nu_std:.3g} Hz, Q = {q:.4g} +- {q_std:.3g}"
                         + (", on the search bound" if q_bound else "") + ")")
-    if residual_rms > MAX_RESIDUAL_RMS:
+    runs_z = _runs_z(best.fun) if residual_rms > RUNS_MIN_RMS else 0.0
+    if residual_rms > MAX_RESIDUAL_RMS or runs_z < MIN_RUNS_Z:
         status.append("poor_fit")
-        problems.append(f"residual scatter {residual_rms:.1%} exceeds "
-                        f"{MAX_RESIDUAL_RMS:.0%}: the data are not a linear resonance "
-                        f"(impacting? a second mode? a drifting drive?)")
+        why = (f"residual scatter {residual_rms:.1%} exceeds {MAX_RESIDUAL_RMS:.0%}"
+               if residual_rms > MAX_RESIDUAL_RMS else
+               f"the residuals keep their sign over long stretches (runs z = {runs_z:.1f})")
+        problems.append(f"{why}: the data are not a linear resonance (impacting? then lower "
+                        f"the drive; a second mode? a drifting drive?)")
     worst = min(status, key=STATUSES.index) if status else "ok"
     message = "; ".join(problems) if problems else f"fitted {n} points"
     return ResonanceFit(nu, q, nu_std, q_std, s, s_std, residual_rms, n, n_peak, worst,
@@ -338,6 +351,19 @@ def _parameter_std(jac, variance):
         return np.full(jac.shape[1], math.inf), True
     cov = (vt.T / sv**2) @ vt * variance
     return np.sqrt(np.diag(cov)), False
+
+
+def _runs_z(residuals):
+    """z-score of the number of runs of equal sign in ``residuals`` (Wald-Wolfowitz)."""
+    sign = residuals > 0
+    n_pos, n = int(sign.sum()), sign.size
+    n_neg = n - n_pos
+    if n_pos == 0 or n_neg == 0:
+        return -math.inf if n > 1 else 0.0
+    runs = 1 + int(np.count_nonzero(sign[1:] != sign[:-1]))
+    mean = 2.0 * n_pos * n_neg / n + 1.0
+    var = (mean - 1.0) * (mean - 2.0) / (n - 1.0)
+    return (runs - mean) / math.sqrt(var) if var > 0 else 0.0
 
 
 def _failed(n, message):
@@ -436,8 +462,11 @@ def read_sweep(path) -> pd.DataFrame:
     def fail(line, column, message):
         return SpecError(message, path=f"row {line}, column {column}", source=source)
 
-    with path.open(newline="", encoding="utf-8-sig") as fh:
-        lines = [(n, row) for n, row in _csv_rows(fh)]
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            lines = list(_csv_rows(fh))
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise SpecError(f"not a CSV text file: {exc}", source=source) from None
     if not lines:
         raise SpecError(f"empty file: a sweep needs the header {','.join(SWEEP_COLUMNS)}",
                         source=source)

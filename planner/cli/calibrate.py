@@ -66,8 +66,11 @@ def command(sweep_csv, out, keep_flagged):
 
     sweep = read_sweep(sweep_csv)
     fits = calibrate(sweep)
-    scale_unit = "" if "drive_amplitude_m" in sweep.columns else " um"
-    scale_factor = 1.0 if "drive_amplitude_m" in sweep.columns else 1e6
+    # the fitted scale is cos(theta) when |X|/Z was fitted, else Z cos(theta)
+    if "drive_amplitude_m" in sweep.columns:
+        scale_text = "cos(theta) = {:.4g}".format
+    else:
+        scale_text = lambda s: f"Z cos(theta) = {s * 1e6:.4g} um"  # noqa: E731
     width = max(len(str(n)) for n in fits["impacter"])
     for fit in fits.itertuples(index=False):
         name = f"{fit.impacter}:".ljust(width + 1)
@@ -76,8 +79,8 @@ def command(sweep_csv, out, keep_flagged):
         else:
             click.echo(f"{name} nu_n = {fit.natural_frequency_hz:.2f} +- "
                        f"{fit.natural_frequency_std_hz:.2g} Hz, Q = {fit.quality_factor:.4g} +- "
-                       f"{fit.quality_factor_std:.2g}, s = {fit.scale * scale_factor:.4g}"
-                       f"{scale_unit} ({fit.n_points} points, {fit.n_peak_points} in the "
+                       f"{fit.quality_factor_std:.2g}, {scale_text(fit.scale)} "
+                       f"({fit.n_points} points, {fit.n_peak_points} in the "
                        f"half-power band, scatter {fit.residual_rms:.2%}) [{fit.status}]")
         if fit.status != "ok":
             click.echo(f"warning: {fit.impacter}: {fit.message}", err=True)
