@@ -167,6 +167,16 @@ def test_coarse_sweep_over_a_sharp_peak_is_flagged(devices):
     assert fit.n_peak_points < 3 and "sweep more finely" in fit.message
 
 
+def test_zero_amplitudes_are_left_out():
+    # a reading below the instrument's floor has no log: left out, and said so
+    f = np.linspace(9000.0, 11000.0, 60)
+    a = 3e-8 * transmissibility(f, 10123.4, 57.0)
+    a[[0, -1]] = 0.0
+    fit = fit_resonance(f, a)
+    assert fit.ok and fit.n_points == 58 and "2 zero amplitudes left out" in fit.message
+    assert fit.natural_frequency_hz == pytest.approx(10123.4, rel=1e-9)
+
+
 def test_noiseless_closed_form_is_exact():
     f = np.linspace(9000.0, 11000.0, 60)
     fit = fit_resonance(f, 3e-8 * transmissibility(f, 10123.4, 57.0))
@@ -332,6 +342,7 @@ GOOD_ROWS = "".join(f"A,{f},{a}\n" for f, a in
      "empty impacter name"),
     ("impacter,frequency_hz,amplitude_um\n" + GOOD_ROWS + "A,1200\n", 7, "amplitude_um",
      "2 values where the header has 3"),
+    ("impacter,frequency_hz,amplitude_um,frequency_hz\n", 1, "frequency_hz", "given twice"),
 ])
 def test_malformed_csv_exits_2_naming_row_and_column(tmp_path, text, row, column, needle):
     sweep_csv, out = tmp_path / "sweep.csv", tmp_path / "measured.csv"
