@@ -25,6 +25,7 @@ COMMANDS = {
     "assign": "assign",
     "color": "color",
     "drive": "drive",
+    "calibrate": "calibrate",
     "bench": "bench",
 }
 
