@@ -53,7 +53,22 @@ def rows():
         yield out
 
 
+def energy_rows(e=0.5, theta=np.pi / 4):
+    """Per-kick energy balance from rest, as fractions of the pair's incoming m v-^2."""
+    for ratio in (0.01, 0.1, 1 / 3, 0.452, 0.5, 1.0, 2.0, 5.0, 10.0):
+        q = 2 * ratio * np.cos(theta) ** 2
+        yield (ratio, q, e * e + (1 + e) ** 2 * q, (e * e + q) / (1 + q),
+               (1 + e) ** 2 * q / (1 + q) ** 2, (q - e) / (1 + q))
+
+
 def main():
+    print("Energy after / before one kick of a slider at rest (e = 0.5, theta = 45 deg):\n")
+    print("| m/M | q = 2 (m/M) cos^2(theta) | paper: e^2 + (1+e)^2 q | two_body: (e^2 + q)/(1+q) "
+          "| two_body, slider's share | two_body tip v+/v- = (q - e)/(1+q) |")
+    print("|---|---|---|---|---|---|")
+    for ratio, q, paper, two, share, rebound in energy_rows():
+        print(f"| {ratio:.3g} | {q:.3g} | {paper:.3f} | {two:.3f} | {share:.3f} | {rebound:+.3f} |")
+    print("\nFig. 7's device at 6.2 kHz, 3 ms, x0 = 0, impacter mass scaled:\n")
     print("| m/M | paper [mm/s] | two_body [mm/s] | two_body / paper | peak V paper [m/s] "
           "| peak V two_body [m/s] | tip max v- [m/s] | (1+e) max v- / cos(theta) [m/s] |")
     print("|---|---|---|---|---|---|---|---|")
