@@ -1,0 +1,158 @@
+"""Impacter design by the paper's max-min problem, eqs. (13)-(18).
+
+For an impacter with target drive frequency nu and forbidden frequencies {nu_j}:
+
+    maximise over p = (A, w, l, c)     min_{x0 in D} r(x0, p, nu)                 (13)
+    subject to                         max_{x0 in D} r(x0, p, nu_j) = 0  for all j  (14)
+                                       D = {x(t0) in [-c, c], v(t0) = 0}          (15), (18)
+                                       p in P (bounds, (17) below)                (16), (17)
+
+r is the response of eq. (12), computed by the exact event-driven simulator of
+:mod:`model`; k, m and b follow from the geometry by eqs. (2)-(4) *as printed* (the
+design variables really are geometry, see :mod:`model.devices` on the paper's
+inconsistency).  Only impacter dynamics enter the objective, as the paper argues;
+the slider is simulated once, for the report.
+
+Public API
+----------
+:func:`design_impacter`, :func:`design_pair`, :func:`response_band`,
+:func:`response_curves`, :func:`x0_grid`, :class:`DesignBounds`, :class:`DesignResult`,
+:class:`PairDesign`, :data:`BUDGETS`.
+
+Layout of this package (each module imports only those listed above it)
+
+- :mod:`~planner.designer.bounds`: :class:`DesignBounds`, the paper's lower bounds (17)
+  and the documented upper bounds.
+- :mod:`~planner.designer.budget`: :class:`Budget` and the named :data:`BUDGETS`.
+- :mod:`~planner.designer.result`: :class:`DesignResult`, :class:`PairDesign`.
+- :mod:`~planner.designer.runs`: the drive convention (:class:`Ensemble`, one tone per
+  frequency), the x0 grid of D (:func:`x0_grid`) and batched calls of :mod:`model`.
+- :mod:`~planner.designer.response`: response analysis -- :func:`response_band`,
+  :func:`response_curves` and the margins of a finished design.
+- :mod:`~planner.designer.problem`: the optimisation problem -- search coordinates,
+  cached simulations, the tiered energy.
+- :mod:`~planner.designer.search`: Sobol seeding, annealing chains, SQP polish, the
+  re-checks and the exchange method.
+- :mod:`~planner.designer.design`: :func:`design_impacter`, :func:`design_pair`.
+
+Notes
+-----
+**Search coordinates.**  The annealer moves in z in [0, 1]^4, the normalised logarithms
+of (A, w, nu_n, c); the beam length l is recovered from (A, w, nu_n) through eqs. (2)
+and (4) (k = m (2 pi nu_n)^2 has exactly one root in l, since k falls and m grows with
+l).  This is a smooth bijection of the paper's p, so the optimum is the same, but it
+decouples the two things the response depends on: where the response curve sits
+(nu_n and c set the dynamics per unit mass; b / 2m is nearly fixed by mu / (rho t d))
+and how large it is (r is proportional to m).  A move in A at fixed nu_n leaves the
+curve in place, which a random walk in (A, l) would almost never do.  nu_n is searched
+in NATURAL_RATIO times nu; a proposal whose l would leave its bounds is projected onto
+them (nu_n then follows from the clipped l).
+
+**Constraint handling.**  The annealer minimises a tiered energy (feasibility first,
+Deb's rule made scalar):
+
+- a design that responds at a forbidden frequency from some x0 of the grid:
+  E = 2 PENALTY + (fraction of x0 that respond at the first violated frequency);
+- a feasible design that does not respond at nu from every x0:
+  E = PENALTY + (fraction of x0 with r = 0);
+- a feasible design that responds from every x0: E = -ln(r_min / 1 N).
+
+PENALTY dwarfs any difference of ln r, so a chain that has found the feasible region
+never leaves it, while the fractions give infeasible chains a slope towards
+feasibility.  The SQP polish (SLSQP) minimises the same energy with the constraint
+also passed explicitly (``-violation >= 0``); r is discontinuous (the paper's Fig. 9),
+so its finite-difference gradients are only locally meaningful and its line search
+is guarded by the cache: every point it evaluates joins the archive, and the best
+feasible point seen, annealed or polished, wins.
+
+**The x0 grid.**  D is sampled on a uniform grid of u = x0 / c in [-1, 1] (odd point
+count, so -c, 0 and +c are nodes), plus points just inside the wall, and the target
+response is refined by bisection wherever it jumps between neighbours (Fig. 9's
+discontinuities, the paper's "bifurcations").  x0 = +c is evaluated at
+c (1 - WALL_OFFSET): the limit x0 -> c from inside is the stricter case (from just
+inside, a drive that presses on the wall at t0 produces counted chatter; a start
+stuck on the wall produces none).  It also kept the designer clear of a solver fault
+at x0 == gap exactly (spurious zero-time impacts of noise velocity when the net force
+pulls away from the wall), fixed in the kernels since.
+
+**Constraint checks are cheap.**  A forbidden frequency is checked with
+``stop_at_first`` (a run stops at its first counted impact), frequencies are tried
+nearest the target first with move-to-front on a violation, the check stops at the
+first violated frequency, and every kernel call is cached by its inputs.  With the
+"fast" budget only the ``active_forbidden`` most dangerous frequencies are checked
+during the search; the final design is checked against all of them, and any that it
+violates joins the active set for another search round (constraint generation).
+
+**Re-checks.**  The best designs of the archive are re-checked on a grid about eight
+times finer (with more refinement) and over a window LONG_WINDOW_FACTOR times longer;
+the design reported is the best that passes both.  ``checks`` in the result says
+how many designs passed on the optimiser's grid but failed a re-check.
+
+References
+----------
+K. Saitou, D.-A. Wang, S. J. Wou, "Externally resonated linear microvibromotor for
+microassembly", J. Microelectromech. Syst. 9(3), 2000, Section III-C.
+
+Examples
+--------
+>>> from planner.designer import design_impacter
+>>> res = design_impacter(6000.0, forbidden=(3000.0,), budget="fast", seed=1)  # doctest: +SKIP
+>>> res.feasible, res.r_min_n > 0                                              # doctest: +SKIP
+(True, True)
+"""
+
+from __future__ import annotations
+
+from planner.designer.bounds import DEFAULT_UPPER, PAPER_LOWER, UM, DesignBounds
+from planner.designer.budget import BUDGETS, Budget
+from planner.designer.design import GUARD, design_impacter, design_pair
+from planner.designer.problem import NATURAL_RATIO, natural_ratio
+from planner.designer.response import response_band, response_curves
+from planner.designer.result import DesignResult, PairDesign
+from planner.designer.runs import Ensemble, x0_grid
+
+# Every name that planner/designer.py held before it became this package stays
+# importable from here (tuning constants, and the private helpers that tests and the
+# pipeline may reach for).  Rebinding one here does not reach the module that uses it:
+# patch it in its own module, e.g. planner.designer.runs.PARALLEL_MIN_RUNS.
+from planner.designer.bounds import _pair  # noqa: E402,F401
+from planner.designer.budget import _as_budget  # noqa: E402,F401
+from planner.designer.design import (  # noqa: E402,F401
+    _as_rng,
+    _impacter_factory,
+    _progress_hook,
+)
+from planner.designer.problem import (  # noqa: E402,F401
+    ARCHIVE_SEPARATION,
+    JUMP_REL,
+    LONG_WINDOW_FACTOR,
+    PENALTY,
+    _Eval,
+    _Problem,
+)
+from planner.designer.response import _band_and_margins, _bisect_edge  # noqa: E402,F401
+from planner.designer.runs import (  # noqa: E402,F401
+    EDGE_FRACTIONS,
+    PARALLEL_MIN_RUNS,
+    WALL_OFFSET,
+    _default_x0s,
+    _freq_key,
+    _guard_offsets,
+    _kernel_threads,
+    _responds,
+    _runs,
+    _Tones,
+    _u_grid,
+)
+from planner.designer.search import (  # noqa: E402,F401
+    ACCEPT_TARGET,
+    ADAPT_EVERY,
+    _anneal,
+    _distinct,
+    _polish,
+    _recheck,
+    _reflect,
+    _search,
+    _search_and_recheck,
+    _sparse,
+)

@@ -1,0 +1,330 @@
+"""The designer's public face: :func:`design_impacter` and :func:`design_pair`."""
+
+from __future__ import annotations
+
+import math
+import numbers
+import time
+import warnings
+from dataclasses import replace
+
+import numpy as np
+
+from model import Impacter, Slider, SolverWarning, simulate_slider
+from model import devices as _d
+from model.drive import POWER
+from planner.designer.bounds import UM, DesignBounds
+from planner.designer.budget import _as_budget
+from planner.designer.problem import LONG_WINDOW_FACTOR, _Problem
+from planner.designer.response import _band_and_margins
+from planner.designer.result import DesignResult, PairDesign
+from planner.designer.runs import Ensemble, _Tones, _u_grid
+from planner.designer.search import _recheck, _search_and_recheck
+
+#: Default guard: silent within +-2% of each forbidden frequency, not just at it.  With
+#: guard = 0 the optimiser parks forbidden frequencies in holes of a responding region
+#: (found: a design silent at 6000 Hz that responds at 6000.5 Hz) [-].
+GUARD = 0.02
+
+
+def _as_rng(seed):
+    """The one place a ``seed`` (int, Generator or None) becomes a generator."""
+    if isinstance(seed, np.random.Generator):
+        return seed
+    if seed is None:
+        seed = 0
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral):
+        raise ValueError(f"seed must be an int, a numpy Generator or None, {seed!r} was given")
+    return np.random.default_rng(int(seed))
+
+
+def _impacter_factory(process, environment, impact_angle, restitution):
+    """(A, w, l, c) [SI] -> model.Impacter by eqs. (2)-(4), with the process constants."""
+    kwargs = dict(
+        thickness=process.mass_thickness_um * UM, beam_height=process.beam_height_um * UM,
+        density=process.density_kg_m3, youngs_modulus=process.youngs_modulus_gpa * 1e9,
+        viscosity=environment.viscosity_mpa_s * 1e-3,
+        substrate_gap=process.substrate_gap_um * UM,
+        beam_angle=math.radians(process.beam_angle_deg),
+        impact_angle=impact_angle, restitution=restitution)
+
+    def factory(area, width, length, gap):
+        return Impacter.from_geometry(area, width, length, gap, **kwargs)
+
+    return factory
+
+
+def _progress_hook(progress):
+    """callable(fraction in [0, 1]) from a callable, a tqdm bar or None."""
+    if progress is None:
+        return lambda fraction: None
+    if callable(progress) and not hasattr(progress, "update"):
+        return progress
+
+    def bar(fraction):
+        target = int(round(min(1.0, max(0.0, fraction)) * (progress.total or 1)))
+        if target > progress.n:
+            progress.update(target - progress.n)   # tqdm throttles the redraws
+
+    return bar
+
+
+def design_impacter(frequency, forbidden=(), *, process=None, environment=None, power=POWER,
+                    amplitude=None, bounds=None, window=3e-3, seed=0, budget="full",
+                    slider=None, progress=None, x0_points=None, guard=GUARD,
+                    impact_angle=_d.IMPACT_ANGLE, restitution=_d.RESTITUTION,
+                    forbidden_drives=()):
+    """Design one impacter by the paper's max-min problem, eqs. (13)-(18).
+
+    Maximise the worst response over initial positions at ``frequency`` subject to
+    no response at any forbidden frequency from any initial position, over the
+    geometry p = (A, w, l, c) within ``bounds``: Sobol seeding and simulated
+    annealing for the global search, SLSQP for the local polish (as in the paper),
+    then re-checks on a finer x0 grid and a 10x longer window.  See the module
+    docstring for the search coordinates, the constraint handling and the caching.
+
+    Parameters
+    ----------
+    frequency : float
+        Target drive frequency nu [Hz].
+    forbidden : sequence of float
+        Frequencies nu_j at which the design must not respond [Hz] (the paper has one;
+        an array has many).
+    process : planner.config.ProcessConfig, optional
+        Process constants; default the paper's (Table I, Section III-B).
+    environment : planner.config.EnvironmentConfig, optional
+        Viscosity mu; default vacuum (10 mTorr, mu = 0).
+    power : float
+        Drive convention Z0^2 w^3 of every tone [m^2/s^3]; 50 in the paper.
+    amplitude : float, optional
+        A fixed tone amplitude Z0 [m] instead of the power convention.
+    bounds : DesignBounds, optional
+        Bounds of p; default the paper's lower bounds (17) and the documented upper
+        bounds of :class:`DesignBounds`.
+    window : float
+        t_f - t_0 of eq. (12) [s]; the paper's 3 ms.
+    seed : int, numpy Generator or None
+        Same seed, same design.
+    budget : {"full", "fast"} or Budget
+        Search effort, see :data:`BUDGETS`.
+    slider : model.Slider, optional
+        For the predicted slider speed; default an 8e4 um^2 Poly1 slider (Table I
+        friction, the environment's viscosity).
+    progress : callable(fraction) or tqdm bar, optional
+        Called as the search advances.
+    x0_points : int, optional
+        Overrides the budget's optimiser x0 grid (odd).
+    guard : float
+        Relative half-width of the band around each forbidden frequency in which the
+        design must also be silent [-]: (14) is checked at nu_j (1 + guard k), k in
+        [-1, 1] (``Budget.guard_points`` values).  0 is the paper's (14) exactly.
+    impact_angle : float
+        theta [rad].
+    restitution : float
+        e [-].
+    forbidden_drives : sequence of model.Drive or Ensemble
+        Multi-tone drives (the summed drives of the steps in which the impacter must be
+        idle) under which the design must also be silent, from every x0, over the
+        window and the long re-check window; checked before the single tones.
+
+    Returns
+    -------
+    DesignResult
+
+    Notes
+    -----
+    (13) max_p min_{x0 in D} r(x0, p, nu);  (14) s.t. max_{x0 in D} r(x0, p, nu_j) = 0;
+    (17) A >= 20 um^2, w >= 2 um, l >= 8 um, c >= 2 um;  (18) D = {-c <= x(t0) <= c,
+    v(t0) = 0}.  r is eq. (12) with k, m, b from eqs. (2)-(4) as printed.
+
+    In vacuum (mu = 0, the default environment) the problem is usually infeasible: an
+    undamped impacter released from x0 = -c swings back to +c by itself, and the drive
+    brings it to the wall again within the window at almost any frequency.  The result
+    then has ``status == "infeasible"`` and a message saying where it responds; the
+    paper's optimisation example (Table II) is in air.
+
+    Examples
+    --------
+    >>> res = design_impacter(6000.0, (3000.0,), budget="fast")   # doctest: +SKIP
+    >>> res.to_dict()["geometry"]                                 # doctest: +SKIP
+    {'area_m2': ..., 'width_m': ..., 'length_m': ..., 'gap_m': ...}
+    """
+    from planner.config import EnvironmentConfig, ProcessConfig, SliderConfig, build_slider
+
+    t_start = time.perf_counter()
+    frequency = float(frequency)
+    if not (math.isfinite(frequency) and frequency > 0):
+        raise ValueError(f"frequency must be finite and > 0, {frequency!r} was given")
+    forbidden = tuple(sorted(float(f) for f in forbidden))
+    for f in forbidden:
+        if not (math.isfinite(f) and f > 0):
+            raise ValueError(f"forbidden frequencies must be finite and > 0, {f!r} was given")
+        if f == frequency:
+            raise ValueError(f"forbidden frequency {f!r} equals the target frequency")
+    window = float(window)
+    if not (math.isfinite(window) and window > 0):
+        raise ValueError(f"window must be finite and > 0, {window!r} was given")
+    process = ProcessConfig() if process is None else process
+    environment = EnvironmentConfig() if environment is None else environment
+    if not isinstance(process, ProcessConfig):
+        raise ValueError(f"process must be a ProcessConfig, {type(process).__name__} was given")
+    if not isinstance(environment, EnvironmentConfig):
+        raise ValueError("environment must be an EnvironmentConfig, "
+                         f"{type(environment).__name__} was given")
+    bounds = DesignBounds() if bounds is None else bounds
+    if not isinstance(bounds, DesignBounds):
+        raise ValueError(f"bounds must be a DesignBounds, {type(bounds).__name__} was given")
+    if slider is None:
+        slider = build_slider(SliderConfig(), process, environment)
+    elif isinstance(slider, SliderConfig):
+        slider = build_slider(slider, process, environment)
+    if not isinstance(slider, Slider):
+        raise ValueError(f"slider must be a model.Slider or SliderConfig, {type(slider).__name__} "
+                         "was given")
+    budget_name = budget if isinstance(budget, str) else "custom"
+    budget = _as_budget(budget, x0_points)
+    tones = _Tones(power, amplitude)
+    rng = _as_rng(seed)
+    factory = _impacter_factory(process, environment, float(impact_angle), float(restitution))
+    guard = float(guard)
+    if not (math.isfinite(guard) and 0.0 <= guard < 0.5):
+        raise ValueError(f"guard must be in [0, 0.5), {guard!r} was given")
+    for f in forbidden:
+        if f * (1.0 - guard) <= frequency <= f * (1.0 + guard):
+            raise ValueError(f"the target {frequency:g} Hz lies in the guard band of the "
+                             f"forbidden frequency {f:g} Hz (guard {guard:g})")
+    ensembles = tuple(e if isinstance(e, Ensemble) else Ensemble(e, f"drive {i}")
+                      for i, e in enumerate(forbidden_drives))
+    problem = _Problem(frequency, forbidden, factory, tones, bounds, window, budget, guard,
+                       ensembles)
+
+    report = _progress_hook(progress)
+    expected = (budget.initial + budget.chains * budget.anneal_steps
+                + 12 * budget.sqp_maxiter + 10)
+    count = [0]
+
+    def tick():
+        count[0] += 1
+        if count[0] % 8 == 0:
+            report(min(0.97, count[0] / expected))
+
+    history = []          # (evaluation, re-check) of every archived design re-checked
+    with problem.kernel_scope():
+        rounds = _search_and_recheck(problem, rng, budget, tick, history)
+    # the first re-checked design that passes both checks (the search stops there)
+    chosen = next(((ev, c) for ev, c in history if c["fine_ok"] and c["long_ok"]), None)
+    rejected = sum(1 for _, c in history if not c["fine_ok"])
+    rejected_long = sum(1 for _, c in history if c["fine_ok"] and not c["long_ok"])
+    status = "ok"
+    if chosen is None:
+        fine = [(ev, c) for ev, c in history if c["fine_ok"]]
+        if fine:      # passes the fine grid but responds within the long window
+            chosen = max(fine, key=lambda p: p[1]["r_min"])
+        elif history:
+            chosen = history[0]
+            status = "infeasible"
+        else:
+            ev = problem.best_any
+            with problem.kernel_scope():
+                chosen = (ev, _recheck(problem, ev.geometry))
+            status = "infeasible"
+    ev, chk = chosen
+    imp = factory(*ev.geometry)
+    feasible = bool(chk["fine_ok"])
+    if status == "ok" and not feasible:
+        status = "infeasible"
+
+    # report: band, margins and slider speed (the only slider simulation)
+    nu_n = imp.natural_frequency
+    band, margins = _band_and_margins(imp, tones, frequency, forbidden,
+                                      _u_grid(budget.forbidden_x0_points) * imp.gap, window, budget)
+    worst_x0 = chk["worst_u"] * imp.gap
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SolverWarning)
+        speed = simulate_slider(imp, slider, tones.drive(frequency), min(worst_x0, imp.gap),
+                                duration=window).mean_velocity
+    checks = {
+        "optimizer_x0_points": int(problem.u.size),
+        "optimizer_forbidden_x0_points": int(problem.u_forbid.size),
+        "optimizer_long_window_x0_points": int(problem.u_long.size),
+        "forbidden_checked_during_search": len(problem.active),
+        "recheck_x0_points": int(chk["points"]),
+        "long_window_s": LONG_WINDOW_FACTOR * window,
+        "fine_grid_passed": bool(chk["fine_ok"]),
+        "long_window_passed": bool(chk["long_ok"]),
+        "coarse_only_designs": int(rejected),
+        "short_window_only_designs": int(rejected_long),
+        "rounds": int(rounds),
+        "solver_faults": int(problem.faults),
+        # the forbidden drives (Ensemble labels) the returned design responds under, on
+        # the re-check grid or its long window: what an array planner must move away
+        "violated_drives": sorted({problem.check_hz[j].label for j in chk["violated"]
+                                   if isinstance(problem.check_hz[j], Ensemble)}),
+    }
+    if status == "ok":
+        message = (f"feasible: r_min = {chk['r_min']:.4g} N at x0 = {worst_x0 / UM:.4g} um; "
+                   f"silent at {len(forbidden)} forbidden frequencies on {chk['points']} x0")
+        if not chk["long_ok"]:
+            message += (f"; responds at {chk['long_violated_hz']:g} Hz within the "
+                        f"{LONG_WINDOW_FACTOR * window * 1e3:g} ms re-check window")
+    else:
+        bad = [f"{f:g} Hz (r_max {r:.3g} N)" for f, r in zip(forbidden, chk["r_max"]) if r > 0]
+        bad += [f"the summed drive {label!r}" for label in checks["violated_drives"]]
+        message = ("no design met the constraints within the bounds and budget; the least "
+                   "violating design is returned: "
+                   + (f"responds at {', '.join(bad)}" if bad else "")
+                   + ("" if chk["r_min"] > 0 else
+                      (", and " if bad else "")
+                      + f"does not respond at {frequency:g} Hz from every x0"))
+    report(1.0)
+    return DesignResult(
+        impacter=imp, frequency_hz=frequency, forbidden_hz=forbidden,
+        natural_frequency_hz=nu_n, mass_kg=imp.mass, stiffness_n_per_m=imp.stiffness,
+        damping_ns_per_m=imp.damping, gap_m=imp.gap, impact_angle_rad=imp.impact_angle,
+        restitution=imp.restitution, geometry=imp.geometry, worst_x0_m=worst_x0,
+        r_min_n=chk["r_min"], r_max_forbidden_n=tuple(chk["r_max"]), margins_hz=tuple(margins),
+        predicted_slider_speed_m_s=float(speed), feasible=feasible,
+        evaluations=problem.evaluations, seconds=time.perf_counter() - t_start,
+        simulations=problem.simulations, checks=checks, response_band_hz=band, status=status,
+        message=message, seed=seed if isinstance(seed, numbers.Integral) else None,
+        budget=budget_name, window_s=window)
+
+
+def design_pair(forward_hz, backward_hz, *, seed=0, progress=None, **kw):
+    """Design the forward and backward impacters of one device (Table II).
+
+    The forward impacter targets ``forward_hz`` with ``backward_hz`` forbidden, and
+    vice versa; each gets its own seed spawned from ``seed``.  Other keywords go to
+    :func:`design_impacter`.
+
+    Returns
+    -------
+    PairDesign
+        ``.forward``, ``.backward`` (:class:`DesignResult`) and ``.seconds``.
+
+    Examples
+    --------
+    >>> pair = design_pair(6000.0, 3000.0)            # doctest: +SKIP
+    >>> sorted(pair.to_dict())                        # doctest: +SKIP
+    ['backward', 'forward']
+    """
+    t0 = time.perf_counter()
+    forward_hz, backward_hz = float(forward_hz), float(backward_hz)
+    if forward_hz == backward_hz:
+        raise ValueError(f"forward and backward frequencies must differ, both are {forward_hz!r}")
+    if isinstance(seed, np.random.Generator):
+        seeds = seed.spawn(2)
+    else:
+        base = 0 if seed is None else seed
+        if isinstance(base, bool) or not isinstance(base, numbers.Integral):
+            raise ValueError(f"seed must be an int, a numpy Generator or None, {seed!r} was given")
+        seeds = [int(s.generate_state(1)[0]) for s in np.random.SeedSequence(int(base)).spawn(2)]
+    report = _progress_hook(progress)
+    fwd = design_impacter(forward_hz, (backward_hz,), seed=seeds[0],
+                          progress=lambda f: report(0.5 * f), **kw)
+    bwd = design_impacter(backward_hz, (forward_hz,), seed=seeds[1],
+                          progress=lambda f: report(0.5 + 0.5 * f), **kw)
+    if isinstance(seed, numbers.Integral):
+        fwd = replace(fwd, seed=int(seed))
+        bwd = replace(bwd, seed=int(seed))
+    return PairDesign(fwd, bwd, time.perf_counter() - t0)
