@@ -6,11 +6,13 @@ impact detection, chattering and sticking), the paper's RK4 as a reference, the
 response r of eq. (12) and parallel sweeps.  SI units throughout.
 """
 
-from model.devices import Geometry, Impacter, Slider
+from model.devices import Geometry, Impacter, Slider, UnitWarning
 from model.drive import POWER, Drive, amplitude_from_power
 from model.simulation import (
+    CONTACTS,
     METHODS,
     ImpactResult,
+    Kicks,
     SliderResult,
     SolverWarning,
     kick,
@@ -23,7 +25,8 @@ from model.simulation import (
 )
 
 __all__ = [
-    "Drive", "Geometry", "Impacter", "ImpactResult", "METHODS", "POWER", "Slider",
-    "SliderResult", "SolverWarning", "amplitude_from_power", "kick", "response",
+    "CONTACTS", "Drive", "Geometry", "Impacter", "ImpactResult", "Kicks", "METHODS", "POWER",
+    "Slider", "SliderResult", "SolverWarning", "UnitWarning", "amplitude_from_power", "kick",
+    "response",
     "responses", "simulate", "simulate_slider", "slider_motion", "sweep",
 ]

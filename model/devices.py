@@ -33,6 +33,46 @@ VISCOSITY_AIR = 0.0179e-3       #: mu of air at room temperature [Pa s]
 SLIDER_THICKNESS = 2.0e-6       #: Poly1 slider [m]
 
 
+# Plausibility at the API's edge.  Everything here is in SI units; a value that is
+# impossible in its documented unit is almost always a value in another unit (um for
+# m, kHz for Hz), which would otherwise give nonsense without a word.
+MIN_FREQUENCY = 10.0            #: below this a frequency [Hz] was probably given in kHz
+MAX_AREA = 1e-4                 #: 1 cm^2: an area [m^2] above it was probably in um^2
+MAX_WIDTH = 1e-3                #: 1 mm: a beam width, thickness or gap [m] above it was in um
+MAX_LENGTH = 1e-2               #: 1 cm: a beam length [m] (Fig. 7's is 1.242 mm)
+MAX_AMPLITUDE = 1e-2            #: 1 cm: a drive amplitude [m] above it was in um
+# (1 cm, not 1 mm: the chattering stress cases press an impacter on its wall with a
+# 2.3 mm, 100 Hz shake; a die moved more than a centimetre is no longer a MEMS drive)
+UNUSUAL_FREQUENCY = 10e6        #: above 10 MHz a MEMS resonance is unusual: warned [Hz]
+UNUSUAL_AMPLITUDE = 1e-3        #: a die displacement above 1 mm is unusual: warned [m]
+
+
+class UnitWarning(UserWarning):
+    """A value that is possible but unusual in its documented SI unit."""
+
+
+def _plausible(name, value, unit, *, low=None, high=None, warn_above=None):
+    """Check ``value`` [unit] against the bounds of physical plausibility.
+
+    Raises a ValueError saying which unit was expected when ``value`` lies outside
+    [low, high]; warns (:class:`UnitWarning`) above ``warn_above``.
+    """
+    if low is not None and value < low:
+        raise ValueError(f"{name} = {value!r} {unit} is implausibly small: {name} is in {unit} "
+                         f"(SI), at least {low:g} {unit}; was it given in another unit?")
+    if high is not None and value > high:
+        raise ValueError(f"{name} = {value!r} {unit} is implausibly large: {name} is in {unit} "
+                         f"(SI), at most {high:g} {unit}; was it given in another unit "
+                         "(um for m)?")
+    if warn_above is not None and value > warn_above:
+        import warnings
+
+        warnings.warn(f"{name} = {value!r} {unit} is unusually large for a MEMS device "
+                      f"(above {warn_above:g} {unit}); {name} is in {unit}", UnitWarning,
+                      stacklevel=4)
+    return value
+
+
 def _number(name, value):
     """``value`` as a float, or a ValueError naming ``name``."""
     try:
@@ -104,7 +144,7 @@ class Impacter:
     --------
     >>> imp = Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6)
     >>> round(imp.natural_frequency)           # eq. (4) as printed
-    4602
+    4644
     >>> round(imp.with_natural_frequency(5200.0).natural_frequency)
     5200
     """
@@ -127,6 +167,9 @@ class Impacter:
         if not (math.isfinite(e) and 0.0 <= e <= 1.0):
             raise ValueError(f"restitution must be in [0, 1], {e!r} was given")
         object.__setattr__(self, "restitution", e)
+        # no plausibility bounds here: the raw (m, k, b, c) form is also the numerical
+        # analyst's (m = 1, a wall 1 m away that is never reached); the geometric
+        # constructors below, which take lab quantities, check the units
 
     @classmethod
     def from_geometry(cls, area, width, length, gap, *, thickness=MASS_THICKNESS,
@@ -166,7 +209,10 @@ class Impacter:
             Naming the argument, if a length, area or material constant is not finite
             and > 0 (``viscosity`` may be 0), an angle is outside [0, pi/2) or ``e``
             outside [0, 1].  Every argument is checked here, before it is combined into
-            m, b and k, so the message names what the caller passed.
+            m, b and k, so the message names what the caller passed.  Values that are
+            impossible in their SI unit are refused too, saying which unit was
+            expected: an area above 1 cm^2, a width, thickness or gap above 1 mm, a
+            length above 1 cm, a natural frequency below 10 Hz (a call in um or kHz).
 
         Notes
         -----
@@ -174,19 +220,23 @@ class Impacter:
         b = mu A / d                       (3)
         k = E h (w/l)^3 (4/cos phi) (2/cos phi + 1)   (4)
         """
-        area = _positive("area", area)
-        width = _positive("width", width)
-        length = _positive("length", length)
-        gap = _positive("gap", gap)
-        thickness = _positive("thickness", thickness)
-        beam_height = _positive("beam_height", beam_height)
+        area = _plausible("area", _positive("area", area), "m^2", high=MAX_AREA)
+        width = _plausible("width", _positive("width", width), "m", high=MAX_WIDTH)
+        length = _plausible("length", _positive("length", length), "m", high=MAX_LENGTH)
+        gap = _plausible("gap", _positive("gap", gap), "m", high=MAX_WIDTH)
+        thickness = _plausible("thickness", _positive("thickness", thickness), "m",
+                               high=MAX_WIDTH)
+        beam_height = _plausible("beam_height", _positive("beam_height", beam_height), "m",
+                                 high=MAX_WIDTH)
         density = _positive("density", density)
         youngs_modulus = _positive("youngs_modulus", youngs_modulus)
         viscosity = _positive("viscosity", viscosity, allow_zero=True)
         substrate_gap = _positive("substrate_gap", substrate_gap)
         beam_angle = _acute("beam_angle", beam_angle)
         if natural_frequency is not None:
-            natural_frequency = _positive("natural_frequency", natural_frequency)
+            natural_frequency = _plausible(
+                "natural_frequency", _positive("natural_frequency", natural_frequency), "Hz",
+                low=MIN_FREQUENCY, warn_above=UNUSUAL_FREQUENCY)
         mass = density * area * thickness + 2.0 * density * beam_height * width * length
         damping = viscosity * area / substrate_gap
         cphi = math.cos(beam_angle)
@@ -198,8 +248,9 @@ class Impacter:
                    Geometry(area, width, length, gap))
 
     def with_natural_frequency(self, hz):
-        """A copy with k = m (2 pi hz)^2 [hz in Hz]."""
-        hz = _positive("natural_frequency", hz)
+        """A copy with k = m (2 pi hz)^2 [hz in Hz, at least 10 Hz]."""
+        hz = _plausible("natural_frequency", _positive("natural_frequency", hz), "Hz",
+                        low=MIN_FREQUENCY, warn_above=UNUSUAL_FREQUENCY)
         return replace(self, stiffness=self.mass * (2.0 * math.pi * hz) ** 2)
 
     @property
@@ -261,8 +312,9 @@ class Slider:
         M = rho A t_s and B = mu A / d.  Every argument is checked before it is combined,
         so a ValueError names what the caller passed.
         """
-        area = _positive("area", area)
-        thickness = _positive("thickness", thickness)
+        area = _plausible("area", _positive("area", area), "m^2", high=MAX_AREA)
+        thickness = _plausible("thickness", _positive("thickness", thickness), "m",
+                               high=MAX_WIDTH)
         density = _positive("density", density)
         viscosity = _positive("viscosity", viscosity, allow_zero=True)
         substrate_gap = _positive("substrate_gap", substrate_gap)

@@ -7,7 +7,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from model.devices import _positive
+from model.devices import (
+    MAX_AMPLITUDE,
+    MIN_FREQUENCY,
+    UNUSUAL_AMPLITUDE,
+    UNUSUAL_FREQUENCY,
+    UnitWarning,
+    _positive,
+)
 
 #: The paper's power convention Z0^2 w^3 [m^2/s^3] (Section III-B, footnote 3).
 POWER = 50.0
@@ -29,7 +36,7 @@ def amplitude_from_power(frequency, power=POWER):
         Naming ``frequency`` or ``power`` if it is not finite and > 0 (a negative
         power would otherwise pass through sqrt as NaN and be blamed on the amplitude).
 
-    >>> round(amplitude_from_power(5000.0) * 1e6, 2)   # footnote 3: 1.27 um at 5 kHz
+    >>> round(float(amplitude_from_power(5000.0)) * 1e6, 2)   # footnote 3: 1.27 um at 5 kHz
     1.27
     """
     try:
@@ -60,6 +67,27 @@ def _vector(name, values, *, positive=False, nonnegative=False):
     return arr
 
 
+def _check_units(f, z):
+    """Refuse tones impossible in Hz and m (a drive given in kHz or um); warn on unusual ones.
+
+    A zero-amplitude tone (a drive switched off) may have any frequency.
+    """
+    live = z > 0
+    slow = live & (f < MIN_FREQUENCY)
+    if np.any(slow):
+        raise ValueError(f"frequencies are in Hz: {f[slow].tolist()!r} Hz is below "
+                         f"{MIN_FREQUENCY:g} Hz; was it given in kHz?")
+    if np.any(z > MAX_AMPLITUDE):
+        raise ValueError(f"amplitudes are in m: {z[z > MAX_AMPLITUDE].tolist()!r} m is above "
+                         f"{MAX_AMPLITUDE * 1e3:g} mm of die displacement; was it given in um? "
+                         "(a power convention at a very low frequency gives such amplitudes too)")
+    if np.any(z > UNUSUAL_AMPLITUDE) or np.any(live & (f > UNUSUAL_FREQUENCY)):
+        import warnings
+
+        warnings.warn(f"unusual drive: tones up to {f.max():g} Hz and {z.max() * 1e6:g} um "
+                      "(frequencies in Hz, amplitudes in m)", UnitWarning, stacklevel=4)
+
+
 @dataclass(frozen=True, eq=False)
 class Drive:
     """Substrate displacement along the slider axis, a sum of tones.
@@ -76,10 +104,16 @@ class Drive:
     phases : array_like, shape (n,), optional
         phi_i [rad]; zeros by default.
 
+    Raises
+    ------
+    ValueError
+        A tone below 10 Hz or above 1 cm (a drive in kHz or um); tones above 1 mm or
+        10 MHz are warned of (:class:`model.devices.UnitWarning`).
+
     Examples
     --------
     >>> d = Drive.tone(5000.0)
-    >>> round(d.amplitudes[0] * 1e6, 2)
+    >>> round(float(d.amplitudes[0]) * 1e6, 2)
     1.27
     """
 
@@ -96,6 +130,7 @@ class Drive:
                              f"got {f.size}, {z.size} and {p.size}")
         if p.flags.writeable:
             p.setflags(write=False)
+        _check_units(f, z)
         object.__setattr__(self, "frequencies", f)
         object.__setattr__(self, "amplitudes", z)
         object.__setattr__(self, "phases", p)

@@ -14,6 +14,7 @@ import numpy as np
 
 from model.devices import Impacter, Slider
 from model.drive import POWER, Drive, amplitude_from_power
+from model.kernels import contact as _kc
 from model.kernels import impacter as _k
 from model.kernels.closed_form import tone_coefficients
 from model.kernels.rk4 import run_rk4
@@ -426,49 +427,287 @@ def sweep(impacter, frequencies, x0s, power=POWER, duration=3e-3, *, stop_at_fir
     return (r, status) if return_status else r
 
 
-def kick(impacter, slider, velocities, direction=1.0):
-    """Slider velocity change of each impact, eq. (10): 2 (m/M)(1+e) v- cos(theta) [m/s]."""
-    return (direction * 2.0 * impacter.mass / slider.mass * (1.0 + impacter.restitution)
-            * math.cos(impacter.impact_angle) * np.asarray(velocities, dtype=float))
+#: Contact laws selectable by ``contact=`` in :func:`kick`, :func:`slider_motion` and
+#: :func:`simulate_slider`: the slider's velocity change at an impact (docs/contact.md).
+#: "paper": eq. (10) as printed, the slider as a wall that does not recoil (the
+#: small-m/M limit; it creates energy for 2 (m/M) cos^2(theta) > (1 - e)/(1 + e)).
+#: "two_body": the pair and the slider as a two-body collision along the impacter
+#: axis, restitution on their relative velocity, with the slider's velocity at the
+#: instant of the impact; it never creates energy and tends to eq. (10) as m/M -> 0.
+CONTACTS = {"paper": _kc.PAPER, "two_body": _kc.TWO_BODY}
 
 
-def slider_motion(slider, drive, kick_times, kick_dv, duration, z0=0.0, v0=0.0,
-                  trajectory=None):
-    """Slider motion under the drive and given kicks (eqs. 6, 7 and 10).
+def _check_contact(contact):
+    """The kernel code of a contact-law name, or a ValueError naming the allowed ones."""
+    if not isinstance(contact, str) or contact not in CONTACTS:
+        raise ValueError(f"contact must be one of {sorted(CONTACTS)}, {contact!r} was given")
+    return CONTACTS[contact]
+
+
+def _check_slider(slider):
+    if not isinstance(slider, Slider):
+        raise ValueError(f"slider must be a model.Slider, {type(slider).__name__} was given")
+
+
+def _check_direction(direction, contact="paper"):
+    """direction as a float; the two-body law reads it as a sign, so it must be +1 or -1."""
+    direction = _check_float("direction", direction)
+    if contact != "paper" and direction not in (1.0, -1.0):
+        raise ValueError(f"direction must be +1 or -1 with contact={contact!r}, "
+                         f"{direction!r} was given")
+    return direction
+
+
+@dataclass(frozen=True)
+class Kicks:
+    """The impacts that kick one slider, with what each contact law needs per kick.
+
+    Build it with :meth:`from_impacts` (one impacter pair) and join pairs with
+    :meth:`concatenate`; pass it to :func:`slider_motion` with either contact law.
+
+    Attributes
+    ----------
+    times : ndarray, shape (n,)
+        Impact times [s] (a chatter tail: its accumulation time).
+    velocities : ndarray, shape (n,)
+        Impacter velocity v- along its axis just before each impact [m/s]; for a
+        chatter tail, the sum of the tail's v- (as ``ImpactResult.chatter_sums``).
+    chatter : ndarray of bool, shape (n,)
+        Whether the kick is a chatter tail: the geometric sequence
+        v-_{k+1} = e v-_k summed in closed form by the impacter solver.
+    direction : ndarray, shape (n,)
+        +1 where the pair pushes zeta up, -1 where down.
+    mass_ratio : ndarray, shape (n,)
+        m/M, one impacter's mass over the slider's [-].
+    impact_angle : ndarray, shape (n,)
+        theta [rad].
+    restitution : ndarray, shape (n,)
+        e [-].
+    velocity_changes : ndarray, shape (n,)
+        The kicks of eq. (10), exactly as :func:`kick` with contact="paper" gives
+        them [m/s].
+    slider_mass : float
+        M of the slider the kicks were built for [kg].
+    """
+
+    times: np.ndarray
+    velocities: np.ndarray
+    chatter: np.ndarray
+    direction: np.ndarray
+    mass_ratio: np.ndarray
+    impact_angle: np.ndarray
+    restitution: np.ndarray
+    velocity_changes: np.ndarray
+    slider_mass: float
+
+    @classmethod
+    def from_impacts(cls, impacter, slider, impacts, direction=1.0):
+        """Kicks of every impact of ``impacts`` (chatter tails included) on ``slider``.
+
+        Parameters
+        ----------
+        impacter : Impacter
+            The impacter that produced ``impacts`` (one of its pair).
+        slider : Slider
+        impacts : ImpactResult
+            From :func:`simulate`.
+        direction : float
+            +1 for the forward pair, -1 for the backward pair.
+
+        Examples
+        --------
+        >>> from model import Impacter, Slider, Drive, simulate
+        >>> imp = Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6).with_natural_frequency(5200)
+        >>> sl = Slider.from_geometry(8.0e-8)
+        >>> kicks = Kicks.from_impacts(imp, sl, simulate(imp, Drive.tone(6200.0)))
+        >>> kicks.times.size
+        17
+        """
+        _check_impacter(impacter)
+        _check_slider(slider)
+        if not isinstance(impacts, ImpactResult):
+            raise ValueError(f"impacts must be a model.ImpactResult, {type(impacts).__name__} "
+                             "was given")
+        direction = _check_direction(direction)
+        times = np.concatenate([impacts.times, impacts.chatter_times])
+        speeds = np.concatenate([impacts.velocities, impacts.chatter_sums])
+        n = times.size
+        chatter = np.zeros(n, dtype=bool)
+        chatter[impacts.times.size:] = True
+        return cls(times=times, velocities=speeds, chatter=chatter,
+                   direction=np.full(n, direction),
+                   mass_ratio=np.full(n, impacter.mass / slider.mass),
+                   impact_angle=np.full(n, impacter.impact_angle),
+                   restitution=np.full(n, impacter.restitution),
+                   velocity_changes=kick(impacter, slider, speeds, direction),
+                   slider_mass=slider.mass)
+
+    @classmethod
+    def concatenate(cls, kicks):
+        """One record of the kicks of several pairs on the same slider (in the given order)."""
+        kicks = list(kicks)
+        if not kicks or not all(isinstance(k, Kicks) for k in kicks):
+            raise ValueError("kicks must be a non-empty sequence of model.Kicks")
+        masses = {k.slider_mass for k in kicks}
+        if len(masses) != 1:
+            raise ValueError(f"kicks were built for sliders of different masses {sorted(masses)}")
+        cat = {name: np.concatenate([getattr(k, name) for k in kicks])
+               for name in ("times", "velocities", "chatter", "direction", "mass_ratio",
+                            "impact_angle", "restitution", "velocity_changes")}
+        return cls(slider_mass=kicks[0].slider_mass, **cat)
+
+    def record(self):
+        """The per-kick record of the two-body kernel, shape (n, N_COLS) (model.kernels.contact)."""
+        rec = np.empty((self.times.size, _kc.N_COLS))
+        cos = np.cos(self.impact_angle)
+        rec[:, _kc.COL_SPEED] = self.velocities
+        rec[:, _kc.COL_SIGN] = self.direction
+        rec[:, _kc.COL_GAIN] = 2.0 * self.mass_ratio * cos
+        rec[:, _kc.COL_COS] = cos
+        rec[:, _kc.COL_E] = self.restitution
+        rec[:, _kc.COL_TAIL] = self.chatter
+        return rec
+
+
+def kick(impacter, slider, velocities, direction=1.0, *, contact="paper", slider_velocity=0.0):
+    """Slider velocity change of each impact of the pair [m/s].
+
+    Parameters
+    ----------
+    impacter : Impacter
+        One impacter of the pair (both hit together, eq. 9).
+    slider : Slider
+    velocities : array_like
+        Impacter velocity v- along its axis just before each impact [m/s].
+    direction : float
+        +1 for the forward pair, -1 for the backward pair.
+    contact : {"paper", "two_body"}
+        "paper": eq. (10), 2 (m/M)(1+e) v- cos(theta), whatever the slider does.
+        "two_body": each impact alone as a two-body collision (docs/contact.md)
+        with the slider moving at ``slider_velocity`` just before it.
+    slider_velocity : float or array_like
+        V- along zeta [m/s], broadcast against ``velocities``; only "two_body"
+        reads it.
+
+    Returns
+    -------
+    ndarray
+        V+ - V- [m/s].
+
+    Notes
+    -----
+    With "two_body", u = v- - s V- cos(theta) (s = direction) and q = 2 (m/M) cos^2(theta):
+    dV = s (1+e) 2 (m/M) cos(theta) u / (1 + q) if u > 0, else 0.  Chatter tails
+    (sums of v-) are not single impacts: :func:`slider_motion` with a :class:`Kicks`
+    record applies them impact by impact.
+
+    Examples
+    --------
+    >>> from model import Impacter, Slider
+    >>> imp = Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6)
+    >>> sl = Slider.from_geometry(8.0e-8)
+    >>> paper = kick(imp, sl, 0.1)
+    >>> two = kick(imp, sl, 0.1, contact="two_body")
+    >>> round(float(two / paper), 4)          # 1 / (1 + 2 (m/M) cos^2(theta))
+    0.6886
+    """
+    code = _check_contact(contact)
+    if code == _kc.PAPER:
+        return (direction * 2.0 * impacter.mass / slider.mass * (1.0 + impacter.restitution)
+                * math.cos(impacter.impact_angle) * np.asarray(velocities, dtype=float))
+    direction = _check_direction(direction, contact)
+    v, V = np.broadcast_arrays(np.asarray(velocities, dtype=float),
+                               np.asarray(slider_velocity, dtype=float))
+    c = math.cos(impacter.impact_angle)
+    g = 2.0 * impacter.mass / slider.mass * c
+    out = np.empty(v.shape)
+    for i in np.ndindex(v.shape):
+        out[i] = _kc.two_body_impact(float(V[i]), float(v[i]), direction, g, c,
+                                     impacter.restitution)[0]
+    return out if out.ndim else out[()]
+
+
+def slider_motion(slider, drive, kick_times, kick_dv=None, duration=None, z0=0.0, v0=0.0,
+                  trajectory=None, *, contact="paper"):
+    """Slider motion under the drive and given kicks (eqs. 6, 7 and a contact law).
 
     Parameters
     ----------
     slider : Slider
     drive : Drive
         The slider feels M (-zeta'').
-    kick_times, kick_dv : array_like, shape (n,)
-        Kick times [s] and velocity changes [m/s], e.g. from :func:`kick`.
+    kick_times : array_like, shape (n,), or Kicks
+        Kick times [s] with ``kick_dv``; or a :class:`Kicks` record (then
+        ``kick_dv`` is None), which either contact law can use.
+    kick_dv : array_like, shape (n,), optional
+        Velocity changes [m/s], e.g. from :func:`kick` (contact="paper" only:
+        the two-body kick depends on the slider's velocity at the impact, which
+        only this simulation knows).
     duration : float
-        [s].
+        [s].  Required.
     z0, v0 : float
         Initial position [m] and velocity [m/s].
     trajectory : bool, int or array_like, optional
         As in :func:`simulate`.
+    contact : {"paper", "two_body"}
+        Contact law, see :data:`CONTACTS` and docs/contact.md.
 
     Returns
     -------
     t, position, z_end, v_end, status
+
+    Examples
+    --------
+    >>> from model import Impacter, Slider, Drive, simulate
+    >>> imp = Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6).with_natural_frequency(5200)
+    >>> sl, drive = Slider.from_geometry(8.0e-8), Drive.tone(6200.0)
+    >>> kicks = Kicks.from_impacts(imp, sl, simulate(imp, drive))
+    >>> _, _, z_paper, _, _ = slider_motion(sl, drive, kicks, duration=3e-3)
+    >>> _, _, z_two, _, _ = slider_motion(sl, drive, kicks, duration=3e-3, contact="two_body")
+    >>> bool(0 < z_two < z_paper)
+    True
     """
-    if not isinstance(slider, Slider):
-        raise ValueError(f"slider must be a model.Slider, {type(slider).__name__} was given")
+    code = _check_contact(contact)
+    _check_slider(slider)
     _check_drive(drive)
-    kt = np.asarray(kick_times, dtype=float)
-    kd = np.asarray(kick_dv, dtype=float)
+    if duration is None:
+        raise ValueError("duration must be given")
+    if isinstance(kick_times, Kicks):
+        if kick_dv is not None:
+            raise ValueError("kick_dv must be None when kick_times is a model.Kicks record "
+                             "(the record carries the kicks)")
+        if kick_times.slider_mass != slider.mass:
+            raise ValueError(f"the kicks were built for a slider of mass {kick_times.slider_mass!r} "
+                             f"kg, slider has mass {slider.mass!r} kg")
+        kt = kick_times.times
+        kd = kick_times.velocity_changes
+        if code == _kc.TWO_BODY:
+            if not np.all(np.abs(kick_times.direction) == 1.0):
+                raise ValueError(f"contact={contact!r} needs every kick's direction to be +1 or -1")
+            rec = kick_times.record()
+        else:
+            rec = np.empty((kt.size, _kc.N_COLS))
+    else:
+        if code != _kc.PAPER:
+            raise ValueError(f"contact={contact!r} computes each kick from the impacter's v- and "
+                             "the slider's velocity at the impact: pass a model.Kicks record "
+                             "(Kicks.from_impacts) as kick_times instead of velocity changes")
+        if kick_dv is None:
+            raise ValueError("kick_dv must be given with kick times (or pass a model.Kicks record)")
+        kt = np.asarray(kick_times, dtype=float)
+        kd = np.asarray(kick_dv, dtype=float)
+        rec = np.empty((kt.size, _kc.N_COLS))
     order = np.argsort(kt, kind="stable")
     kt = np.ascontiguousarray(kt[order])
     kd = np.ascontiguousarray(kd[order])
+    rec = np.ascontiguousarray(rec[order])
     sample_t = _sample_times(trajectory, duration)
     sample_z = np.zeros(sample_t.size)
     status, z_end, v_end, _ = run_slider(
-        0.0, slider.damping / slider.mass, slider.static_friction / slider.mass,
+        code, slider.damping / slider.mass, slider.static_friction / slider.mass,
         slider.dynamic_friction / slider.mass, np.ascontiguousarray(drive.omegas),
         np.ascontiguousarray(drive.acceleration_amplitudes()),
-        np.ascontiguousarray(drive.phases, dtype=float), kt, kd, 0.0, float(duration),
+        np.ascontiguousarray(drive.phases, dtype=float), kt, kd, rec, 0.0, float(duration),
         float(z0), float(v0), _k.MAX_STEPS, sample_t, sample_z)
     _warn_status(status, f"slider: {STATUS[status]}")
     return (sample_t if sample_t.size else None, sample_z if sample_t.size else None,
@@ -476,13 +715,13 @@ def slider_motion(slider, drive, kick_times, kick_dv, duration, z0=0.0, v0=0.0,
 
 
 def simulate_slider(impacter, slider, drive, x0=0.0, v0=0.0, duration=3e-3, *,
-                    direction=1.0, trajectory=None, method="exact"):
+                    direction=1.0, trajectory=None, method="exact", contact="paper"):
     """Slider motion driven by one impacter pair (eqs. 1-10).
 
     The impacter runs first (its dynamics do not depend on the slider: the wall
-    moves along its own axis); every impact, the first included, kicks the slider
-    by eq. (10); the slider's stick-slip motion between kicks is then solved
-    exactly.
+    moves along its own axis, and the tip rebounds at -e v-, eq. 8); every impact,
+    the first included, kicks the slider by the contact law; the slider's
+    stick-slip motion between kicks is then solved exactly.
 
     Parameters
     ----------
@@ -497,6 +736,12 @@ def simulate_slider(impacter, slider, drive, x0=0.0, v0=0.0, duration=3e-3, *,
         +1 for the forward pair (kicks push zeta up), -1 for the backward pair.
     trajectory : bool, int or array_like, optional
         Slider (and impacter) positions at sample times.
+    method : {"exact", "rk4"} or callable
+        Impacter solver, as in :func:`simulate`.
+    contact : {"paper", "two_body"}
+        Contact law (:data:`CONTACTS`, docs/contact.md): "paper" is eq. (10) as
+        printed (it creates energy for m/M above about 1/3); "two_body" kicks by a
+        two-body collision with the slider's velocity at each impact.
 
     Returns
     -------
@@ -510,12 +755,20 @@ def simulate_slider(impacter, slider, drive, x0=0.0, v0=0.0, duration=3e-3, *,
     >>> res = simulate_slider(imp, sl, Drive.tone(6200.0))
     >>> res.displacement > 0
     True
+    >>> round(res.mean_velocity * 1e3, 2)     # [mm/s]
+    3.4
+    >>> two = simulate_slider(imp, sl, Drive.tone(6200.0), contact="two_body")
+    >>> round(two.mean_velocity * 1e3, 2)
+    1.62
     """
+    _check_contact(contact)
+    _check_slider(slider)
+    direction = _check_direction(direction, contact)
     imp = simulate(impacter, drive, x0, v0, duration, trajectory=trajectory, method=method)
-    times = np.concatenate([imp.times, imp.chatter_times])
-    dv = kick(impacter, slider, np.concatenate([imp.velocities, imp.chatter_sums]), direction)
-    t, pos, z_end, v_end, status = slider_motion(slider, drive, times, dv, duration,
-                                                 trajectory=imp.t if imp.t is not None else None)
+    kicks = Kicks.from_impacts(impacter, slider, imp, direction)
+    t, pos, z_end, v_end, status = slider_motion(slider, drive, kicks, duration=duration,
+                                                 trajectory=imp.t if imp.t is not None else None,
+                                                 contact=contact)
     if imp.status != "ok":
         status = imp.status
     return SliderResult(t=t, position=pos, displacement=z_end, mean_velocity=z_end / duration,

@@ -222,6 +222,32 @@ def _mapping_candidates(span: int, count: int, max_candidates=64):
     return out
 
 
+def _check_capacity(spec, steps, sep):
+    """Refuse, in well under a second, a spec whose independently addressable impacters
+    cannot fit the band whatever the colouring.
+
+    When every impacter must be drivable on its own, every impacter is idle while every
+    other one plays, so all of them must be told apart: the conflict graph is complete
+    and no colouring spans fewer than (n - 1) sep + 1 channels.  Building that graph
+    for a large array (a 26 x 99 array: 5148 impacters, 13 million edges) takes minutes
+    and gigabytes before the same answer; this bound gives it at once.
+    """
+    if not spec.independent:
+        return
+    nodes = {n for st in steps for n in st.active_nodes()}
+    need = (len(nodes) - 1) * sep + 1
+    count = spec.drive.channels.count
+    if need > count:
+        lo, hi = spec.drive.band_hz
+        raise PlanningError(
+            f"{len(nodes)} impacters must each be independently addressable (independent: "
+            f"true), so every pair must be {sep} channels apart: that needs at least {need} "
+            f"channels, but the band {lo:g}-{hi:g} Hz holds {count} (drive.channels.count). "
+            f"Fixes: fewer devices (array), independent: false with scenes in which devices "
+            f"move together and share channels, more channels with a narrower separation "
+            f"(drive.guard.separation_channels), or a wider band (drive.band_hz).")
+
+
 def assign(loaded: LoadedSpec, steps, *, separation=None, pair_separation=None,
            method="auto", time_limit=None) -> Assignment:
     """Give every driven impacter a channel and a frequency.
@@ -246,6 +272,7 @@ def assign(loaded: LoadedSpec, steps, *, separation=None, pair_separation=None,
 
     spec = loaded.spec
     sep = spec.drive.guard.separation_channels if separation is None else int(separation)
+    _check_capacity(spec, steps, sep)
     graph, groups = conflict_graph(steps, sep, pair_separation,
                                    spec.drive.guard.ensemble_separation_channels)
     if graph.number_of_nodes() == 0:

@@ -26,7 +26,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from model import Drive, Impacter, Slider
 from model import devices as _d
-from planner.yamlio import load_yaml, validate
+from planner.yamlio import check_kind, load_yaml, validate
 
 UM = 1e-6
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -183,6 +183,7 @@ class Device:
 def load_device(path: str | Path) -> Device:
     """Read and validate a device config; raise :class:`planner.errors.SpecError` if bad."""
     data, lines = load_yaml(Path(path))
+    check_kind(data, "device config", source=str(path))
     cfg = validate(DeviceConfig, data, lines, source=str(path))
     return Device(cfg,
                   build_impacter(cfg.impacter_config("forward"), cfg.process, cfg.environment),

@@ -29,7 +29,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from planner.config import DeviceDriveConfig, EnvironmentConfig, ProcessConfig, SliderConfig
 from planner.designer import DEFAULT_UPPER, GUARD, PAPER_LOWER, DesignBounds
-from planner.yamlio import load_yaml, validate
+from planner.yamlio import check_kind, load_yaml, validate
 
 UM = 1e-6
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -120,4 +120,5 @@ class DesignConfig(_Strict):
 def load_design_config(path: str | Path) -> DesignConfig:
     """Read and validate a design config; raise :class:`planner.errors.SpecError` if bad."""
     data, lines = load_yaml(Path(path))
+    check_kind(data, "design config", source=str(path))
     return validate(DesignConfig, data, lines, source=str(path))

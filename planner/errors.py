@@ -40,3 +40,24 @@ class SpecError(ValueError):
 
 class PlanningError(RuntimeError):
     """A spec that is valid but cannot be planned (e.g. the band cannot hold the graph)."""
+
+
+class OutputError(ValueError):
+    """An output path vibroplan refuses to write (it would destroy a user's files, its
+    parent folder is missing, or another run is writing it).  Raised before any work."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """The run was stopped by a signal (SIGINT or SIGTERM); ``signum`` says which.
+
+    A ``KeyboardInterrupt`` so that every clean-up written for Ctrl-C runs for SIGTERM too.
+    """
+
+    def __init__(self, signum: int):
+        self.signum = int(signum)
+        super().__init__(f"interrupted by signal {self.signum}")
+
+    @property
+    def exit_code(self) -> int:
+        """128 + the signal number: 130 for SIGINT, 143 for SIGTERM."""
+        return 128 + self.signum

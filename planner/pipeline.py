@@ -43,6 +43,7 @@ from planner.assign import (
     verify_assignment,
 )
 from planner.config import build_impacter, build_slider
+from planner._io import output_folder, version_string
 from planner.errors import PlanningError
 from planner.exporters import EXPORTERS
 from planner.spec import LoadedSpec, default_spec_path, load_spec, separation_for_bandwidth
@@ -57,12 +58,6 @@ EXPORT_FORMATS = ("wav", "wav16", "csv", "arb")
 RESPONSE_GRID_POINTS = 160
 RESPONSE_PEAK_SPAN = 0.04
 RESPONSE_X0_POINTS = 5
-
-
-def _version():
-    from planner.cli._common import version_string
-
-    return version_string()
 
 
 @dataclass
@@ -244,15 +239,15 @@ def design_all(loaded, steps, assignment, cache, progress=None, waveforms=None, 
             progress(n)
     if jobs > 1 and len(tasks) > 1:
         import concurrent.futures as cf
-        import multiprocessing
+
+        from planner._workers import process_pool
 
         # longest first, so that no worker is left with a long design at the end: a
         # design's cost grows with the summed drives it checks and with the drive
         # cycles in its window (its frequency).  Results do not depend on the order.
         order = sorted(tasks, key=lambda k: (-len(tasks[k]["forbidden_drives"]),
                                              -tasks[k]["frequency"]))
-        ctx = multiprocessing.get_context("spawn")
-        with cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
+        with process_pool(jobs) as pool:
             futures = {pool.submit(_design_task, tasks[key], min_speed): key for key in order}
             for fut in cf.as_completed(futures):
                 key = futures[fut]
@@ -641,7 +636,7 @@ def run_plan(loaded: LoadedSpec, *, seed=None, progress=None, jobs=None):
         per_step.setdefault(f"{r['scene']}/{r['step']}", {})[r["device"]] = {
             k: r[k] for k in r if k not in ("scene", "step", "index", "device")}
     data = {
-        "vibroplan_version": _version(),
+        "vibroplan_version": version_string(),
         "seed": seed,
         "spec": json.loads(spec.model_dump_json()),
         "assignment": {"span": assignment.span, "lower_bound": assignment.lower_bound,
@@ -912,7 +907,8 @@ def _scene_section(scene_rows):
     return lines
 
 
-def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, jobs=None):
+def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, jobs=None,
+         force=False):
     """Plan an array: the whole pipeline, optionally writing every output.
 
     Parameters
@@ -921,9 +917,12 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, job
         An array spec file, YAML text, or an already loaded spec; None plans the
         embedded default (configs/array_5x5.yaml).
     out_dir : str or Path, optional
-        Where to write plan.json, CSVs, waveforms, figures and report.md.  They are
-        written to a temporary folder beside it and moved into place only when
-        complete.
+        Where to write plan.json, CSVs, waveforms, figures and report.md.  Checked
+        before any work (:func:`planner._io.check_output_folder`: never the current
+        directory or its ancestors, nor a folder holding the spec; an existing
+        non-empty folder only if a previous vibroplan run wrote it, or with
+        ``force``).  The files are written to a temporary folder beside it and
+        swapped in atomically only when complete.
     seed : int, optional
         Overrides the spec's ``design.seed``; same spec and seed give a
         byte-identical plan.json.
@@ -931,6 +930,8 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, job
         Worker processes for the designs (default 1; the CLI uses every core).  The
         plan does not depend on it.  As with any ``multiprocessing`` code, a script
         that passes jobs > 1 needs an ``if __name__ == "__main__":`` guard.
+    force : bool
+        Replace an existing non-empty ``out_dir`` that vibroplan did not write.
 
     Returns
     -------
@@ -941,13 +942,14 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, job
     else:
         loaded = load_spec(Path(spec) if spec is None or isinstance(spec, Path) or "\n" not in str(spec)
                            else spec) if spec is not None else load_spec(default_spec_path())
-    result = run_plan(loaded, seed=seed, progress=progress, jobs=jobs)
-    if out_dir is not None:
-        from planner.cli._common import atomic_path
-
-        with atomic_path(out_dir) as tmp:
-            write_outputs(result, tmp, figures=figures)
-        result.out_dir = Path(out_dir)
+    if out_dir is None:
+        return run_plan(loaded, seed=seed, progress=progress, jobs=jobs)
+    source = Path(loaded.source) if getattr(loaded, "source", None) else None
+    inputs = [source] if source is not None and source.exists() else []
+    with output_folder(out_dir, command="plan", inputs=inputs, force=force) as tmp:
+        result = run_plan(loaded, seed=seed, progress=progress, jobs=jobs)
+        write_outputs(result, tmp, figures=figures)
+    result.out_dir = Path(out_dir)
     return result
 
 

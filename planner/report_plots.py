@@ -127,6 +127,22 @@ def waveform_and_spectrum(waveform, path, title, stretch=2e-3):
     save(fig, path)
 
 
+#: Markers for the rows of an array (A, B, ...) in the slider-position figure.
+ROW_MARKERS = "osD^v<>pP*Xh"
+
+
+def _device_styles(devices):
+    """Device id -> (colour, marker): one colour per column, one marker per row, so that
+    every device of a grid is told apart (tab10 alone repeats after 10 lines)."""
+    cols = sorted({int(d[1:]) for d in devices})
+    rows = sorted({d[0] for d in devices})
+    cmap = plt.get_cmap("tab10") if len(cols) <= 10 else plt.get_cmap("viridis")
+    colour = {c: cmap(i if len(cols) <= 10 else i / max(len(cols) - 1, 1))
+              for i, c in enumerate(cols)}
+    return {d: (colour[int(d[1:])], ROW_MARKERS[rows.index(d[0]) % len(ROW_MARKERS)])
+            for d in devices}
+
+
 def slider_positions(scene_rows, path):
     """Predicted slider positions after each step of each scene (scene simulation)."""
     scenes = sorted({r["scene"] for r in scene_rows})
@@ -134,16 +150,20 @@ def slider_positions(scene_rows, path):
     for ax, scene in zip(axes[:, 0], scenes):
         rows = [r for r in scene_rows if r["scene"] == scene]
         steps = [r["step"] for r in rows]
-        devices = sorted(rows[0]["positions_m"])
+        devices = sorted(rows[0]["positions_m"], key=lambda d: (d[0], int(d[1:])))
+        style = _device_styles(devices)
         for dev in devices:
             y = [0.0] + [r["positions_m"][dev] / UM for r in rows]
-            ax.plot(range(len(y)), y, marker="o", ms=3, lw=0.8, label=dev)
+            color, marker = style[dev]
+            ax.plot(range(len(y)), y, marker=marker, ms=4, lw=0.8, color=color, label=dev)
         ax.set_xticks(range(len(steps) + 1))
         ax.set_xticklabels(["start"] + steps, fontsize=8)
         ax.set_ylabel("slider position [um]")
         ax.set_title(f"scene {scene}: predicted slider positions after each step")
         ax.grid(alpha=0.3)
-        if len(devices) <= 25:
-            ax.legend(fontsize=6, ncol=5)
+        if len(devices) <= 100:
+            ncol = len({d[1:] for d in devices})
+            ax.legend(fontsize=6, ncol=min(ncol, 10), title="colour: column, marker: row",
+                      title_fontsize=6)
     fig.tight_layout()
     save(fig, path)

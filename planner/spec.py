@@ -32,7 +32,7 @@ from planner.config import (
     SliderConfig,
 )
 from planner.errors import SpecError
-from planner.yamlio import format_loc, line_of, load_yaml, validate
+from planner.yamlio import check_kind, format_loc, line_of, load_yaml, validate
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -341,6 +341,7 @@ def load_spec(path_or_text: str | Path, *, source: str | None = None) -> LoadedS
                      or "\n" not in str(path_or_text) else "<spec>")
     if data is not None and not isinstance(data, dict):
         raise SpecError("an array spec must be a YAML mapping", line=1, source=src)
+    check_kind(data, "array spec", source=src)
     _check_units(data, lines, src)
     spec = validate(ArraySpec, data, lines, source=src)
     return LoadedSpec(spec, resolve_steps(spec, lines, src), src)

@@ -41,6 +41,8 @@ import numpy as np
 import scipy.fft
 from scipy.optimize import linprog, minimize, minimize_scalar
 
+import model
+
 from model.drive import POWER as DEFAULT_POWER  # Z0^2 w^3 = 50 m^2/s^3, the paper's convention
 from model.drive import amplitude_from_power
 
@@ -324,8 +326,12 @@ def synthesize(frequencies, amplitudes, sample_rate, duration=None, seed=None, p
     if len(np.unique(f)) != n:
         raise ValueError("frequencies must be distinct: a repeated tone is one tone")
     a = _tone_amplitudes(amplitudes, f)
+    # the model's unit checks at the edge: tones in Hz (not kHz), amplitudes and the
+    # peak limit in m (not um)
+    model.Drive(f, a)
     if peak_limit is not None:
         peak_limit = _positive_float(peak_limit, "peak_limit")
+        model.Drive([f[0]], [peak_limit])
     if phases is not None:
         phases = _as_tone_array(phases, "phases")
         if len(phases) != n:

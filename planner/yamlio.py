@@ -20,18 +20,27 @@ T = TypeVar("T", bound=pydantic.BaseModel)
 LineMap = dict[tuple, int]
 
 
-def _walk(node: yaml.Node, path: tuple, lines: LineMap) -> None:
+def _walk(node: yaml.Node, path: tuple, lines: LineMap, source: str | None = None) -> None:
     lines.setdefault(path, node.start_mark.line + 1)
     if isinstance(node, yaml.MappingNode):
+        seen = {}
         for key_node, value_node in node.value:
             key = key_node.value
+            if key in seen:
+                # YAML resolves a repeated key to its last value without a word; a spec
+                # whose author wrote a setting twice gets neither silently
+                raise SpecError(f"duplicate key {key!r} (lines {seen[key]} and "
+                                f"{key_node.start_mark.line + 1}): keep one",
+                                path=format_loc(path + (key,)),
+                                line=key_node.start_mark.line + 1, source=source)
+            seen[key] = key_node.start_mark.line + 1
             # the line of a mapping value is the line of its key
             lines[path + (key,)] = key_node.start_mark.line + 1
-            _walk(value_node, path + (key,), lines)
+            _walk(value_node, path + (key,), lines, source)
     elif isinstance(node, yaml.SequenceNode):
         for i, item in enumerate(node.value):
             lines[path + (i,)] = item.start_mark.line + 1
-            _walk(item, path + (i,), lines)
+            _walk(item, path + (i,), lines, source)
 
 
 def load_yaml(text_or_path: str | Path, *, source: str | None = None) -> tuple[Any, LineMap]:
@@ -45,14 +54,28 @@ def load_yaml(text_or_path: str | Path, *, source: str | None = None) -> tuple[A
     Raises
     ------
     SpecError
-        The file is missing or is not valid YAML (with the line of the fault).
+        The file is missing, unreadable, not text, not valid YAML (with the line of
+        the fault), empty (only blanks and comments), or repeats a key.
     """
     if isinstance(text_or_path, Path) or "\n" not in str(text_or_path):
         path = Path(text_or_path)
-        if not path.is_file():
-            raise SpecError(f"no such file: {path}")
-        text = path.read_text(encoding="utf-8")
         source = source or str(path)
+        if not path.exists():
+            raise SpecError(f"no such file: {path}")
+        if not path.is_file():
+            raise SpecError("not a file", source=source)
+        try:
+            raw = path.read_bytes()
+        except OSError as exc:
+            raise SpecError(f"cannot read the file: {exc.strerror or exc}", source=source) from None
+        if b"\0" in raw:
+            raise SpecError("not a text file (it holds binary data); expected a YAML file",
+                            source=source)
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise SpecError(f"not a UTF-8 text file (byte {exc.start}); expected a YAML file",
+                            source=source) from None
     else:
         text = str(text_or_path)
     try:
@@ -63,10 +86,41 @@ def load_yaml(text_or_path: str | Path, *, source: str | None = None) -> tuple[A
         line = mark.line + 1 if mark is not None else None
         problem = getattr(exc, "problem", None) or str(exc)
         raise SpecError(f"not valid YAML: {problem}", line=line, source=source) from None
+    if data is None:
+        raise SpecError("the file is empty (nothing but blank lines and comments)",
+                        source=source or "<text>")
     lines: LineMap = {}
     if node is not None:
-        _walk(node, (), lines)
+        _walk(node, (), lines, source)
     return data, lines
+
+
+#: Top-level keys that only one kind of file has, and the command that reads that kind.
+KINDS = {
+    "array spec": ({"array", "device", "devices", "scenes", "independent", "verification"},
+                   "vibroplan plan (or assign, drive)"),
+    "device config": ({"impacter", "simulation", "forward", "backward"},
+                      "vibroplan simulate or vibroplan sweep"),
+}
+
+
+def check_kind(data: Any, expected: str, *, source: str | None = None) -> None:
+    """Refuse a file of another kind with one line saying which command reads it.
+
+    ``expected`` is a key of :data:`KINDS` or ``"design config"`` (a file with neither
+    kind's keys).  Without this an array spec given to ``vibroplan simulate`` would be
+    answered with a wall of unknown-key errors.
+    """
+    if not isinstance(data, dict):
+        return
+    keys = set(data)
+    for kind, (markers, command) in KINDS.items():
+        if kind != expected and keys & markers and not (
+                expected in KINDS and keys & KINDS[expected][0]):
+            found = ", ".join(sorted(keys & markers))
+            raise SpecError(f"this is {'an' if kind[0] in 'aeiou' else 'a'} {kind} (it has "
+                            f"{found}), not {'an' if expected[0] in 'aeiou' else 'a'} "
+                            f"{expected}: use {command}", source=source)
 
 
 def line_of(lines: LineMap, loc: tuple) -> int | None:

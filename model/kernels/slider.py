@@ -12,8 +12,10 @@ first-order ODE with sinusoidal forcing: its closed form (written with
 phi1 = (1 - e^{-beta tau})/beta and phi2 = (tau - phi1)/beta, both stable as
 beta -> 0) gives V and the position exactly.  The end of a slip (V reaching 0)
 and the start of one (|f| reaching fs) are found by the safe steps of
-:mod:`model.kernels.impacter`.  Kicks from impacts (eq. 10) change V
-instantaneously at given times.
+:mod:`model.kernels.impacter`.  Kicks from impacts change V instantaneously at
+given times: by given velocity changes (eq. 10, the paper's contact law), or by
+the two-body law of :mod:`model.kernels.contact`, which needs the slider's
+velocity at the instant of the impact and so is applied here.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import math
 import numpy as np
 from numba import njit
 
+from model.kernels.contact import PAPER, two_body_kick
 from model.kernels.impacter import EPS, NOISE, NONFINITE, OK, STEP_CAP, safe_step
 
 
@@ -63,14 +66,24 @@ def _slip_state(beta, fd, s, w, cr, ci, t_a, z_a, v_a, t):
 
 
 @njit(cache=True)
-def run_slider(mass_ratio_unused, beta, fs, fd, w, a, phi, kick_t, kick_dv, t0, t_end,
+def _kicked(contact, v, k, kick_dv, kick_rec):
+    """Slider velocity [m/s] after kick k, from v [m/s] just before it."""
+    if contact == PAPER:
+        return v + kick_dv[k]
+    return two_body_kick(v, kick_rec[k])
+
+
+@njit(cache=True)
+def run_slider(contact, beta, fs, fd, w, a, phi, kick_t, kick_dv, kick_rec, t0, t_end,
                z0, v0, max_steps, sample_t, sample_z):
     """Simulate the slider exactly from t0 to t_end under forcing and kicks.
 
     Parameters
     ----------
-    mass_ratio_unused : float
-        Reserved (0.0); kicks arrive as velocity changes.
+    contact : int
+        Contact law of :mod:`model.kernels.contact`: PAPER applies ``kick_dv``,
+        TWO_BODY computes each kick from ``kick_rec`` and the slider velocity at
+        the kick.
     beta : float
         B / M [1/s].
     fs, fd : float
@@ -78,8 +91,13 @@ def run_slider(mass_ratio_unused, beta, fs, fd, w, a, phi, kick_t, kick_dv, t0, 
     w, a, phi : ndarray, shape (n_tones,)
         Forcing per unit mass: angular frequency [rad/s], amplitude w^2 Z
         [m/s^2], phase [rad].
-    kick_t, kick_dv : ndarray, shape (n_kicks,)
-        Sorted kick times [s] and velocity changes [m/s] (eq. 10).
+    kick_t : ndarray, shape (n_kicks,)
+        Sorted kick times [s].
+    kick_dv : ndarray, shape (n_kicks,)
+        Velocity changes [m/s] (eq. 10); read with PAPER only.
+    kick_rec : ndarray, shape (n_kicks, N_COLS)
+        Per-kick record of :mod:`model.kernels.contact` (v-, direction, gain,
+        cos(theta), e, chatter flag); read with TWO_BODY only.
     t0, t_end : float
         Time window [s].
     z0, v0 : float
@@ -153,7 +171,7 @@ def run_slider(mass_ratio_unused, beta, fs, fd, w, a, phi, kick_t, kick_dv, t0, 
                 t = t_new
             if not start_slip:
                 if k < nk and t >= kick_t[k] and t < t_end:
-                    v += kick_dv[k]
+                    v = _kicked(contact, v, k, kick_dv, kick_rec)
                     k += 1
                 continue
         else:
@@ -201,7 +219,7 @@ def run_slider(mass_ratio_unused, beta, fs, fd, w, a, phi, kick_t, kick_dv, t0, 
             # at V = 0: the stuck branch decides whether a new slip starts (|f| >= fs)
             continue
         if k < nk and t >= kick_t[k] and t < t_end:
-            v += kick_dv[k]
+            v = _kicked(contact, v, k, kick_dv, kick_rec)
             k += 1
     while si < ns:
         sample_z[si] = z

@@ -13,7 +13,7 @@ import importlib.util
 
 import click
 
-from planner.cli._common import version_string
+from planner.cli._common import EXIT_CODES_HELP, version_string
 
 #: Sub-command name -> module of this package that defines it, in the order
 #: ``--help`` lists them (the pipeline's order).
@@ -25,6 +25,7 @@ COMMANDS = {
     "assign": "assign",
     "color": "color",
     "drive": "drive",
+    "calibrate": "calibrate",
     "bench": "bench",
 }
 
@@ -46,7 +47,8 @@ class _LazyGroup(click.Group):
         return importlib.import_module(f"planner.cli.{mod}").command
 
 
-@click.group(cls=_LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=_LazyGroup, context_settings={"help_option_names": ["-h", "--help"]},
+             epilog=EXIT_CODES_HELP)
 @click.version_option(version_string(), prog_name="vibroplan")
 def main():
     """Plan how to drive arrays of externally resonated linear microvibromotors.

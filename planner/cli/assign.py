@@ -7,14 +7,14 @@ from pathlib import Path
 
 import click
 
-from planner.cli._common import atomic_path, handle_errors
+from planner.cli._common import atomic_path, handle_errors, output_file
 
 
 @click.command("assign")
 @click.argument("spec", required=False, type=click.Path(dir_okay=False))
-@click.option("--out", type=click.Path(dir_okay=False), default=None,
+@click.option("--out", type=click.Path(dir_okay=False), callback=output_file, default=None,
               help="Write the assignment table: .csv, or .json (with graph size and span).")
-@click.option("--plot", type=click.Path(dir_okay=False), default=None,
+@click.option("--plot", type=click.Path(dir_okay=False), callback=output_file, default=None,
               help="PNG of the array with each device's forward/backward frequencies.")
 @click.option("--method", type=click.Choice(["auto", "dsatur", "milp"]), default="auto",
               show_default=True, help="Colouring strategy.")

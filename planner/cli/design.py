@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from planner.cli._common import atomic_path, handle_errors
+from planner.cli._common import atomic_path, handle_errors, output_file
 
 UM = 1e-6
 
@@ -84,9 +84,9 @@ def _write(data, out):
 @click.option("--seed", type=int, default=None, help="Seed (default: the config's design.seed).")
 @click.option("--budget", type=click.Choice(["full", "fast"]), default=None,
               help="Search effort (default: the config's design.budget, full).")
-@click.option("--out", type=click.Path(dir_okay=False), default=None,
+@click.option("--out", type=click.Path(dir_okay=False), callback=output_file, default=None,
               help="Write both designs to a .yaml/.yml or .json file (keys forward, backward).")
-@click.option("--plot", type=click.Path(dir_okay=False), default=None,
+@click.option("--plot", type=click.Path(dir_okay=False), callback=output_file, default=None,
               help="Write a Fig. 10-style PNG: both responses against frequency.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @handle_errors

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from planner.cli._common import atomic_path, handle_errors
+from planner.cli._common import atomic_path, handle_errors, output_file
 
 #: The exporters' registry names (``planner.exporters.EXPORTERS``), spelled out here so that
 #: ``vibroplan --help`` need not import numpy and scipy; a test keeps the two equal.
@@ -32,10 +32,10 @@ UM = 1e-6
 @click.option("--format", "fmt", type=click.Choice(FORMATS), default="wav", show_default=True,
               help="wav: float32 WAV; wav16: int16 WAV; csv: time_s,displacement_m; "
                    "arb: Keysight 33500/33600 text file.")
-@click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), callback=output_file,
               help="Output file (default SCENE__NAME with the format's suffix, here). "
                    "A JSON sidecar NAME.json goes next to it.")
-@click.option("--plot", type=click.Path(dir_okay=False, path_type=Path),
+@click.option("--plot", type=click.Path(dir_okay=False, path_type=Path), callback=output_file,
               help="PNG: a few ms of the waveform and its spectrum with the tones marked.")
 @click.option("--sample-rate", type=click.FloatRange(min=0, min_open=True),
               help="Sample rate [Hz] (default: the spec's sample_rate_hz, else 192 kHz for "

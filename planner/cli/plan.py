@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from planner.cli._common import handle_errors
+from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_errors
 
 
 class _Bars:
@@ -38,7 +38,12 @@ class _Bars:
 @click.command("plan")
 @click.argument("spec", required=False, type=click.Path(dir_okay=False))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default="plan_out",
-              show_default=True, help="Output folder (replaced only when the plan is complete).")
+              show_default=True,
+              help="Output folder: a new or empty folder, or one a previous vibroplan run "
+                   "wrote (it is replaced atomically when the plan is complete). Never the "
+                   "current directory or a folder holding the spec.")
+@click.option("--force", is_flag=True,
+              help="Replace --out even if it is a non-empty folder vibroplan did not write.")
 @click.option("--seed", type=int, default=None, help="Seed (default: the spec's design.seed).")
 @click.option("--jobs", type=int, default=None,
               help="Worker processes for the designs and threads for the simulation "
@@ -46,7 +51,7 @@ class _Bars:
 @click.option("--no-figures", is_flag=True, help="Skip the PNG figures (faster).")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @handle_errors
-def command(spec, out_dir, seed, jobs, no_figures, quiet):
+def command(spec, out_dir, seed, jobs, no_figures, quiet, force):
     """Plan an array from a YAML SPEC: channels, designs, drives, verification.
 
     Without SPEC, plans the embedded default: a 5 x 5 array (configs/array_5x5.yaml)
@@ -56,16 +61,18 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet):
     Writes OUT/plan.json (the contract), designs.csv, coupling.csv, waveforms/ (WAV,
     int16 WAV, CSV and Keysight .arb per step, each with a JSON sidecar), figures/
     and report.md.  Exit status 0 when every step passes re-simulation, 1 when some
-    step fails (the report says which and why), 2 for a bad spec.
+    step fails (the report says which and why; the plan is still written).
 
     Each scene is also simulated in order with every state carried across steps and
     the drive switched off at the end; the summary and report give the overshoot and
     any idle slider moved by the state a previous step left.
+
+    {EXIT}
     """
     import numba
 
     from planner.pipeline import plan
-    from planner.spec import default_spec_path
+    from planner.spec import default_spec_path, load_spec
 
     if jobs is not None:
         if not 1 <= jobs <= numba.config.NUMBA_NUM_THREADS:
@@ -73,15 +80,14 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet):
         numba.set_num_threads(jobs)
     else:
         jobs = numba.config.NUMBA_NUM_THREADS
-    bars = _Bars(quiet)
     path = Path(spec) if spec else default_spec_path()
+    loaded = load_spec(path)
+    # refuse the output folder before any work (the plan takes a minute)
+    check_output_folder(out_dir, inputs=[path], force=force)
+    bars = _Bars(quiet)
     try:
-        result = plan(path, out_dir=out_dir, seed=seed, progress=bars, figures=not no_figures,
-                      jobs=jobs)
-    except KeyboardInterrupt:
-        bars.close()
-        click.echo("interrupted: no output written", err=True)
-        sys.exit(130)
+        result = plan(loaded, out_dir=out_dir, seed=seed, progress=bars,
+                      figures=not no_figures, jobs=jobs, force=force)
     finally:
         bars.close()
     d = result.data
@@ -108,6 +114,9 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet):
                f"(see {out_dir}/report.md)")
     if not result.passed:
         sys.exit(1)
+
+
+command.help = command.help.replace("{EXIT}", EXIT_CODES_HELP)
 
 
 def _scene_lines(scene_rows):

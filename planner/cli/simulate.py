@@ -6,7 +6,7 @@ import json
 
 import click
 
-from planner.cli._common import atomic_path, handle_errors
+from planner.cli._common import atomic_path, handle_errors, output_file
 
 UM = 1e-6
 
@@ -26,7 +26,7 @@ UM = 1e-6
 @click.option("--method", type=click.Choice(["exact", "rk4"]), default="exact", show_default=True,
               help="exact: closed-form event-driven solver; rk4: the paper's fixed-step RK4.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
-@click.option("--plot", type=click.Path(dir_okay=False), default=None,
+@click.option("--plot", type=click.Path(dir_okay=False), callback=output_file, default=None,
               help="Write a Fig. 7-style PNG: slider and impacter position against time.")
 @handle_errors
 def command(config, freqs, x0_um, duration_ms, pair, amplitude_um, method, as_json, plot):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from planner.cli._common import atomic_path, handle_errors
+from planner.cli._common import atomic_path, handle_errors, output_file
 
 UM = 1e-6
 #: Frequencies per parallel batch; the progress bar advances once per batch.
@@ -18,6 +18,57 @@ def _floats(text):
         raise click.BadParameter(f"expected comma-separated numbers, got {text!r}") from None
 
 
+#: The response has collapsed (Fig. 9's bifurcation) where r falls below this fraction
+#: of its peak; what responds beyond is a weaker residual orbit, reported apart.
+COLLAPSE_FRACTION = 0.5
+
+
+def response_band(freqs, r):
+    """Where an impacter responds, as Fig. 9 shows it: a band that collapses.
+
+    Returns ``(lo, collapse, residual)``: the lowest frequency [Hz] of the responding
+    run that leads up to the peak, the first swept frequency above the peak where r
+    falls below :data:`COLLAPSE_FRACTION` of the peak (None if it never does in the
+    sweep), and the frequencies outside ``[lo, collapse)`` that still respond (weaker
+    residual orbits, e.g. chattering or subharmonic ones).  None if nothing responds.
+    """
+    import numpy as np
+
+    freqs = np.asarray(freqs)
+    r = np.asarray(r)
+    on = r > 0
+    if not on.any():
+        return None
+    peak = int(np.argmax(r))
+    lo = peak
+    while lo > 0 and on[lo - 1]:
+        lo -= 1
+    above = np.nonzero(r[peak:] < COLLAPSE_FRACTION * r[peak])[0]
+    hi = peak + int(above[0]) if above.size else r.size
+    outside = on.copy()
+    outside[lo:hi] = False
+    return float(freqs[lo]), (float(freqs[hi]) if hi < r.size else None), freqs[outside]
+
+
+def _describe(freqs, col):
+    import numpy as np
+
+    band = response_band(freqs, col)
+    if band is None:
+        return "no response in the range"
+    lo, collapse, residual = band
+    peak = int(col.argmax())
+    text = f"peak r = {col[peak] * 1e9:.4g} nN at {freqs[peak]:.1f} Hz; responds from {lo:.1f} Hz"
+    text += (f", collapses at {collapse:.1f} Hz" if collapse is not None else
+             " to the end of the sweep")
+    if residual.size:
+        mask = np.isin(freqs, residual)
+        text += (f"; residual response outside that band at {residual.size} frequencies in "
+                 f"{residual.min():.1f}-{residual.max():.1f} Hz, up to "
+                 f"{col[mask].max() * 1e9:.3g} nN")
+    return text
+
+
 @click.command("sweep", short_help="Sweep the response r (eq. 12) over frequency and initial position.")
 @click.argument("config", type=click.Path(dir_okay=False))
 @click.option("--from", "f_from", type=float, required=True, help="First frequency [Hz].")
@@ -29,9 +80,9 @@ def _floats(text):
               help="Window [ms] (default: the config's, 3 ms).")
 @click.option("--pair", type=click.Choice(["forward", "backward"]), default="forward",
               show_default=True)
-@click.option("--out", type=click.Path(dir_okay=False), required=True,
+@click.option("--out", type=click.Path(dir_okay=False), callback=output_file, required=True,
               help="CSV to write: frequency_hz and one r column [N] per x0.")
-@click.option("--plot", type=click.Path(dir_okay=False), default=None,
+@click.option("--plot", type=click.Path(dir_okay=False), callback=output_file, default=None,
               help="Write a Fig. 9-style PNG of r against frequency.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @handle_errors
@@ -88,13 +139,6 @@ def command(config, f_from, f_to, f_step, x0_text, duration_ms, pair, out, plot,
                                title=f"{device.config.name or config}: {pair} pair")
     click.echo(f"{n} frequencies x {x0s.size} initial positions -> {out}")
     for j, x in enumerate(x0_um):
-        col = r[:, j]
-        if np.any(col > 0):
-            peak = int(np.argmax(col))
-            click.echo(f"  x0 = {x:g} um: peak r = {col[peak] * 1e9:.4g} nN at "
-                       f"{freqs[peak]:.1f} Hz; responds over {freqs[col > 0].min():.1f}-"
-                       f"{freqs[col > 0].max():.1f} Hz")
-        else:
-            click.echo(f"  x0 = {x:g} um: no response in the range")
+        click.echo(f"  x0 = {x:g} um: " + _describe(freqs, r[:, j]))
     if plot:
         click.echo(f"wrote {plot}")

@@ -139,8 +139,8 @@ class _Problem:
         """l [m] with sqrt(k/m)/(2 pi) = nu_n by eqs. (2), (4), clipped to its bounds."""
         l_lo, l_hi = self.bounds.length
         # m = m0 + m1 l (eq. 2) and k = K l^-3 (eq. 4 at fixed w), read off the model
-        a = self.factory(area, width, l_lo, 1.0)
-        b = self.factory(area, width, l_hi, 1.0)
+        a = self.factory(area, width, l_lo, 1e-6)  # any gap: m and k do not depend on it
+        b = self.factory(area, width, l_hi, 1e-6)
         m1 = (b.mass - a.mass) / (l_hi - l_lo)
         m0 = a.mass - m1 * l_lo
         kk = a.stiffness * l_lo**3

@@ -243,6 +243,7 @@ def test_cli_formats_match_the_registry():
 def test_cli_writes_a_verified_file(tmp_path, fmt):
     plan, f, ph = write_plan(tmp_path)
     out = tmp_path / "out" / f"fwd{EXPORTERS[fmt].suffix}"
+    out.parent.mkdir()  # vibroplan creates no missing parent folders (issue 13)
     res = run(plan, "--step", "forward", "--format", fmt, "--out", out)
     assert res.exit_code == 0, res.output
     assert "read back: ok" in res.output and "crest factor" in res.output

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 import model
@@ -43,7 +43,12 @@ def problems(draw):
     w = wn * np.array(ratios)
     h = np.abs((wn**2 - w**2) + 2j * zeta * wn * w)
     a = np.array(reach) * gap * np.maximum(h, 1e-3 * wn**2)
-    drive = Drive(w / (2 * math.pi), a / (math.cos(imp.impact_angle) * w**2), phases)
+    z = a / (math.cos(imp.impact_angle) * w**2)
+    # within what model.Drive accepts as a physical drive in SI units (tones from 10 Hz,
+    # die displacement up to 1 cm); beyond it a Drive is refused as given in kHz or um
+    assume(np.all(w / (2 * math.pi) >= model.devices.MIN_FREQUENCY)
+           and np.all(z <= model.devices.MAX_AMPLITUDE))
+    drive = Drive(w / (2 * math.pi), z, phases)
     return imp, drive, x0 * gap, periods / fn
 
 

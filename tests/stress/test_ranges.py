@@ -60,7 +60,9 @@ def test_corners_agree_with_50_digits(fn, gap, start):
 def test_sweep_over_the_range():
     # one sweep across four decades of drive frequency on a mid-range device
     imp = Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6).with_natural_frequency(5200.0)
-    freqs = np.geomspace(10.0, 1e6, 41)
+    # from 100 Hz: at 10 Hz the power convention asks for a 14 mm die displacement,
+    # which model.Drive refuses as implausible (a drive given in um)
+    freqs = np.geomspace(100.0, 1e6, 41)
     r, status = model.sweep(imp, freqs, [-imp.gap, 0.0, imp.gap], duration=3e-3,
                             return_status=True)
     assert np.all(status == 0) and np.all(np.isfinite(r)) and np.all(r >= 0)

@@ -1,0 +1,102 @@
+"""``vibroplan calibrate``: as-built natural frequencies and Q from a lab's frequency sweep."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from planner.cli._common import atomic_path, handle_errors
+
+
+@click.command("calibrate")
+@click.argument("sweep_csv", metavar="SWEEP.csv",
+                type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
+              default=Path("measured.csv"), show_default=True,
+              help="The measured CSV to write (for `vibroplan replan --measured`).")
+@click.option("--keep-flagged", is_flag=True,
+              help="Write flagged impacters' fits too (by default only fits with status ok "
+                   "are written, so a doubtful value never reaches a plan).")
+@handle_errors
+def command(sweep_csv, out, keep_flagged):
+    """Fit each impacter's natural frequency and Q to a measured frequency sweep.
+
+    Measure each impacter's vibration amplitude relative to the die (vibrometer,
+    fibre-optic sensor or camera, as in the paper's Section IV) over drive
+    frequencies across its resonance, with a drive small enough that it never
+    touches its slider (the linear regime).  The fit is to
+
+    \b
+      |X| = s u^2 / sqrt((1 - u^2)^2 + (u/Q)^2),  u = f / nu_n  (eqs. 1, 5)
+    on log amplitude, with standard errors from the Jacobian.
+
+    \b
+    SWEEP.csv: header, then one row per measurement (any column order; blank
+    lines and lines starting with # are skipped):
+      impacter            name, as the plan's impacter table has it
+      frequency_hz        drive frequency [Hz], > 0
+      amplitude_um        impacter amplitude relative to the die, half the
+                          peak-to-peak [um], >= 0 (zeros are left out)
+      drive_amplitude_um  optional: the die's amplitude Z at that frequency
+                          [um], > 0.  With it the fit is to |X|/Z and s
+                          estimates cos(theta); without it the drive amplitude
+                          is assumed the SAME at every frequency and s = Z
+                          cos(theta) [um] is fitted.  A sweep at constant
+                          power (Z^2 w^3 fixed) needs this column.
+    Other columns are errors (a misspelt unit would otherwise be ignored).
+    Each impacter needs at least 5 distinct frequencies; in practice measure
+    30-60, at least 3 of them inside the half-power band f_n (1 +- 1/(2Q)).
+
+    \b
+    measured.csv: impacter,natural_frequency_hz,quality_factor,
+                  natural_frequency_std_hz,quality_factor_std
+    (frequencies [Hz], Q [-], std = one standard error).
+
+    A fit is flagged, and by default not written, when the peak is at or beyond
+    the sweep's end, fewer than 3 points lie in the half-power band, Q is not
+    determined by the data, or the scatter exceeds 10 %.  A malformed file is
+    an error naming its row (line in the file) and column; nothing is written.
+
+    \b
+    Example:
+      vibroplan calibrate sweep.csv --out measured.csv
+    """
+    from planner.calibrate import calibrate, read_sweep, write_measured
+
+    sweep = read_sweep(sweep_csv)
+    fits = calibrate(sweep)
+    # the fitted scale is cos(theta) when |X|/Z was fitted, else Z cos(theta)
+    if "drive_amplitude_m" in sweep.columns:
+        scale_text = "cos(theta) = {:.4g}".format
+    else:
+        scale_text = lambda s: f"Z cos(theta) = {s * 1e6:.4g} um"  # noqa: E731
+    width = max(len(str(n)) for n in fits["impacter"])
+    for fit in fits.itertuples(index=False):
+        name = f"{fit.impacter}:".ljust(width + 1)
+        if fit.status == "fit_failed":
+            click.echo(f"{name} no fit [{fit.status}]")
+        else:
+            click.echo(f"{name} nu_n = {fit.natural_frequency_hz:.2f} +- "
+                       f"{fit.natural_frequency_std_hz:.2g} Hz, Q = {fit.quality_factor:.4g} +- "
+                       f"{fit.quality_factor_std:.2g}, {scale_text(fit.scale)} "
+                       f"({fit.n_points} points, {fit.n_peak_points} in the "
+                       f"half-power band, scatter {fit.residual_rms:.2%}) [{fit.status}]")
+        if fit.status != "ok":
+            click.echo(f"warning: {fit.impacter}: {fit.message}", err=True)
+
+    ok = fits["status"] == "ok"
+    keep = fits if keep_flagged else fits[ok]
+    keep = keep[keep["status"] != "fit_failed"]
+    flagged = fits[~ok]
+    summary = f"{int(ok.sum())} of {len(fits)} impacters fitted ok"
+    if len(flagged):
+        names = ", ".join(f"{n} ({s})" for n, s in zip(flagged["impacter"], flagged["status"]))
+        summary += f"; flagged: {names}"
+        summary += "" if keep_flagged else " (not written; --keep-flagged writes them)"
+    click.echo(summary)
+    if keep.empty:
+        raise click.ClickException(f"no usable fit: {out} not written")
+    with atomic_path(out) as tmp:
+        write_measured(keep, tmp)
+    click.echo(f"wrote {out} ({len(keep)} impacter{'s' if len(keep) != 1 else ''})")
