@@ -379,3 +379,26 @@ def test_forbidden_drive_is_held_under_the_summed_tones():
     # and it still responds to its own tone from every x0
     own = responses(imp, Drive.tone(f, 50.0), x0, duration=0.003)
     assert np.all(own > 0)
+
+
+def test_max_mass_ratio_and_two_body_objective():
+    """Issue 15: design.max_mass_ratio caps m/M, and under the two-body law the objective
+    is r / (1 + q), q = 2 (m/M) cos^2(theta); the slider speed is simulated under it."""
+    import math
+
+    from planner.config import EnvironmentConfig
+
+    air = EnvironmentConfig(viscosity_mpa_s=0.0179)
+    free = design_impacter(6000.0, (3000.0,), environment=air, budget="fast", seed=0)
+    capped = design_impacter(6000.0, (3000.0,), environment=air, budget="fast", seed=0,
+                             max_mass_ratio=0.4, contact="two_body")
+    assert free.mass_ratio > 0.4        # unconstrained, r grows with m: the area bound
+    assert capped.feasible and capped.mass_ratio <= 0.4
+    assert capped.contact == "two_body" and capped.to_dict()["mass_ratio"] <= 0.4
+    assert math.isclose(capped.mass_kg / capped.mass_ratio, free.mass_kg / free.mass_ratio)
+    # a cap below the smallest allowed plate is refused, naming the fix
+    with pytest.raises(ValueError, match="max_mass_ratio"):
+        design_impacter(6000.0, (3000.0,), environment=air, budget="fast",
+                        max_mass_ratio=1e-6)
+    with pytest.raises(ValueError, match="contact must be one of"):
+        design_impacter(6000.0, (3000.0,), budget="fast", contact="elastic")
