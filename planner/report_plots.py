@@ -48,7 +48,7 @@ def array_map(spec, table, path):
     ax.axis("off")
     sm = plt.cm.ScalarMappable(cmap=cmap, norm=norm)
     fig.colorbar(sm, ax=ax, fraction=0.04, label="drive frequency [Hz]")
-    ax.set_title(f"{spec.name}: channels (F = forward, B = backward)")
+    ax.set_title(f"{spec.name}: channels (F = forward, B = backward), pitch {spec.array.pitch_um:g} um")
     save(fig, path)
 
 

@@ -128,7 +128,7 @@ def _load_steps(path: Path):
             raise ValueError(f"{path.parent}: no plan.json in this folder")
     if path.suffix.lower() in (".yaml", ".yml"):
         try:
-            from planner.pipeline import step_tones
+            from planner.planning import step_tones
         except ImportError:
             raise ValueError(f"{path}: planning from a spec requires `vibroplan plan` first: run "
                              f"`vibroplan plan {path} --out plan_out` and pass "
