@@ -22,7 +22,7 @@ PLAN_SNAP_REL = 1e-9
 #: Stretch of the waveform the plot shows [s].
 PLOT_STRETCH = 5e-3
 
-UM = 1e-6
+from planner.units import UM  # noqa: E402
 
 
 @click.command("drive")
