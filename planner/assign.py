@@ -24,19 +24,19 @@ import numpy as np
 import pandas as pd
 
 from planner.errors import PlanningError
+from planner.nodes import DIRECTIONS, Node
 from planner.spec import LoadedSpec, Step, channel_grid
 
-DIRECTIONS = ("forward", "backward")
 
 
 def node_id(device: str, direction: str) -> str:
-    """``("C3", "forward")`` -> ``"C3.forward"``."""
-    return f"{device}.{direction}"
+    """``("C3", "forward")`` -> ``"C3.forward"`` (:class:`planner.nodes.Node`'s text)."""
+    return Node(device, direction).text
 
 
 def split_node(node: str) -> tuple[str, str]:
-    device, direction = node.rsplit(".", 1)
-    return device, direction
+    """``"C3.forward"`` -> ``("C3", "forward")`` (:meth:`planner.nodes.Node.parse`)."""
+    return tuple(Node.parse(node))
 
 
 def plan_steps(loaded: LoadedSpec, single_step_s: float) -> tuple[Step, ...]:

@@ -31,7 +31,7 @@ from scipy.optimize import least_squares
 
 from planner.errors import SpecError
 
-UM = 1e-6
+from planner.units import UM  # noqa: E402
 
 #: Columns of a sweep file: required, then optional.
 SWEEP_COLUMNS = ("impacter", "frequency_hz", "amplitude_um")

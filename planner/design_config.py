@@ -25,19 +25,19 @@ import math
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from planner.config import DeviceDriveConfig, EnvironmentConfig, ProcessConfig, SliderConfig
 from planner.designer import DEFAULT_UPPER, GUARD, PAPER_LOWER, DesignBounds
+from planner._pydantic import Strict
+from planner.units import UM
 from planner.yamlio import check_kind, load_yaml, validate
 
-UM = 1e-6
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 Range = tuple[PositiveFloat, PositiveFloat]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+_Strict = Strict
 
 
 class DesignSection(_Strict):

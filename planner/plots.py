@@ -8,7 +8,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-UM = 1e-6
+from planner.units import UM  # noqa: E402
 
 
 def save(fig, path):

@@ -6,7 +6,8 @@ import numpy as np
 
 from planner.plots import plt, save
 
-UM = 1e-6
+from planner.nodes import device_key  # noqa: E402
+from planner.units import UM  # noqa: E402
 
 
 def _grid_shape(table):
@@ -48,7 +49,7 @@ def array_map(spec, table, path):
     ax.axis("off")
     sm = plt.cm.ScalarMappable(cmap=cmap, norm=norm)
     fig.colorbar(sm, ax=ax, fraction=0.04, label="drive frequency [Hz]")
-    ax.set_title(f"{spec.name}: channels (F = forward, B = backward)")
+    ax.set_title(f"{spec.name}: channels (F = forward, B = backward), pitch {spec.array.pitch_um:g} um")
     save(fig, path)
 
 
@@ -150,7 +151,7 @@ def slider_positions(scene_rows, path):
     for ax, scene in zip(axes[:, 0], scenes):
         rows = [r for r in scene_rows if r["scene"] == scene]
         steps = [r["step"] for r in rows]
-        devices = sorted(rows[0]["positions_m"], key=lambda d: (d[0], int(d[1:])))
+        devices = sorted(rows[0]["positions_m"], key=device_key)
         style = _device_styles(devices)
         for dev in devices:
             y = [0.0] + [r["positions_m"][dev] / UM for r in rows]

@@ -18,11 +18,11 @@ from __future__ import annotations
 
 import math
 import string
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from planner.config import (
     DEFAULT_IMPACTER,
@@ -32,15 +32,15 @@ from planner.config import (
     SliderConfig,
 )
 from planner.errors import SpecError
+from planner.nodes import DIRECTIONS  # noqa: F401  (re-exported)
+from planner._pydantic import Strict
 from planner.yamlio import check_kind, format_loc, line_of, load_yaml, validate
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-DIRECTIONS = ("forward", "backward")
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+_Strict = Strict
 
 
 class ArrayConfig(_Strict):
@@ -233,6 +233,8 @@ class LoadedSpec:
     spec: ArraySpec
     steps: tuple[Step, ...]
     source: str
+    #: YAML location -> line, for errors found after validation (None if unknown).
+    lines: dict | None = field(default=None, compare=False, repr=False)
 
     @property
     def device_ids(self) -> list[str]:
@@ -344,7 +346,7 @@ def load_spec(path_or_text: str | Path, *, source: str | None = None) -> LoadedS
     check_kind(data, "array spec", source=src)
     _check_units(data, lines, src)
     spec = validate(ArraySpec, data, lines, source=src)
-    return LoadedSpec(spec, resolve_steps(spec, lines, src), src)
+    return LoadedSpec(spec, resolve_steps(spec, lines, src), src, lines)
 
 
 def default_spec_path() -> Path:

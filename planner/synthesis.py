@@ -208,26 +208,8 @@ class Waveform:
 # --------------------------------------------------------------------------- public API
 
 
-def as_generator(seed) -> np.random.Generator:
-    """The one place a ``seed`` becomes a random generator.
-
-    Parameters
-    ----------
-    seed : None, int or numpy.random.Generator
-        ``None`` draws fresh entropy (not reproducible); an int gives a reproducible
-        stream; a Generator is used as is.
-
-    Returns
-    -------
-    numpy.random.Generator
-    """
-    if seed is None or isinstance(seed, (int, np.integer)):
-        if seed is not None and seed < 0:
-            raise ValueError(f"seed must be a non-negative integer, {seed} was given")
-        return np.random.default_rng(seed)
-    if isinstance(seed, np.random.Generator):
-        return seed
-    raise ValueError(f"seed must be None, an int or a numpy Generator, {seed!r} was given")
+# the one seed -> Generator helper (None means seed 0, as everywhere in vibroplan)
+from planner._random import as_generator  # noqa: E402
 
 
 def tones_from_power(frequencies, power: float = DEFAULT_POWER) -> np.ndarray:

@@ -10,7 +10,7 @@ import click
 
 from planner.cli._common import atomic_path, handle_errors, output_file
 
-UM = 1e-6
+from planner.units import UM  # noqa: E402
 
 
 def _rows(pair):

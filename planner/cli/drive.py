@@ -22,7 +22,7 @@ PLAN_SNAP_REL = 1e-9
 #: Stretch of the waveform the plot shows [s].
 PLOT_STRETCH = 5e-3
 
-UM = 1e-6
+from planner.units import UM  # noqa: E402
 
 
 @click.command("drive")
@@ -128,7 +128,7 @@ def _load_steps(path: Path):
             raise ValueError(f"{path.parent}: no plan.json in this folder")
     if path.suffix.lower() in (".yaml", ".yml"):
         try:
-            from planner.pipeline import step_tones
+            from planner.planning import step_tones
         except ImportError:
             raise ValueError(f"{path}: planning from a spec requires `vibroplan plan` first: run "
                              f"`vibroplan plan {path} --out plan_out` and pass "

@@ -71,7 +71,7 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force):
     """
     import numba
 
-    from planner.pipeline import plan
+    from planner.planning import plan
     from planner.spec import default_spec_path, load_spec
 
     if jobs is not None:
@@ -122,7 +122,7 @@ command.help = command.help.replace("{EXIT}", EXIT_CODES_HELP)
 def _scene_lines(scene_rows):
     """One line per scene: the largest overshoot once the drive stops, and the steps in
     which idle sliders moved beyond the tolerance from the state they inherited."""
-    from planner.pipeline import scene_overshoot
+    from planner.planning.scenes import scene_overshoot
 
     overshoot = scene_overshoot(scene_rows)
     out = []

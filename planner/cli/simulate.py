@@ -8,7 +8,7 @@ import click
 
 from planner.cli._common import atomic_path, handle_errors, output_file
 
-UM = 1e-6
+from planner.units import UM  # noqa: E402
 
 
 @click.command("simulate")

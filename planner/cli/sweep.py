@@ -6,7 +6,7 @@ import click
 
 from planner.cli._common import atomic_path, handle_errors, output_file
 
-UM = 1e-6
+from planner.units import UM  # noqa: E402
 #: Frequencies per parallel batch; the progress bar advances once per batch.
 CHUNK = 64
 

@@ -1,0 +1,83 @@
+"""The end-to-end array plan: spec -> settings -> graph -> channels -> drives -> designs
+-> verification -> record -> outputs, one module per stage.
+
+- :mod:`~planner.planning.settings` -- the spec in SI units, once; fields the planner
+  cannot honour are refused;
+- :mod:`~planner.planning.pipeline` -- the stage order and the repair loop;
+- :mod:`~planner.planning.designs`, :mod:`~planner.planning.drives`,
+  :mod:`~planner.planning.verify`, :mod:`~planner.planning.scenes`,
+  :mod:`~planner.planning.repair` -- the stages;
+- :mod:`~planner.planning.record` -- the plan.json dict;
+- :mod:`~planner.planning.outputs` -- files, figures and report.md;
+- :mod:`~planner.planning.result` -- :class:`Plan`, the declared result.
+
+(The package is ``planner.planning`` rather than ``planner.plan`` so that the lazy
+function ``planner.plan`` is never shadowed by a submodule.)
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from planner._io import output_folder
+from planner.planning.outputs import write_outputs
+from planner.planning.pipeline import run_plan
+from planner.planning.result import Plan
+from planner.planning.settings import Settings, resolve_settings
+from planner.spec import LoadedSpec, default_spec_path, load_spec
+
+__all__ = ["Plan", "Settings", "plan", "resolve_settings", "run_plan", "step_tones",
+           "write_outputs"]
+
+
+def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, jobs=None,
+         force=False):
+    """Plan an array: the whole pipeline, optionally writing every output.
+
+    Parameters
+    ----------
+    spec : str, Path, LoadedSpec or None
+        An array spec file, YAML text, or an already loaded spec; None plans the
+        embedded default (configs/array_5x5.yaml).
+    out_dir : str or Path, optional
+        Where to write plan.json, CSVs, waveforms, figures and report.md.  Checked
+        before any work (:func:`planner._io.check_output_folder`: never the current
+        directory or its ancestors, nor a folder holding the spec; an existing
+        non-empty folder only if a previous vibroplan run wrote it, or with
+        ``force``).  The files are written to a temporary folder beside it and
+        swapped in atomically only when complete.
+    seed : int, optional
+        Overrides the spec's ``design.seed``; same spec and seed give a
+        byte-identical plan.json.
+    jobs : int, optional
+        Worker processes for the designs (default 1; the CLI uses every core).  The
+        plan does not depend on it.  As with any ``multiprocessing`` code, a script
+        that passes jobs > 1 needs an ``if __name__ == "__main__":`` guard.
+    force : bool
+        Replace an existing non-empty ``out_dir`` that vibroplan did not write.
+
+    Returns
+    -------
+    Plan
+    """
+    if isinstance(spec, LoadedSpec):
+        loaded = spec
+    else:
+        loaded = load_spec(Path(spec) if spec is None or isinstance(spec, Path) or "\n" not in str(spec)
+                           else spec) if spec is not None else load_spec(default_spec_path())
+    # the settings first: a spec field the planner cannot honour fails before any work
+    settings = resolve_settings(loaded, seed)
+    if out_dir is None:
+        return run_plan(loaded, seed=seed, progress=progress, jobs=jobs, settings=settings)
+    source = Path(loaded.source) if getattr(loaded, "source", None) else None
+    inputs = [source] if source is not None and source.exists() else []
+    with output_folder(out_dir, command="plan", inputs=inputs, force=force) as tmp:
+        result = run_plan(loaded, seed=seed, progress=progress, jobs=jobs, settings=settings)
+        write_outputs(result, tmp, figures=figures)
+    result.out_dir = Path(out_dir)
+    return result
+
+
+def step_tones(spec_path):
+    """Steps with their tones for ``vibroplan drive SPEC``: runs the plan without files."""
+    return plan(spec_path).data["steps"]

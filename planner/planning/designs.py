@@ -1,0 +1,159 @@
+"""Stage 3, designs: forbidden sets, idle ensembles, the design cache and the worker pool.
+
+Every driven impacter is designed for its tone with every tone that plays while it must
+be idle as a forbidden frequency, and the summed drive of every multi-tone step it sits
+out as a forbidden drive; designs sharing all their inputs are designed once.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from planner.nodes import Node
+from planner.planning.drives import drive_of
+from planner.planning.settings import Settings
+
+#: Extra seeds tried for a design that is infeasible or slower than the target speed.
+DESIGN_RETRIES = 3
+#: A design is retried while its predicted speed is below this multiple of the spec's
+#: minimum: the prediction comes from the designer's worst x0 over its short window,
+#: and the verification (every x0 of its grid, the whole step) measured 0.5-0.7 of it
+#: on the slow designs of the default plan.
+SPEED_MARGIN = 2.5
+
+
+def _active(step):
+    return {Node(d, dr).text for d, dr in step.active_nodes()}
+
+
+def forbidden_tones(steps, frequencies):
+    """Node -> sorted frequencies of every tone that plays while the node is idle."""
+    out = {n: set() for n in frequencies}
+    for st in steps:
+        active = _active(st)
+        tones = {frequencies[n] for n in active if n in frequencies}
+        for n in frequencies:
+            if n not in active:
+                out[n] |= tones
+    return {n: tuple(sorted(v)) for n, v in out.items()}
+
+
+def idle_ensembles(steps, frequencies):
+    """Node -> keys of the multi-tone steps in which it is idle (their summed drives)."""
+    out = {n: [] for n in frequencies}
+    for st in steps:
+        active = _active(st)
+        if len({frequencies[n] for n in active if n in frequencies}) < 2:
+            continue
+        for n in frequencies:
+            if n not in active:
+                out[n].append(st.key)
+    return {n: tuple(v) for n, v in out.items()}
+
+
+def design_offenders(designs, steps, assignment):
+    """(node, (node, offender)) for every infeasible design: the node playing each
+    forbidden frequency it responds at, and the nearest tone of each summed drive
+    (step) it responds under."""
+    by_freq = {}
+    for m, f in assignment.frequencies.items():
+        by_freq.setdefault(round(f, 6), []).append(m)
+    by_key = {st.key: st for st in steps}
+    out = []
+    for n in sorted(designs):
+        d = designs[n]
+        if d.feasible:
+            continue
+        f = assignment.frequencies[n]
+        for hz, r in zip(d.forbidden_hz, d.r_max_forbidden_n):
+            if r > 0:
+                out += [(n, (n, m)) for m in by_freq.get(round(float(hz), 6), []) if m != n]
+        for label in d.checks.get("violated_drives", ()):
+            st = by_key.get(label)
+            if st is None:
+                continue
+            playing = sorted(_active(st))
+            near = min(playing, key=lambda a: abs(math.log(assignment.frequencies[a] / f)))
+            out.append((n, (n, near)))
+    return out
+
+
+def _design_task(kwargs, min_speed):
+    """One impacter's design; retried with the next seeds while it is infeasible or
+    predicted slower than ``SPEED_MARGIN * min_speed`` [m/s] (the search is
+    stochastic; the best of the tries is kept: feasible first, then the fastest)."""
+    from planner.designer import design_impacter
+
+    best = None
+    for k in range(DESIGN_RETRIES + 1):
+        res = design_impacter(**{**kwargs, "seed": kwargs["seed"] + k})
+        rank = (bool(res.feasible), float(res.predicted_slider_speed_m_s))
+        if best is None or rank > best[0]:
+            best = (rank, res)
+        if res.feasible and res.predicted_slider_speed_m_s >= SPEED_MARGIN * min_speed:
+            break
+    return best[1]
+
+
+def design_all(settings: Settings, steps, assignment, cache, progress=None, waveforms=None,
+               jobs=1):
+    """Design every driven impacter; ``cache`` maps the design inputs -> result.
+
+    With ``waveforms`` (step key -> Waveform), the summed drive of every multi-tone
+    step in which an impacter is idle is a forbidden drive of its design too.  Designs
+    sharing every input (tone, forbidden set, drives and the impacter's own settings:
+    contact parameters, process, slider) are designed once; with ``jobs`` > 1 the
+    distinct designs run in that many worker processes (same results as serial: each
+    design is seeded by the spec alone).
+    """
+    from planner.designer import Ensemble
+
+    forbidden = forbidden_tones(steps, assignment.frequencies)
+    ensembles = (idle_ensembles(steps, assignment.frequencies)
+                 if waveforms is not None else {n: () for n in assignment.frequencies})
+    keys, tasks = {}, {}
+    for n in sorted(assignment.frequencies):
+        drives = tuple((k, tuple(np.round(waveforms[k].frequencies, 6)),
+                        tuple(np.round(waveforms[k].phases, 9))) for k in ensembles[n])
+        key = (round(assignment.frequencies[n], 6), forbidden[n], drives,
+               settings.impacters[n])
+        keys[n] = key
+        if key not in cache and key not in tasks:
+            tasks[key] = dict(
+                frequency=assignment.frequencies[n], forbidden=forbidden[n],
+                forbidden_drives=[Ensemble(drive_of(waveforms[k]), k) for k in ensembles[n]],
+                **settings.design_kwargs(n))
+    min_speed = settings.min_speed_m_s
+    users = {}
+    for n, key in keys.items():
+        users.setdefault(key, []).append(n)
+    for n, key in keys.items():
+        if key in cache and progress is not None:
+            progress(n)
+    if jobs > 1 and len(tasks) > 1:
+        import concurrent.futures as cf
+
+        from planner._workers import process_pool
+
+        # longest first, so that no worker is left with a long design at the end: a
+        # design's cost grows with the summed drives it checks and with the drive
+        # cycles in its window (its frequency).  Results do not depend on the order.
+        order = sorted(tasks, key=lambda k: (-len(tasks[k]["forbidden_drives"]),
+                                             -tasks[k]["frequency"]))
+        with process_pool(jobs) as pool:
+            futures = {pool.submit(_design_task, tasks[key], min_speed): key for key in order}
+            for fut in cf.as_completed(futures):
+                key = futures[fut]
+                cache[key] = fut.result()
+                for n in users[key]:
+                    if progress is not None:
+                        progress(n)
+    else:
+        for key, kw in tasks.items():
+            cache[key] = _design_task(kw, min_speed)
+            for n in users[key]:
+                if progress is not None:
+                    progress(n)
+    return {n: cache[key] for n, key in keys.items()}

@@ -1,0 +1,266 @@
+"""Outputs: plan.json, CSVs, waveform files, figures and report.md of a :class:`Plan`."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+import model
+from planner.nodes import device_key
+from planner.planning.result import Plan
+from planner.planning.scenes import scene_overshoot
+from planner.planning.settings import SETTLE_S
+from planner.units import MS, UM
+
+#: Response-curve figure: points over the band, half-width of the fine grid across each
+#: design's own peak (relative), and initial positions over [-c, c].
+RESPONSE_GRID_POINTS = 160
+RESPONSE_PEAK_SPAN = 0.04
+RESPONSE_X0_POINTS = 5
+
+
+def write_outputs(result: Plan, out_dir: Path, *, figures=True):
+    """Write plan.json, CSVs, waveforms, figures and report.md into ``out_dir``."""
+    import warnings
+
+    from planner.exporters import export
+
+    settings = result.settings
+    t0 = time.perf_counter()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "plan.json").write_text(json.dumps(result.data, indent=2, sort_keys=False) + "\n")
+    result.coupling.to_csv(out_dir / "coupling.csv", float_format="%.6g")
+    result.impacters.assign(
+        area_m2=[g["area_m2"] for g in result.impacters["geometry"]],
+        width_m=[g["width_m"] for g in result.impacters["geometry"]],
+        length_m=[g["length_m"] for g in result.impacters["geometry"]],
+    ).drop(columns=["geometry"]).to_csv(out_dir / "designs.csv", index=False, float_format="%.8g")
+    (out_dir / "waveforms").mkdir(exist_ok=True)
+    for rec in result.data["steps"]:
+        w = result.waveforms[f"{rec['scene']}/{rec['name']}"]
+        for fmt, rel in rec["files"].items():
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                export(w, out_dir / rel, fmt, um_per_v=settings.um_per_v,
+                       amplifier_gain=settings.amplifier_gain)
+    if figures:
+        _figures(result, out_dir)
+    result.timings["outputs"] = time.perf_counter() - t0
+    _report(result, out_dir)
+
+
+def _drive_figure_name(step_key):
+    return f"drive_{step_key.replace('/', '__')}.png"
+
+
+def _figures(result, out_dir):
+    from planner import report_plots as rp
+
+    figs = out_dir / "figures"
+    figs.mkdir(exist_ok=True)
+    settings = result.settings
+    rp.array_map(settings.spec, result.impacters, figs / "array_map.png")
+    tones = [float(c) for c in result.coupling.columns]
+    rp.coupling_heatmap(result.coupling.to_numpy(), list(result.coupling.index), tones,
+                        figs / "coupling.png")
+    # response curves: worst r over x0 against frequency, on the band grid plus every
+    # tone of the plan exactly plus a fine grid across the design's own peak (in air a
+    # peak is a few hundred Hz wide: a coarse grid alone misses its top)
+    curves = []
+    lo, hi = settings.band_hz
+    band = np.geomspace(lo, hi, RESPONSE_GRID_POINTS)
+    for n, d in sorted(result.designs.items()):
+        imp = d.impacter
+        own = result.assignment.frequencies[n]
+        peak = own * (1.0 + np.linspace(-RESPONSE_PEAK_SPAN, RESPONSE_PEAK_SPAN, 41))
+        grid = np.unique(np.concatenate([band, tones, peak[(peak >= lo) & (peak <= hi)]]))
+        r = model.sweep(imp, grid, np.linspace(-imp.gap, imp.gap, RESPONSE_X0_POINTS),
+                        settings.power_m2_s3, settings.window_s).max(axis=1)
+        curves.append((n, grid, r, own))
+    rp.response_curves(curves, tones, figs / "response_curves.png",
+                       f"worst-case response over {RESPONSE_X0_POINTS} x0 in "
+                       f"{settings.window_s / MS:g} ms (dots: own tone)")
+    shown = [k for k in result.waveforms if not k.startswith("independent/")]
+    shown = shown or list(result.waveforms)[:1]
+    for k in shown:
+        rp.waveform_and_spectrum(result.waveforms[k], figs / _drive_figure_name(k), k)
+    if result.data["scenes"]:
+        rp.slider_positions(result.data["scenes"], figs / "slider_positions.png")
+
+
+def _md_table(header, rows):
+    """Lines of a markdown table."""
+    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    return out + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+
+
+def _fmt(x, spec):
+    """A number for a report table; '-' where there is none."""
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "-"
+    return format(x, spec)
+
+
+def _step_summary(ver):
+    """(scene, step) -> slowest mover [m/s], largest idle displacement [m], checks."""
+    out = {}
+    for (scene, step), g in ver.groupby(["scene", "step"], sort=False):
+        movers = g[g["expected"] != "idle"]
+        idle = g[g["expected"] == "idle"]
+        out[(scene, step)] = {
+            "slowest": float(movers["min_speed_m_s"].min()) if len(movers) else math.nan,
+            "idle_disp": (float(idle["predicted_displacement_m"].abs().max()) if len(idle)
+                          else math.nan),
+            "passed": int(g["passed"].sum()), "checks": len(g)}
+    return out
+
+
+def _moves(rec):
+    names = rec["forward"] + rec["backward"]
+    if len(names) <= 6:
+        return ", ".join([f"{n} fwd" for n in rec["forward"]] + [f"{n} bwd" for n in rec["backward"]])
+    return f"{len(rec['forward'])} fwd, {len(rec['backward'])} bwd"
+
+
+def _report(result, out_dir):
+    d = result.data
+    ver = result.verification
+    lines = [f"# vibroplan plan: {d['spec']['name']}", "",
+             f"vibroplan {d['vibroplan_version']}, seed {d['seed']}.", "",
+             f"**Verification: {'PASSED' if result.passed else 'FAILED'}** "
+             f"({int(ver['passed'].sum())} of {len(ver)} step x device checks pass): every step "
+             "re-simulated with its summed drive for its whole duration, from "
+             f"{d['spec']['verification']['x0_points']} initial positions over [-c, c].", ""]
+    a = d["assignment"]
+    lines += ["## Frequency assignment", "",
+              f"Conflict graph: {a['graph_nodes']} channel groups, {a['graph_edges']} edges; span "
+              f"{a['span']} channels (lower bound {a['lower_bound']}, "
+              f"{'proven optimal' if a['optimal'] else 'not proven optimal'}, {a['method']}).", "",
+              "![array map](figures/array_map.png)", ""]
+    if a["guard_violations"]:
+        lines += [f"Guard-rule warnings ({len(a['guard_violations'])}): harmonic or intermodulation "
+                  "products of tones that play together land near an idle impacter's frequency. "
+                  "The verification simulates the ideal summed drive; these matter only if the "
+                  "piezo or its amplifier distorts.", "",
+                  "<details><summary>the first 15</summary>", ""]
+        lines += [f"- {v}" for v in a["guard_violations"][:15]]
+        lines += ["", f"All {len(a['guard_violations'])} are in plan.json.", "", "</details>", ""]
+    lines += ["## Designs", "",
+              "r_min (worst response over x0 at the impacter's own tone) and the slider speed are "
+              "the designer's short-window predictions; the verification below is the check.", ""]
+    rows = []
+    for r in d["impacters"]:
+        g = r["geometry"]
+        rows.append([r["id"], r["channel"], _fmt(r["frequency_hz"] / 1e3, ".2f"),
+                     _fmt(r["natural_frequency_hz"] / 1e3, ".3f"),
+                     _fmt(g["area_m2"] / UM**2, ".0f"), _fmt(g["width_m"] / UM, ".2f"),
+                     _fmt(g["length_m"] / UM, ".0f"), _fmt(r["gap_m"] / UM, ".2f"),
+                     _fmt(r["mass_kg"] * 1e12, ".3f"),
+                     _fmt(r.get("r_min_n", math.nan) * 1e9, ".1f"),
+                     _fmt(r.get("predicted_slider_speed_m_s", math.nan) * 1e3, ".2f"),
+                     "yes" if r.get("feasible", True) else "**no**"])
+    lines += _md_table(["impacter", "channel", "tone [kHz]", "nu_n [kHz]", "A [um^2]", "w [um]",
+                        "l [um]", "gap [um]", "mass [ng]", "r_min [nN]", "speed [mm/s]",
+                        "feasible"], rows)
+    lines += ["", "![response curves](figures/response_curves.png)", "",
+              "## Cross-coupling", "",
+              "Worst response of every impacter to every tone alone, over the x0 grid "
+              "(coupling.csv).", "", "![coupling](figures/coupling.png)", "", "## Steps", ""]
+    summary = _step_summary(ver)
+    rows = []
+    for rec in d["steps"]:
+        if rec["scene"] == "independent":
+            continue
+        sm = summary[(rec["scene"], rec["name"])]
+        rows.append([f"{rec['scene']}/{rec['name']}", _fmt(rec["duration_s"] * 1e3, "g"),
+                     len(rec["tones"]), _fmt(rec["crest_factor"], ".2f"), _moves(rec),
+                     _fmt(sm["slowest"] * 1e3, ".2f"), _fmt(sm["idle_disp"] / UM, ".3f"),
+                     f"{sm['passed']}/{sm['checks']}"])
+    if rows:
+        lines += _md_table(["step", "ms", "tones", "crest factor", "moves",
+                            "slowest mover [mm/s]", "largest idle displacement [um]",
+                            "checks passed"], rows)
+        lines.append("")
+    for rec in d["steps"]:         # in step order
+        name = _drive_figure_name(f"{rec['scene']}/{rec['name']}")
+        if (out_dir / "figures" / name).exists():
+            lines.append(f"![{rec['scene']}/{rec['name']}](figures/{name})")
+    lines.append("")
+    independent = [rec for rec in d["steps"] if rec["scene"] == "independent"]
+    if independent:
+        lines += ["### Every impacter alone", "",
+                  f"One {independent[0]['duration_s'] * 1e3:g} ms step per impacter (the spec asks "
+                  "for every impacter to be independently addressable): its slider must move at "
+                  "the minimum speed from every initial position of its impacter, and every other "
+                  "slider stay within the idle tolerance.", ""]
+        rows = []
+        for rec in independent:
+            sm = summary[(rec["scene"], rec["name"])]
+            rows.append([rec["name"], _fmt(rec["tones"][0]["frequency_hz"] / 1e3, ".2f"),
+                         _fmt(sm["slowest"] * 1e3, ".2f"), _fmt(sm["idle_disp"] / UM, ".3f"),
+                         f"{sm['passed']}/{sm['checks']}"])
+        lines += _md_table(["impacter", "tone [kHz]", "slowest over x0 [mm/s]",
+                            "largest idle displacement [um]", "checks passed"], rows)
+        lines.append("")
+    if d["scenes"]:
+        lines += _scene_section(d["scenes"])
+    fails = ver[~ver["passed"]]
+    lines += ["## Failures", ""]
+    if fails.empty:
+        lines.append("None: every step moves the sliders it should and no other.")
+    else:
+        for _, r in fails.head(60).iterrows():
+            lines.append(f"- {r['scene']}/{r['step']} {r['device']} ({r['expected']}): {r['cause']}")
+        if len(fails) > 60:
+            lines.append(f"- ... and {len(fails) - 60} more (plan.json)")
+    lines += ["", "## Timings", ""]
+    lines += _md_table(["stage", "seconds"], [[k, f"{v:.2f}"] for k, v in result.timings.items()])
+    (out_dir / "report.md").write_text("\n".join(lines) + "\n")
+
+
+def _scene_section(scene_rows):
+    """Slider positions after each step of each scene, the overshoot once the drive
+    stops, and the impacters that hit while their step did not drive them."""
+    lines = ["## Scenes (state carried across steps)", "",
+             "Each scene from rest, every step from the state the previous one left; after the "
+             f"last step the drive is off for {SETTLE_S * 1e3:g} ms, and the overshoot is how far "
+             "each slider moves then, pushed by impacters still ringing.", "",
+             "![slider positions](figures/slider_positions.png)", ""]
+    overshoot = scene_overshoot(scene_rows)
+    for scene in dict.fromkeys(r["scene"] for r in scene_rows):
+        rows = [r for r in scene_rows if r["scene"] == scene]
+        steps = [r for r in rows if r["driven"]]
+        devices = sorted(rows[0]["positions_m"], key=device_key)
+        header = ["device"] + [f"after {r['step']} [um]" for r in steps]
+        if scene in overshoot:
+            header.append("overshoot [um]")
+        table = []
+        for dev in devices:
+            row = [dev] + [_fmt(r["positions_m"][dev] / UM, ".1f") for r in steps]
+            if scene in overshoot:
+                row.append(_fmt(overshoot[scene][dev] / UM, ".3f"))
+            table.append(row)
+        lines += [f"**{scene}**", ""] + _md_table(header, table) + [""]
+        for r in rows:
+            hits, moved = r["idle_hits"], r["idle_moved_m"]
+            what = ("after the drive stopped" if not r["driven"] else
+                    f"in {r['step']}, which does not drive them")
+            if hits:
+                shown = sorted(hits.items())
+                lines.append(f"- impacters that hit their slider {what}: "
+                             + ", ".join(f"{n} ({k} impact{'s' if k > 1 else ''})"
+                                         for n, k in shown[:10])
+                             + (f" and {len(hits) - 10} more" if len(hits) > 10 else ""))
+            if moved and r["driven"]:
+                shown = sorted(moved.items(), key=lambda kv: -abs(kv[1]))
+                lines.append(f"- **idle sliders moved more than the idle tolerance {what}** "
+                             "(state carried from the previous step): "
+                             + ", ".join(f"{dv} {z / UM:+.2f} um" for dv, z in shown[:10])
+                             + (f" and {len(moved) - 10} more" if len(moved) > 10 else ""))
+        lines.append("")
+    return lines

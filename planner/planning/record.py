@@ -1,0 +1,94 @@
+"""The plan.json record: deterministic, rounded to 12 significant digits."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from planner._io import version_string
+from planner.assign import verify_assignment
+from planner.exporters import EXPORTERS
+from planner.nodes import Node, node_key
+
+#: Formats every step's waveform is exported in.
+EXPORT_FORMATS = ("wav", "wav16", "csv", "arb")
+
+
+def round_floats(x, digits=12):
+    """Round floats for plan.json so it is stable to the last byte across runs."""
+    if isinstance(x, float):
+        return float(f"{x:.{digits}g}") if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: round_floats(v, digits) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [round_floats(v, digits) for v in x]
+    if isinstance(x, np.floating):
+        return round_floats(float(x), digits)
+    if isinstance(x, np.integer):
+        return int(x)
+    return x
+
+
+def impacter_record(n, assignment, design):
+    """One designed impacter's plan.json entry."""
+    node = Node.parse(n)
+    rec = {"id": n, "device": node.device, "direction": node.direction,
+           "channel": int(assignment.channels[n]), "frequency_hz": assignment.frequencies[n]}
+    d = design.to_dict()
+    for key in ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m", "gap_m",
+                "impact_angle_rad", "restitution", "natural_frequency_hz", "geometry"):
+        rec[key] = d[key]
+    for key in ("r_min_n", "worst_x0_m", "predicted_slider_speed_m_s", "feasible"):
+        if key in d:
+            rec[key] = d[key]
+    return rec
+
+
+def step_record(step, waveform):
+    """One step's plan.json entry: its tones, crest factor and waveform files."""
+    stem = f"{step.scene}__{step.name}"
+    w = waveform
+    return {
+        "scene": step.scene, "name": step.name, "index": step.index,
+        "duration_s": step.duration_s,
+        "forward": list(step.forward), "backward": list(step.backward),
+        "tones": [{"frequency_hz": float(f), "amplitude_m": float(z), "phase_rad": float(p)}
+                  for f, z, p in zip(w.frequencies, w.amplitudes, w.phases)],
+        "crest_factor": float(w.crest_factor), "scale": float(w.scale),
+        "loop_length_s": float(w.loop_length),
+        "files": {fmt: f"waveforms/{stem}{EXPORTERS[fmt].suffix}" for fmt in EXPORT_FORMATS},
+    }
+
+
+def build_record(settings, steps, assignment, designs, sliders, waveforms, ver_rows, passed,
+                 rounds, scene_rows):
+    """(plan.json dict, impacter records, device records, step records)."""
+    impacter_recs = [impacter_record(n, assignment, designs[n])
+                     for n in sorted(designs, key=node_key)]
+    device_recs = [{"id": d, "slider_mass_kg": s.mass, "slider_damping_ns_per_m": s.damping,
+                    "static_friction_n": s.static_friction,
+                    "dynamic_friction_n": s.dynamic_friction} for d, s in sliders.items()]
+    step_recs = [step_record(st, waveforms[st.key]) for st in steps]
+    per_step = {}
+    for r in ver_rows:
+        per_step.setdefault(f"{r['scene']}/{r['step']}", {})[r["device"]] = {
+            k: r[k] for k in r if k not in ("scene", "step", "index", "device")}
+    data = {
+        "vibroplan_version": version_string(),
+        "seed": settings.seed,
+        "spec": settings.spec_record,
+        "assignment": {"span": assignment.span, "lower_bound": assignment.lower_bound,
+                       "optimal": assignment.optimal, "method": assignment.method,
+                       "stride": assignment.stride, "offset": assignment.offset,
+                       "graph_nodes": assignment.graph.number_of_nodes(),
+                       "graph_edges": assignment.graph.number_of_edges(),
+                       "separation_problems": verify_assignment(assignment),
+                       "guard_violations": [str(v) for v in assignment.violations]},
+        "impacters": impacter_recs,
+        "devices": device_recs,
+        "steps": step_recs,
+        "verification": {"passed": passed, "repair_rounds": rounds, "steps": per_step},
+        "scenes": scene_rows,
+    }
+    return round_floats(data), impacter_recs, device_recs, step_recs

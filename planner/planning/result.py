@@ -1,0 +1,70 @@
+"""The plan's result: one declared object holding everything a later stage reads."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+
+@dataclass
+class Plan:
+    """A verified array plan; the same content as ``plan.json``, as DataFrames.
+
+    Attributes
+    ----------
+    impacters : DataFrame
+        One row per designed impacter (id, device, direction, channel, frequency_hz [Hz],
+        mass_kg [kg], stiffness_n_per_m [N/m], gap_m [m], geometry [SI], ...).
+    devices : DataFrame
+        One row per device in scope, with its slider parameters (SI).
+    steps : DataFrame
+        One row per step: scene, name, duration_s [s], tones, crest factor, scale.
+    verification : DataFrame
+        One row per step and device: expected motion, predicted displacement [m], worst
+        case (min_speed_m_s [m/s] or max_response_n [N]), pass flag and cause.
+    coupling : DataFrame
+        Cross-coupling matrix: worst response r [N] of every impacter (rows) to every
+        tone (columns, Hz) alone.
+    scenes : DataFrame
+        Each scene simulated in order with the state carried across steps: one row per
+        step and one for the drive switched off afterwards (``driven`` false), with the
+        slider positions [m], the idle impacters that still hit and the idle sliders that
+        moved beyond the tolerance (see :func:`planner.planning.scenes.simulate_scenes`).
+    passed : bool
+        Every step passed re-simulation.
+    data : dict
+        The ``plan.json`` content.
+    timings : dict
+        Seconds per stage (not in plan.json, which is deterministic).
+    out_dir : Path or None
+        Where the outputs were written.
+    settings : planner.planning.settings.Settings
+        The spec in SI units, as every stage read it (keyword only).
+    waveforms : dict
+        Step key (``"scene/step"``) -> :class:`planner.synthesis.Waveform` (keyword only).
+    designs : dict
+        Node text -> :class:`planner.designer.DesignResult` (keyword only).
+    assignment : planner.assign.Assignment
+        Channels [-] and frequencies [Hz] of every node (keyword only).
+    failures : tuple
+        :class:`planner.planning.verify.Failure` of the last verification round
+        (keyword only).
+    """
+
+    impacters: pd.DataFrame
+    devices: pd.DataFrame
+    steps: pd.DataFrame
+    verification: pd.DataFrame
+    coupling: pd.DataFrame
+    scenes: pd.DataFrame
+    passed: bool
+    data: dict
+    timings: dict = field(default_factory=dict)
+    out_dir: Path | None = None
+    settings: object = field(default=None, kw_only=True, repr=False)
+    waveforms: dict = field(default_factory=dict, kw_only=True, repr=False)
+    designs: dict = field(default_factory=dict, kw_only=True, repr=False)
+    assignment: object = field(default=None, kw_only=True, repr=False)
+    failures: tuple = field(default=(), kw_only=True, repr=False)

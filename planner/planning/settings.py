@@ -1,0 +1,284 @@
+"""Stage 0, settings: the validated array spec converted to SI values, once.
+
+Every later stage reads a :class:`Settings` and nothing of the spec.  Every spec field
+either reaches a setting here or is refused with a :class:`planner.errors.SpecError`
+naming the field and its YAML line (:func:`resolve_settings`): an impacter's geometry
+is what the planner designs, so ``device.impacter.area_um2`` and the like are refused
+(bound the search with ``design.bounds`` instead), while its contact parameters
+(``impact_angle_deg``, ``restitution``) and ``mass_thickness_um`` go to the designer,
+and hence into the as-designed impacter that the verification simulates.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+
+import model
+from model import devices as _d
+from planner.assign import plan_steps
+from planner.config import ProcessConfig, SliderConfig, build_slider
+from planner.errors import SpecError
+from planner.nodes import DIRECTIONS, Node, device_key
+from planner.spec import LoadedSpec, Step
+from planner.units import MS, UM
+from planner.yamlio import format_loc, line_of
+
+#: Duration of the implicit single-impacter steps of an independently addressable array [s].
+SINGLE_STEP_S = 0.01
+#: Undriven time simulated after a scene's last step [s].  An impacter still ringing when
+#: its tone stops keeps hitting its slider until its swing no longer reaches the wall;
+#: every impact takes (1 - e^2) of its kinetic energy, so the hits die out within a few
+#: of its periods, and 10 ms is hundreds of periods anywhere in the band.
+SETTLE_S = 0.01
+#: Impacter fields the planner designs: refused in an array spec.
+DESIGNED_FIELDS = {
+    "area_um2": "design.bounds.area_um2", "width_um": "design.bounds.width_um",
+    "length_um": "design.bounds.length_um", "gap_um": "design.bounds.gap_um",
+    "natural_frequency_hz": None,
+}
+
+
+@dataclass(frozen=True)
+class ImpacterSettings:
+    """What the designer needs of one impacter besides its tones (SI).
+
+    Attributes
+    ----------
+    impact_angle_rad : float
+        theta [rad].
+    restitution : float
+        e [-].
+    process : ProcessConfig
+        The spec's process with this impacter's ``mass_thickness_um`` if it sets one.
+    slider : SliderConfig
+        Its device's slider (the designer's predicted speed).
+    """
+
+    impact_angle_rad: float
+    restitution: float
+    process: ProcessConfig
+    slider: SliderConfig
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The spec in SI units; see the module docstring.
+
+    Attributes
+    ----------
+    loaded : LoadedSpec
+        For the assignment stage (channel grid and guard rules) and the array map.
+    seed : int
+        Drive phases' seed (``seed`` argument, else ``design.seed``).
+    design_seed : int
+        The designer's seed (``design.seed``).
+    steps : tuple of Step
+        The spec's steps plus the implicit single-impacter steps.
+    scenes : tuple of str
+        Scene names in spec order.
+    band_hz : (float, float)
+        The drive band [Hz].
+    power_m2_s3 : float
+        Tone convention Z0^2 w^3 [m^2/s^3].
+    amplitude_m : float or None
+        A fixed tone amplitude [m] instead of the power convention.
+    peak_limit_m : float
+        The piezo's peak displacement [m].
+    sample_rate_hz : float
+        Drive sample rate [Hz].
+    um_per_v, amplifier_gain : float or None
+        Piezo [um/V] and amplifier gain [V/V]: the exported waveforms' volt scale.
+    separation_channels : int
+        Default separation [channels] of impacters that must be told apart.
+    process, environment
+        The spec's process and environment configs.
+    bounds : planner.designer.DesignBounds
+        Bounds of the design variables (SI).
+    window_s : float
+        The designer's window [s].
+    budget : str
+        The designer's budget.
+    guard : float
+        Relative guard band of the designs [-].
+    impacters : dict
+        Node text -> :class:`ImpacterSettings`, every impacter of every device.
+    sliders : dict
+        Device id -> model.Slider, every device, in device order.
+    x0_points : int
+        Initial positions of the verification grid over [-c, c].
+    min_speed_m_s : float
+        A moving slider's minimum speed [m/s].
+    idle_tolerance_m : float
+        An idle slider's largest displacement [m].
+    repair_rounds : int
+        Repair rounds after the first verification.
+    single_step_s : float
+        Duration of the implicit single-impacter steps [s].
+    settle_s : float
+        Undriven tail after each scene [s].
+    array_pitch_m : float
+        Device pitch [m] (the array map).
+    spec_record : dict
+        The spec as plan.json records it.
+    """
+
+    loaded: LoadedSpec
+    seed: int
+    design_seed: int
+    steps: tuple[Step, ...]
+    scenes: tuple[str, ...]
+    band_hz: tuple[float, float]
+    power_m2_s3: float
+    amplitude_m: float | None
+    peak_limit_m: float
+    sample_rate_hz: float
+    um_per_v: float | None
+    amplifier_gain: float | None
+    separation_channels: int
+    process: object
+    environment: object
+    bounds: object
+    window_s: float
+    budget: str
+    guard: float
+    impacters: dict
+    sliders: dict
+    x0_points: int
+    min_speed_m_s: float
+    idle_tolerance_m: float
+    repair_rounds: int
+    single_step_s: float
+    settle_s: float
+    array_pitch_m: float
+    spec_record: dict
+
+    @property
+    def spec(self):
+        """The validated spec (for the assignment stage and the array map only)."""
+        return self.loaded.spec
+
+    def design_kwargs(self, node: str) -> dict:
+        """Keyword arguments of :func:`planner.designer.design_impacter` for ``node``,
+        besides its frequency, forbidden tones and drives."""
+        imp = self.impacters[node]
+        return dict(process=imp.process, environment=self.environment,
+                    power=self.power_m2_s3, amplitude=self.amplitude_m, bounds=self.bounds,
+                    window=self.window_s, seed=self.design_seed, budget=self.budget,
+                    guard=self.guard, impact_angle=imp.impact_angle_rad,
+                    restitution=imp.restitution,
+                    slider=build_slider(imp.slider, imp.process, self.environment))
+
+
+def _refuse(loaded, loc, message):
+    lines = loaded.lines or {}
+    raise SpecError(message, path=format_loc(loc), line=line_of(lines, loc),
+                    source=loaded.source)
+
+
+def _check_impacter_sections(loaded):
+    """Refuse impacter fields the planner cannot take: the designed geometry."""
+    spec = loaded.spec
+    sections = []
+    for key in ("impacter", "forward", "backward"):
+        if key in spec.device.model_fields_set and getattr(spec.device, key) is not None:
+            sections.append((("device", key), getattr(spec.device, key)))
+    for dev, over in spec.devices.items():
+        for key in ("impacter", "forward", "backward"):
+            if getattr(over, key) is not None:
+                sections.append((("devices", dev, key), getattr(over, key)))
+    for loc, cfg in sections:
+        for name in sorted(cfg.model_fields_set):
+            if name in DESIGNED_FIELDS and getattr(cfg, name) is not None:
+                instead = DESIGNED_FIELDS[name]
+                _refuse(loaded, loc + (name,),
+                        "the array planner designs every impacter's geometry, so it cannot "
+                        "take a fixed " + name
+                        + (f"; bound the search with {instead} instead" if instead
+                           else "; it follows from the designed geometry"))
+
+
+def _impacter_settings(spec, device, direction):
+    cfg = spec.impacter_config(device, direction)
+    process = spec.process
+    if cfg.mass_thickness_um is not None:
+        process = process.model_copy(update={"mass_thickness_um": cfg.mass_thickness_um})
+    angle = (math.radians(cfg.impact_angle_deg) if cfg.impact_angle_deg is not None
+             else _d.IMPACT_ANGLE)
+    e = cfg.restitution if cfg.restitution is not None else _d.RESTITUTION
+    return ImpacterSettings(float(angle), float(e), process, spec.slider_config(device))
+
+
+def _bounds(spec):
+    from planner.designer import DesignBounds
+
+    b = spec.design.bounds
+    kwargs = {key: tuple(getattr(b, key)) for key in ("area_um2", "width_um", "length_um",
+                                                        "gap_um") if getattr(b, key) is not None}
+    return DesignBounds.from_spec(**kwargs) if kwargs else DesignBounds()
+
+
+def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
+    """Convert a validated spec to :class:`Settings` (SI), refusing what cannot take effect.
+
+    Parameters
+    ----------
+    loaded : LoadedSpec
+        From :func:`planner.spec.load_spec`.
+    seed : int, optional
+        Overrides ``design.seed`` for the drive phases and the record.
+
+    Raises
+    ------
+    SpecError
+        A field that the planner cannot honour, with its YAML line.
+    """
+    spec = loaded.spec
+    _check_impacter_sections(loaded)
+    devices = sorted(loaded.device_ids, key=device_key)
+    drive, ver, des = spec.drive, spec.verification, spec.design
+    return Settings(
+        loaded=loaded,
+        seed=des.seed if seed is None else int(seed),
+        design_seed=des.seed,
+        steps=plan_steps(loaded, SINGLE_STEP_S),
+        scenes=tuple(spec.scenes),
+        band_hz=(float(drive.band_hz[0]), float(drive.band_hz[1])),
+        power_m2_s3=drive.power_m2_s3,
+        amplitude_m=drive.amplitude_um * UM if drive.amplitude_um else None,
+        peak_limit_m=drive.peak_limit_um * UM,
+        sample_rate_hz=drive.sample_rate_hz,
+        um_per_v=drive.piezo_um_per_v,
+        amplifier_gain=drive.amplifier_gain,
+        separation_channels=drive.guard.separation_channels,
+        process=spec.process,
+        environment=spec.environment,
+        bounds=_bounds(spec),
+        window_s=des.window_ms * MS,
+        budget=des.budget,
+        guard=des.guard,
+        impacters={Node(d, r).text: _impacter_settings(spec, d, r)
+                   for d in devices for r in DIRECTIONS},
+        sliders={d: build_slider(spec.slider_config(d), spec.process, spec.environment)
+                 for d in devices},
+        x0_points=ver.x0_points,
+        min_speed_m_s=ver.min_speed_mm_s * 1e-3,
+        idle_tolerance_m=ver.idle_tolerance_um * UM,
+        repair_rounds=ver.repair_rounds,
+        single_step_s=SINGLE_STEP_S,
+        settle_s=SETTLE_S,
+        array_pitch_m=spec.array.pitch_um * UM,
+        spec_record=json.loads(spec.model_dump_json()),
+    )
+
+
+def tone_amplitudes(settings: Settings, freqs):
+    """Amplitude [m] of each tone at ``freqs`` [Hz] by the spec's convention."""
+    import numpy as np
+
+    if settings.amplitude_m is not None:
+        return np.full(len(freqs), settings.amplitude_m)
+    return model.amplitude_from_power(np.asarray(freqs), settings.power_m2_s3)
+
+

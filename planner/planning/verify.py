@@ -1,0 +1,158 @@
+"""Stage 5, verification: every step re-simulated with its summed drive; the coupling matrix.
+
+:func:`check_step` gives the rows of plan.json's verification (with their readable
+``cause``) and the same failures as :class:`Failure` records, which the repair stage
+acts on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+import model
+from model import Drive
+from planner.nodes import Node, device_key
+from planner.planning.drives import drive_of
+from planner.planning.settings import Settings, tone_amplitudes
+from planner.units import UM
+
+#: Failure kinds: an idle impacter hits its slider; a moving slider is too slow from some
+#: x0; an idle slider moves beyond the tolerance.
+IDLE_RESPONSE, TOO_SLOW, IDLE_MOVES = "idle_response", "too_slow", "idle_moves"
+
+
+@dataclass(frozen=True)
+class Failure:
+    """One failed check of one step.
+
+    Attributes
+    ----------
+    step : int
+        The step's index.
+    device : str
+        The device checked.
+    impacter : str or None
+        The offending impacter (node text) for ``idle_response``; None otherwise.
+    kind : str
+        :data:`IDLE_RESPONSE`, :data:`TOO_SLOW` or :data:`IDLE_MOVES`.
+    value : float
+        Worst response r [N], worst speed [m/s] or displacement [m], by kind.
+    """
+
+    step: int
+    device: str
+    impacter: str | None
+    kind: str
+    value: float
+
+
+def x0_grid(impacter, n):
+    """``n`` initial positions [m] over [-c, c]."""
+    return np.linspace(-impacter.gap, impacter.gap, n)
+
+
+def kicks(impacter, slider, res, direction):
+    """Times [s] and slider velocity kicks [m/s] of a simulation's impacts."""
+    times = np.concatenate([res.times, res.chatter_times])
+    dv = model.kick(impacter, slider, np.concatenate([res.velocities, res.chatter_sums]),
+                    direction)
+    return times, dv
+
+
+def device_motion(impacters, slider, drive, duration, starts):
+    """Slider displacement [m] of one device; ``starts`` maps node -> (x0, v0, stuck)."""
+    times, dvs = [np.empty(0)], [np.empty(0)]
+    for n, imp in impacters.items():
+        x0, v0, stuck = starts.get(n, (0.0, 0.0, False))
+        res = model.simulate(imp, drive, x0, v0, duration, stuck=stuck or None,
+                             max_events=1_000_000)
+        t, dv = kicks(imp, slider, res, Node.parse(n).sign)
+        times.append(t)
+        dvs.append(dv)
+    _, _, z, v, _ = model.slider_motion(slider, drive, np.concatenate(times),
+                                        np.concatenate(dvs), duration)
+    return z, v
+
+
+def check_step(settings: Settings, step, waveform, impacters, sliders):
+    """Re-simulate one step with its actual summed drive.
+
+    Returns
+    -------
+    rows : list of dict
+        One per device in scope (plan.json's verification record).
+    failures : list of Failure
+        Every failed check, structured.
+    """
+    drive = drive_of(waveform)
+    duration = step.duration_s
+    active = {Node(d, dr).text for d, dr in step.active_nodes()}
+    rows, failures = [], []
+    for dev in sorted(sliders, key=device_key):
+        own = {n: imp for n, imp in impacters.items() if Node.parse(n).device == dev}
+        moving = [n for n in own if n in active]
+        expected = Node.parse(moving[0]).direction if moving else "idle"
+        causes = []
+        # every impacter that must be idle: r = 0 from every x0 of the grid (eq. 14)
+        worst_idle_r = 0.0
+        for n, imp in own.items():
+            if n in active:
+                continue
+            x0s = x0_grid(imp, settings.x0_points)
+            r = model.responses(imp, drive, x0s, duration=duration, stop_at_first=True)
+            if np.any(r > 0):
+                full = model.responses(imp, drive, x0s, duration=duration)
+                worst_idle_r = max(worst_idle_r, float(full.max()))
+                causes.append(f"{n} responds (r = {full.max():.3g} N from x0 = "
+                              f"{x0s[int(np.argmax(full))] / UM:.2f} um)")
+                failures.append(Failure(step.index, dev, n, IDLE_RESPONSE, float(full.max())))
+        displacement, _ = device_motion(own, sliders[dev], drive, duration, {})
+        if moving:
+            n = moving[0]
+            sign = Node.parse(n).sign
+            speeds = []
+            for x0 in x0_grid(own[n], settings.x0_points):
+                z, _ = device_motion(own, sliders[dev], drive, duration, {n: (x0, 0.0, False)})
+                speeds.append(sign * z / duration)
+            worst = float(min(speeds))
+            if worst < settings.min_speed_m_s:
+                causes.append(f"too slow: {worst * 1e3:.3g} mm/s < "
+                              f"{settings.min_speed_m_s * 1e3:g} mm/s from some x0")
+                failures.append(Failure(step.index, dev, None, TOO_SLOW, worst))
+            worst_case = {"min_speed_m_s": worst}
+        else:
+            worst_case = {"max_response_n": worst_idle_r}
+            if abs(displacement) > settings.idle_tolerance_m:
+                causes.append(f"idle slider moves {displacement / UM:.3g} um > "
+                              f"{settings.idle_tolerance_m / UM:g} um")
+                failures.append(Failure(step.index, dev, None, IDLE_MOVES, float(displacement)))
+        if moving:
+            worst_case["max_idle_response_n"] = worst_idle_r
+        rows.append({"scene": step.scene, "step": step.name, "index": step.index,
+                     "device": dev, "expected": expected,
+                     "predicted_displacement_m": float(displacement),
+                     **worst_case, "passed": not causes, "cause": "; ".join(causes)})
+    return rows, failures
+
+
+def verify_step(settings: Settings, step, waveform, impacters, sliders):
+    """The rows of :func:`check_step` (one per device in scope)."""
+    return check_step(settings, step, waveform, impacters, sliders)[0]
+
+
+def coupling_matrix(impacters, tones, settings: Settings, duration):
+    """Worst response r [N] over the x0 grid of every impacter to every tone alone."""
+    freqs = sorted(set(tones))
+    amps = tone_amplitudes(settings, freqs)
+    names = sorted(impacters)
+    mat = np.zeros((len(names), len(freqs)))
+    for i, n in enumerate(names):
+        imp = impacters[n]
+        x0s = x0_grid(imp, settings.x0_points)
+        for j, (f, z) in enumerate(zip(freqs, amps)):
+            mat[i, j] = float(np.max(model.responses(imp, Drive([f], [z]), x0s,
+                                                     duration=duration)))
+    return pd.DataFrame(mat, index=names, columns=[f"{f:.3f}" for f in freqs])

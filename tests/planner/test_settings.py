@@ -1,0 +1,160 @@
+"""Every spec field reaches the resolved settings (or is refused); physics fields change
+a design.  Table-driven: each row sets one field to a non-default value."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import yaml
+
+from planner.design_config import DesignConfig
+from planner.errors import SpecError
+from planner.planning.settings import resolve_settings
+from planner.spec import load_spec
+
+BASE = {"name": "t", "array": {"rows": 1, "cols": 2},
+        "environment": {"viscosity_mpa_s": 0.0179},
+        "scenes": {"s": [{"name": "go", "duration_ms": 5, "forward": ["A1"]}]}}
+
+
+def _set(data, path, value):
+    node = data
+    keys = path.split(".")
+    for k in keys[:-1]:
+        node = node.setdefault(k, {})
+    node[keys[-1]] = value
+    return data
+
+
+def _settings(*changes):
+    import copy
+
+    data = copy.deepcopy(BASE)
+    for path, value in changes:
+        _set(data, path, value)
+    return resolve_settings(load_spec(yaml.safe_dump(data, sort_keys=False) + "\n"))
+
+
+def _imp(node, attr):
+    return lambda s: getattr(s.impacters[node], attr)
+
+
+# (spec field, non-default value, what of the settings must change)
+CASES = [
+    ("name", "other", lambda s: s.spec_record["name"]),
+    ("array.rows", 2, lambda s: tuple(s.sliders)),
+    ("array.cols", 3, lambda s: tuple(s.sliders)),
+    ("array.pitch_um", 500.0, lambda s: s.array_pitch_m),
+    ("process.density_kg_m3", 2000.0, lambda s: s.impacters["A1.forward"].process),
+    ("process.mass_thickness_um", 3.0, lambda s: s.impacters["A1.forward"].process),
+    ("process.slider_thickness_um", 3.0, lambda s: s.sliders["A1"].mass),
+    ("environment.viscosity_mpa_s", 0.01, lambda s: s.environment),
+    ("device.impacter.restitution", 0.7, _imp("A1.forward", "restitution")),
+    ("device.impacter.impact_angle_deg", 30.0, _imp("A2.backward", "impact_angle_rad")),
+    ("device.impacter.mass_thickness_um", 3.0, _imp("A1.forward", "process")),
+    ("device.forward.restitution", 0.7, _imp("A1.forward", "restitution")),
+    ("device.backward.impact_angle_deg", 30.0, _imp("A1.backward", "impact_angle_rad")),
+    ("devices.A2.impacter.restitution", 0.7, _imp("A2.forward", "restitution")),
+    ("devices.A2.backward.restitution", 0.7, _imp("A2.backward", "restitution")),
+    ("device.slider.area_um2", 5e4, lambda s: s.sliders["A1"].mass),
+    ("device.slider.static_friction_un", 10.0, lambda s: s.sliders["A2"].static_friction),
+    ("devices.A2.slider.dynamic_friction_un", 2.0, lambda s: s.sliders["A2"].dynamic_friction),
+    ("device.slider.thickness_um", 3.0, _imp("A1.forward", "slider")),
+    ("drive.band_hz", [3000.0, 20000.0], lambda s: s.band_hz),
+    ("drive.power_m2_s3", 30.0, lambda s: s.power_m2_s3),
+    ("drive.amplitude_um", 0.1, lambda s: s.amplitude_m),
+    ("drive.peak_limit_um", 5.0, lambda s: s.peak_limit_m),
+    ("drive.sample_rate_hz", 100000.0, lambda s: s.sample_rate_hz),
+    ("drive.piezo_um_per_v", 0.1, lambda s: s.um_per_v),
+    ("drive.amplifier_gain", 10.0, lambda s: s.amplifier_gain),
+    ("drive.guard.separation_channels", 3, lambda s: s.separation_channels),
+    ("design.bounds.gap_um", [2.0, 4.0], lambda s: s.bounds),
+    ("design.window_ms", 2.0, lambda s: s.window_s),
+    ("design.seed", 3, lambda s: (s.seed, s.design_seed)),
+    ("design.budget", "full", lambda s: s.budget),
+    ("design.guard", 0.05, lambda s: s.guard),
+    ("verification.x0_points", 5, lambda s: s.x0_points),
+    ("verification.min_speed_mm_s", 1.0, lambda s: s.min_speed_m_s),
+    ("verification.idle_tolerance_um", 0.1, lambda s: s.idle_tolerance_m),
+    ("verification.repair_rounds", 1, lambda s: s.repair_rounds),
+    ("independent", True, lambda s: len(s.steps)),
+    ("scenes.s", [{"name": "b", "duration_ms": 7, "backward": ["A2"]}],
+     lambda s: [(st.name, st.duration_s, st.backward) for st in s.steps]),
+]
+
+
+@pytest.mark.parametrize("path, value, get", CASES, ids=[c[0] for c in CASES])
+def test_every_field_changes_the_settings(path, value, get):
+    base, changed = _settings(), _settings((path, value))
+    assert get(changed) != get(base), path
+
+
+def test_pair_and_device_overrides_stay_local():
+    s = _settings(("devices.A2.forward.restitution", 0.8))
+    assert s.impacters["A2.forward"].restitution == 0.8
+    assert s.impacters["A2.backward"].restitution == s.impacters["A1.forward"].restitution == 0.5
+    s = _settings(("device.impacter.impact_angle_deg", 30.0))
+    assert s.impacters["A1.forward"].impact_angle_rad == pytest.approx(math.radians(30.0))
+
+
+@pytest.mark.parametrize("path", ["device.impacter.area_um2", "device.forward.gap_um",
+                                  "devices.A2.backward.width_um", "device.impacter.length_um",
+                                  "devices.A1.impacter.natural_frequency_hz"])
+def test_designed_geometry_is_refused_with_its_line(path):
+    with pytest.raises(SpecError) as err:
+        _settings((path, 12.0))
+    assert path in str(err.value)
+    assert err.value.line is not None
+    assert "designs" in str(err.value)
+
+
+@pytest.mark.slow
+def test_restitution_changes_the_design_and_its_verification():
+    """The designer gets the spec's restitution: the as-designed impacter (which the
+    verification simulates) carries it, and its response differs."""
+    import numpy as np
+
+    import model
+    from planner.designer import design_impacter
+
+    results = []
+    for e in (0.5, 0.9):
+        s = _settings(("device.impacter.restitution", e), ("design.budget", "fast"))
+        res = design_impacter(6000.0, (9000.0,), **s.design_kwargs("A1.forward"))
+        assert res.impacter.restitution == e
+        x0s = np.linspace(-res.impacter.gap, res.impacter.gap, 5)
+        results.append(model.responses(res.impacter, model.Drive.tone(6000.0, 50.0), x0s,
+                                       duration=3e-3))
+    assert not np.allclose(results[0], results[1])
+
+
+# ------------------------------------------------------------------ vibroplan design configs
+
+DESIGN_CASES = [
+    ("process.youngs_modulus_gpa", 150.0, "process"),
+    ("environment.viscosity_mpa_s", 0.01, "environment"),
+    ("slider.area_um2", 5e4, "slider"),
+    ("drive.power_m2_s3", 30.0, "power"),
+    ("drive.amplitude_um", 0.1, "amplitude"),
+    ("design.area_um2", [30.0, 40000.0], "bounds"),
+    ("design.width_um", [3.0, 9.0], "bounds"),
+    ("design.length_um", [10.0, 1400.0], "bounds"),
+    ("design.gap_um", [3.0, 9.0], "bounds"),
+    ("design.window_ms", 2.0, "window"),
+    ("design.budget", "fast", "budget"),
+    ("design.x0_points", 7, "x0_points"),
+    ("design.guard", 0.05, "guard"),
+    ("design.impact_angle_deg", 30.0, "impact_angle"),
+    ("design.restitution", 0.7, "restitution"),
+]
+
+
+@pytest.mark.parametrize("path, value, key", DESIGN_CASES, ids=[c[0] for c in DESIGN_CASES])
+def test_every_design_config_field_reaches_the_designer(path, value, key):
+    base = DesignConfig().design_kwargs()
+    changed = DesignConfig(**_set({}, path, value)).design_kwargs()
+    if key == "slider":
+        assert changed[key].mass != base[key].mass
+    else:
+        assert changed[key] != base[key], path
