@@ -105,27 +105,78 @@ def coupling_heatmap(matrix, impacters, tones, path):
     save(fig, path)
 
 
-def waveform_and_spectrum(waveform, path, title, stretch=2e-3):
-    """A stretch of the drive waveform and its spectrum with the tones marked."""
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 6))
-    n = min(waveform.samples.size, int(stretch * waveform.sample_rate))
-    t = np.arange(n) / waveform.sample_rate
-    ax1.plot(t * 1e3, waveform.samples[:n] / UM, lw=0.8)
-    ax1.set_xlabel("time [ms]")
-    ax1.set_ylabel("substrate displacement [um]")
-    ax1.set_title(f"{title}: crest factor {waveform.crest_factor:.2f}, "
-                  f"peak {waveform.peak / UM:.2f} um")
-    spec = np.abs(np.fft.rfft(waveform.samples)) * 2 / waveform.samples.size
-    f = np.fft.rfftfreq(waveform.samples.size, 1 / waveform.sample_rate)
-    ax2.loglog(f[1:], np.maximum(spec[1:], 1e-15) / UM, lw=0.8)
-    for ft, zt in zip(waveform.frequencies, waveform.amplitudes):
-        ax2.plot([ft], [zt / UM], "rv", ms=4)
-    ax2.set_xlabel("frequency [Hz] (red: tones)")
-    ax2.set_ylabel("amplitude [um]")
-    ax2.set_ylim(1e-6, None)
-    ax2.grid(alpha=0.3, which="both")
-    fig.tight_layout()
-    save(fig, path)
+#: Length of drive waveform the drive figure shows [s] (at most one loop).
+PLOT_STRETCH = 2e-3
+
+
+def waveform_and_spectrum(waveform, path, title="", *, peak_limit=None, stretch=PLOT_STRETCH):
+    """Save a PNG: a stretch of the drive waveform and its spectrum with the tones marked.
+
+    The one drive figure: the plan's report and ``vibroplan drive --plot`` both draw it.
+
+    Parameters
+    ----------
+    waveform : Waveform
+        The drive.
+    path : str or os.PathLike
+        PNG file.
+    title : str, optional
+        Figure title.
+    peak_limit : float, optional
+        The piezo's limit [m], drawn on the waveform.
+    stretch : float, optional
+        Length of waveform shown [s] (at most one loop).
+    """
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.ticker import FuncFormatter
+
+    fig = Figure(figsize=(9, 6.5), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax_t, ax_f = fig.subplots(2, 1)
+
+    span = min(stretch, waveform.loop_length)
+    n_show = int(round(span * waveform.sample_rate))
+    t_fine = np.linspace(0, span, max(2000, 20 * n_show))
+    ax_t.plot(t_fine * 1e3, waveform.evaluate(t_fine) / UM, lw=0.8, color="C0",
+              label="continuous (sum of cosines)")
+    ax_t.plot(waveform.times[:n_show] * 1e3, waveform.samples[:n_show] / UM, ".", ms=2,
+              color="C1", label=f"samples at {waveform.sample_rate / 1e3:g} kHz")
+    for sign in (1, -1):
+        ax_t.axhline(sign * waveform.peak / UM, color="0.4", ls="--", lw=0.8,
+                     label="peak" if sign > 0 else None)
+        if peak_limit is not None:
+            ax_t.axhline(sign * peak_limit / UM, color="C3", lw=1,
+                         label="piezo limit" if sign > 0 else None)
+    ax_t.set_xlabel("time [ms]")
+    ax_t.set_ylabel("substrate displacement [um]")
+    ax_t.set_title(f"{title}  crest factor {waveform.crest_factor:.2f}, scale {waveform.scale:.3f}"
+                   f", loop {waveform.loop_length * 1e3:.4g} ms")
+    ax_t.legend(loc="upper right", fontsize=7, ncol=2)
+
+    loop = waveform.samples[:waveform.loop_points]
+    spectrum = 2 * np.abs(np.fft.rfft(loop)) / len(loop)
+    bins = np.fft.rfftfreq(len(loop), 1 / waveform.sample_rate)
+    floor = spectrum.max() * 1e-9   # rounding noise of the exact sum sits far below this
+    ax_f.semilogy(bins[1:], np.maximum(spectrum[1:], floor) / UM, lw=0.6, color="C0",
+                  label="spectrum of one loop (bins of 1 / loop)")
+    ax_f.plot(waveform.frequencies, waveform.amplitudes / UM, "x", color="C3", ms=7,
+              label="tone table")
+    for f in waveform.frequencies:
+        ax_f.axvline(f, color="C3", lw=0.4, alpha=0.5)
+    ax_f.set_xscale("log")
+    lo, hi = waveform.frequencies.min(), waveform.frequencies.max()
+    ax_f.set_xlim(lo / 1.5, min(hi * 1.5, waveform.sample_rate / 2))
+    ax_f.set_ylim(floor / UM, spectrum.max() * 3 / UM)
+    khz = FuncFormatter(lambda x, _: f"{x / 1e3:g}")
+    ax_f.xaxis.set_major_formatter(khz)
+    ax_f.xaxis.set_minor_formatter(khz)
+    ax_f.tick_params(axis="x", which="minor", labelsize=7)
+    ax_f.set_xlabel("frequency [kHz]")
+    ax_f.set_ylabel("amplitude [um]")
+    ax_f.legend(loc="upper right", fontsize=7)
+    fig.savefig(path, dpi=120, format="png")
 
 
 #: Markers for the rows of an array (A, B, ...) in the slider-position figure.

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import numbers
 import time
 
 import numpy as np
@@ -15,6 +14,8 @@ from planner.coloring.kernels import (
     _tabu_kernel,
 )
 from planner.coloring.problem import _Problem, _span_of
+from planner._random import DEFAULT_SEED  # noqa: F401  (re-exported: None means seed 0)
+from planner._random import as_generator as _as_rng  # the one seed rule
 
 #: Tabu iterations without a better shortfall before an attempt is given up
 #: (scaled by the number of vertices, with a floor).
@@ -52,19 +53,6 @@ ORDER_HISTORY = 500
 #: deterministic ones.
 GREEDY_RANDOM_RESTARTS = 8
 
-#: Default seed of every randomised step.
-DEFAULT_SEED = 0
-
-
-def _as_rng(seed) -> np.random.Generator:
-    """The one place a ``seed`` (int, Generator or None) becomes a generator."""
-    if isinstance(seed, np.random.Generator):
-        return seed
-    if seed is None:
-        seed = DEFAULT_SEED
-    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral):
-        raise ValueError(f"seed must be an int, a numpy Generator or None, {seed!r} was given")
-    return np.random.default_rng(int(seed))
 
 
 def _compact(problem: _Problem, colours: np.ndarray) -> np.ndarray:

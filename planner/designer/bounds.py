@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-UM = 1e-6
+from planner.units import UM
 
 #: The paper's lower bounds (17): A >= 20 um^2, w >= 2 um, l >= 8 um, c >= 2 um [m^2, m].
 PAPER_LOWER = (20.0 * UM**2, 2.0 * UM, 8.0 * UM, 2.0 * UM)

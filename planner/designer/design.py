@@ -13,6 +13,7 @@ import numpy as np
 from model import CONTACTS, Impacter, Slider, SolverWarning, simulate_slider
 from model import devices as _d
 from model.drive import POWER
+from planner._random import as_generator as _as_rng  # the one seed rule
 from planner.designer.bounds import UM, DesignBounds
 from planner.designer.budget import _as_budget
 from planner.designer.problem import LONG_WINDOW_FACTOR, _Problem
@@ -27,15 +28,6 @@ from planner.designer.search import _recheck, _search_and_recheck
 GUARD = 0.02
 
 
-def _as_rng(seed):
-    """The one place a ``seed`` (int, Generator or None) becomes a generator."""
-    if isinstance(seed, np.random.Generator):
-        return seed
-    if seed is None:
-        seed = 0
-    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral):
-        raise ValueError(f"seed must be an int, a numpy Generator or None, {seed!r} was given")
-    return np.random.default_rng(int(seed))
 
 
 def _impacter_factory(process, environment, impact_angle, restitution):
