@@ -26,6 +26,7 @@ never on the number of workers or the order they finish in.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass
@@ -78,6 +79,9 @@ class Payload:
     waveforms: dict
     fabrication: FabricationSpec
     seed: int
+    #: Numba threads per chip (None: numba's default).  1 on Dask workers: the chips
+    #: are the parallelism there, and threaded kernels would oversubscribe the cores.
+    threads: int | None = None
 
 
 def read_plan(path: str | Path) -> tuple[dict, Path]:
@@ -143,6 +147,11 @@ def verify_chip(payload: Payload, scale_index: int, chip_index: int, scale: floa
     from planner.assign import split_node
     from planner.pipeline import simulate_scenes, verify_step
 
+    if payload.threads:
+        import numba
+
+        # per thread: every task sets it in the worker thread that runs it
+        numba.set_num_threads(min(payload.threads, numba.config.NUMBA_NUM_THREADS))
     rng = np.random.default_rng(np.random.SeedSequence([payload.seed, scale_index,
                                                         chip_index]))
     chip = sample_chip(payload.design, payload.fabrication, rng, scale)
@@ -238,6 +247,8 @@ def run_yield(payload: Payload, chips: int, *, scales=(1.0,), jobs: int = 1,
     scales = [float(s) for s in scales]
     # the nominal chip (scale 0: every error 0) is task 0; it must reproduce the plan
     tasks = [(NOMINAL_INDEX, 0, 0.0)] + [(j, i, s) for j, s in enumerate(scales) for i in range(chips)]
+    if jobs > 1 or scheduler:
+        payload = dataclasses.replace(payload, threads=1)
     results = run_tasks(verify_chip, payload, tasks, jobs=jobs, scheduler=scheduler,
                         progress=progress)
     nominal, results = results[0], results[1:]
