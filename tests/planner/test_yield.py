@@ -206,3 +206,18 @@ def test_wilson_interval_matches_its_definition():
                 assert math.isclose(abs(p - p0), Z95 * math.sqrt(p0 * (1 - p0) / n),
                                     rel_tol=1e-9)
         assert lo <= p <= hi
+
+
+@pytest.mark.slow
+def test_jobs_2_local_cluster_reproduces_the_local_run(plan_dir, tmp_path):
+    """--jobs 2 (the engine's own LocalCluster) gives the in-process numbers."""
+    spec = tmp_path / "huge.yaml"
+    spec.write_text(HUGE)
+    outs = []
+    for jobs in (1, 2):
+        out = tmp_path / f"j{jobs}"
+        res = _yield([plan_dir, "--chips", 6, "--seed", 4, "--out", out, "--spec", spec,
+                      "--sigma-scale", "0.5,1", "--jobs", jobs])
+        assert res.exit_code == 0, res.output
+        outs.append(_read(out))
+    assert outs[0] == outs[1]
