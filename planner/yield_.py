@@ -86,8 +86,7 @@ class Payload:
     waveforms: dict
     fabrication: FabricationSpec
     seed: int
-    #: Numba threads per chip (None: numba's default).  1 on Dask workers: the chips
-    #: are the parallelism there, and threaded kernels would oversubscribe the cores.
+    #: Numba threads per chip (None: numba's default); :func:`run_yield` sets 1.
     threads: int | None = None
 
 
@@ -259,10 +258,18 @@ def run_yield(payload: Payload, chips: int, *, scales=(1.0,), jobs: int = 1,
     scales = [float(s) for s in scales]
     # the nominal chip (scale 0: every error 0) is task 0; it must reproduce the plan
     tasks = [(NOMINAL_INDEX, 0, 0.0)] + [(j, i, s) for j, s in enumerate(scales) for i in range(chips)]
-    if jobs > 1 or scheduler:
-        payload = dataclasses.replace(payload, threads=1)
-    results = run_tasks(verify_chip, payload, tasks, jobs=jobs, scheduler=scheduler,
-                        progress=progress)
+    # one numba thread per chip everywhere: the chips are the parallelism, and the
+    # kernels' own threads over a 5-9 point x0 grid cost more than they bring (on a
+    # loaded 2-core machine a chip of the 5x5 plan took ~50 s threaded, ~5 s not)
+    import numba
+
+    before = numba.get_num_threads()
+    payload = dataclasses.replace(payload, threads=1)
+    try:
+        results = run_tasks(verify_chip, payload, tasks, jobs=jobs, scheduler=scheduler,
+                            progress=progress)
+    finally:
+        numba.set_num_threads(before)
     nominal, results = results[0], results[1:]
     main = scales.index(1.0) if 1.0 in scales else 0
     out_scale = {}
