@@ -65,7 +65,9 @@ def wilson_interval(passed: int, n: int, z: float = Z95) -> list[float]:
     den = 1 + z * z / n
     centre = (p + z * z / (2 * n)) / den
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    return [max(0.0, centre - half), min(1.0, centre + half)]
+    # exact ends at 0 and n passes (the formula leaves round-off there)
+    return [0.0 if passed == 0 else max(0.0, centre - half),
+            1.0 if passed == n else min(1.0, centre + half)]
 
 
 @dataclass(frozen=True)
