@@ -221,3 +221,26 @@ def test_jobs_2_local_cluster_reproduces_the_local_run(plan_dir, tmp_path):
         assert res.exit_code == 0, res.output
         outs.append(_read(out))
     assert outs[0] == outs[1]
+
+
+@pytest.mark.slow
+def test_sigint_with_local_cluster_leaves_nothing(plan_dir, tmp_path):
+    """Ctrl-C while the Dask workers run: exit 130, no output folder, no temporaries."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "y"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    proc = subprocess.Popen([sys.executable, "-m", "planner.cli", "yield", str(plan_dir),
+                             "--chips", "5000", "--jobs", "2", "--out", str(out), "--quiet"],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(12)
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "interrupted" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
