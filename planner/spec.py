@@ -154,6 +154,55 @@ class VerificationSpec(_Strict):
     repair_rounds: Annotated[int, Field(ge=0, le=20)] = 3
 
 
+class Tolerance(_Strict):
+    """One fabrication tolerance: standard deviations of a normal error, split in two.
+
+    die : the per-die part, one draw shared by every device of a chip (a wafer-to-wafer
+        or die-to-die process shift).
+    device : the per-device part, one independent draw per impacter pair design (a
+        node, device + direction) and per slider (local lithography / etch scatter).
+
+    The unit is the one of the field that holds it (um or %).  Both >= 0, default 0.
+    """
+
+    die: NonNegFloat = 0.0
+    device: NonNegFloat = 0.0
+
+    @property
+    def zero(self) -> bool:
+        return self.die == 0.0 and self.device == 0.0
+
+
+class FabricationSpec(_Strict):
+    """The fabrication tolerance model used by ``vibroplan yield`` (docs/yield.md).
+
+    Each field is ``{die: sigma, device: sigma}`` (normal errors, mean 0); the as-built
+    devices are computed from the design geometry through eqs. (2)-(4):
+
+    line_width_um : lithographic line-width error dw [um]; every edge moves dw/2
+        outward, so beams widen by dw (w + dw), gaps shrink by dw (c - dw) and the mass
+        and slider plates, taken as squares of side sqrt(A), become (sqrt(A) + dw)^2.
+        Beam lengths l are set by anchor positions and do not change.
+    thickness_um : structural thickness error dt [um]: the beam height becomes h + dt
+        and the mass (and slider) thickness scales by (h + dt) / h (the same layers).
+    gap_um : an independent error of the impacter-to-wall gap dc [um] (c + dc), on
+        top of the line-width part.
+    youngs_modulus_pct : Young's modulus error [%]: E (1 + dE / 100), changes k.
+    natural_frequency_pct : a direct natural-frequency scatter [%] covering what the
+        model does not (residual stress, anchor compliance): k (1 + dnu / 100)^2.
+    """
+
+    line_width_um: Tolerance = Tolerance()
+    thickness_um: Tolerance = Tolerance()
+    gap_um: Tolerance = Tolerance()
+    youngs_modulus_pct: Tolerance = Tolerance()
+    natural_frequency_pct: Tolerance = Tolerance()
+
+    @property
+    def zero(self) -> bool:
+        return all(getattr(self, k).zero for k in type(self).model_fields)
+
+
 class StepSpec(_Strict):
     """One step of a scene: who moves which way, for how long."""
 
@@ -184,6 +233,8 @@ class ArraySpec(_Strict):
     drive: DriveSpec = DriveSpec()
     design: DesignSpec = DesignSpec()
     verification: VerificationSpec = VerificationSpec()
+    #: Fabrication tolerances for ``vibroplan yield``; all zero by default.
+    fabrication: FabricationSpec = FabricationSpec()
     independent: bool | None = None
     scenes: dict[str, list[StepSpec]] = {}
 

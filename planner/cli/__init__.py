@@ -27,6 +27,7 @@ COMMANDS = {
     "drive": "drive",
     "calibrate": "calibrate",
     "bench": "bench",
+    "yield": "yield_",
 }
 
 

@@ -1,0 +1,217 @@
+"""Fabrication tolerances -> sampled as-built chips (the spec's ``fabrication:`` section).
+
+A *chip* is one fabricated copy of a plan's array: every designed impacter pair and
+every slider rebuilt from its design geometry through the designer's own equations
+(eqs. (2)-(4) of the paper, :meth:`model.Impacter.from_geometry`) after the geometry and
+the process constants have been moved by sampled fabrication errors.
+
+How each error moves the design (all errors normal, mean 0, sigma from the spec):
+
+==========================  ============================================================
+``line_width_um`` dw [um]   every drawn edge moves dw/2 outward: beam width w + dw,
+                            impacter-to-wall gap c - dw (the space between two edges),
+                            mass plate of area A taken as a square of side sqrt(A):
+                            (sqrt(A) + dw)^2; slider plate likewise.  The beam length l
+                            is set by the anchor positions and does not move.
+``thickness_um`` dt [um]    structural layer thickness: beam height h + dt, mass and
+                            slider thickness t (h + dt) / h (the same deposited layers).
+``gap_um`` dc [um]          an extra gap error on top of the line width's: c - dw + dc.
+``youngs_modulus_pct`` [%]  E (1 + dE/100): k of eq. (4) scales with it.
+``natural_frequency_pct``   a direct scatter of the natural frequency (residual stress,
+  [%]                       anchor compliance, model error): k (1 + dnu/100)^2, so that
+                            sqrt(k/m) moves by dnu percent.
+==========================  ============================================================
+
+Mass (2) and damping (3) follow the moved A, w, t and h; k (4) the moved w, h and E.
+
+Each error is the sum of a per-die draw (one per chip, shared by every device) and a
+per-device draw.  The per-device draw is taken once per *impacter pair* (a node:
+device + direction): the two impacters of a pair hit the slider together and are one
+lumped design in the model, which cannot represent two different halves; the slider of
+each device gets its own independent line-width and thickness draw.
+
+A chip whose errors make a dimension non-physical (a gap closed, a beam or layer of
+zero width or thickness) cannot be built; its nodes are reported as ``unbuildable``.
+
+Draws are made in a fixed order from standard normals, whatever the sigmas (a zero
+sigma multiplies its draw by 0), so one chip seed gives the same normals at every
+``--sigma-scale``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from model import Impacter, Slider
+from planner.spec import ArraySpec, FabricationSpec
+
+UM = 1e-6
+#: The five errors, in the order of their draws (columns of the normal arrays).
+ERRORS = ("line_width_um", "thickness_um", "gap_um", "youngs_modulus_pct",
+          "natural_frequency_pct")
+#: Relative mismatch between plan.json's recorded m, k, b and the rebuilt nominal
+#: impacter above which the plan is refused (it was not made by these equations).
+REBUILD_RTOL = 1e-6
+
+
+@dataclass(frozen=True)
+class NodeDesign:
+    """One designed impacter pair of a plan (SI)."""
+
+    id: str
+    device: str
+    direction: str
+    area: float
+    width: float
+    length: float
+    gap: float
+    impact_angle: float
+    restitution: float
+
+
+@dataclass(frozen=True)
+class ChipDesign:
+    """What a chip is built from: the plan's nominal designs and process constants."""
+
+    spec: ArraySpec
+    nodes: tuple[NodeDesign, ...]
+    devices: tuple[str, ...]
+
+    @property
+    def node_ids(self) -> list[str]:
+        return [n.id for n in self.nodes]
+
+
+def design_from_plan(data: dict, spec: ArraySpec) -> ChipDesign:
+    """The nominal designs of a ``plan.json`` (its parsed dict) and its validated spec.
+
+    Raises
+    ------
+    ValueError
+        An impacter record lacks its geometry, or its recorded m, k, b do not match
+        eqs. (2)-(4) on its geometry with the spec's process (a plan made otherwise).
+    """
+    nodes = []
+    for rec in data.get("impacters", []):
+        g = rec.get("geometry") or {}
+        if any(g.get(k) is None for k in ("area_m2", "width_m", "length_m", "gap_m")):
+            raise ValueError(f"plan.json: impacter {rec.get('id')!r} has no complete geometry "
+                             "(area_m2, width_m, length_m, gap_m)")
+        node = NodeDesign(rec["id"], rec["device"], rec["direction"], g["area_m2"],
+                          g["width_m"], g["length_m"], g["gap_m"], rec["impact_angle_rad"],
+                          rec["restitution"])
+        imp = _impacter(spec, node, np.zeros(len(ERRORS)))
+        for key, got in (("mass_kg", imp.mass), ("stiffness_n_per_m", imp.stiffness),
+                         ("damping_ns_per_m", imp.damping)):
+            want = rec[key]
+            if not math.isclose(got, want, rel_tol=REBUILD_RTOL, abs_tol=1e-300):
+                raise ValueError(f"plan.json: impacter {rec['id']}: {key} {want:.6g} does not "
+                                 f"follow from its geometry ({got:.6g}); was the plan made with "
+                                 "another process section?")
+        nodes.append(node)
+    if not nodes:
+        raise ValueError("plan.json: no impacters")
+    devices = tuple(sorted({n.device for n in nodes}, key=lambda d: (d[0], int(d[1:]))))
+    return ChipDesign(spec, tuple(nodes), devices)
+
+
+def _impacter(spec: ArraySpec, node: NodeDesign, err) -> Impacter:
+    """As-built impacter pair; ``err`` = the five errors in :data:`ERRORS` order (um, %)."""
+    dw, dt, dc, de, dnu = (float(e) for e in err)
+    p = spec.process
+    h0 = p.beam_height_um * UM
+    h = h0 + dt * UM
+    side = math.sqrt(node.area) + dw * UM
+    imp = Impacter.from_geometry(
+        side * side if side > 0 else -1.0, node.width + dw * UM, node.length,
+        node.gap - dw * UM + dc * UM,
+        thickness=p.mass_thickness_um * UM * h / h0, beam_height=h,
+        density=p.density_kg_m3, youngs_modulus=p.youngs_modulus_gpa * 1e9 * (1 + de / 100),
+        viscosity=spec.environment.viscosity_mpa_s * 1e-3,
+        substrate_gap=p.substrate_gap_um * UM, beam_angle=math.radians(p.beam_angle_deg),
+        impact_angle=node.impact_angle, restitution=node.restitution)
+    if dnu != 0.0:
+        f = 1 + dnu / 100
+        if f <= 0:
+            raise ValueError("natural frequency scaled to <= 0")
+        imp = Impacter(imp.mass, imp.stiffness * f * f, imp.damping, imp.gap,
+                       imp.impact_angle, imp.restitution, imp.geometry)
+    return imp
+
+
+def _slider(spec: ArraySpec, device: str, dw: float, dt: float) -> Slider:
+    cfg = spec.slider_config(device)
+    p = spec.process
+    t0 = (cfg.thickness_um if cfg.thickness_um is not None else p.slider_thickness_um) * UM
+    h0 = p.beam_height_um * UM
+    side = math.sqrt(cfg.area_um2) * UM + dw * UM
+    return Slider.from_geometry(
+        side * side if side > 0 else -1.0, t0 * (h0 + dt * UM) / h0,
+        density=p.density_kg_m3, viscosity=spec.environment.viscosity_mpa_s * 1e-3,
+        substrate_gap=p.substrate_gap_um * UM, static_friction=cfg.static_friction_un * UM,
+        dynamic_friction=cfg.dynamic_friction_un * UM)
+
+
+def _sigmas(fab: FabricationSpec, scale: float):
+    die = np.array([getattr(fab, k).die for k in ERRORS]) * scale
+    dev = np.array([getattr(fab, k).device for k in ERRORS]) * scale
+    return die, dev
+
+
+@dataclass
+class Chip:
+    """One sampled chip: as-built impacters (node id -> Impacter), sliders (device ->
+    Slider), the nodes and devices that could not be built, and the sampled errors."""
+
+    impacters: dict
+    sliders: dict
+    unbuildable: list
+    errors: dict
+
+
+def sample_chip(design: ChipDesign, fab: FabricationSpec, rng: np.random.Generator,
+                scale: float = 1.0) -> Chip:
+    """Draw one chip from ``rng``.
+
+    Parameters
+    ----------
+    design : ChipDesign
+        The plan's nominal designs (:func:`design_from_plan`).
+    fab : FabricationSpec
+        The tolerance model.
+    rng : numpy.random.Generator
+        The chip's own generator (seeded from the run's seed and the chip's index).
+    scale : float
+        Multiplies every sigma [-], >= 0.
+
+    Returns
+    -------
+    Chip
+    """
+    if not (math.isfinite(scale) and scale >= 0):
+        raise ValueError(f"scale must be finite and >= 0, {scale!r} was given")
+    sd_die, sd_dev = _sigmas(fab, scale)
+    # fixed draw order: die, then every node, then every slider (line width, thickness)
+    z_die = rng.standard_normal(len(ERRORS))
+    z_nodes = rng.standard_normal((len(design.nodes), len(ERRORS)))
+    z_sliders = rng.standard_normal((len(design.devices), 2))
+    die = sd_die * z_die
+    impacters, sliders, bad, errors = {}, {}, [], {}
+    for node, z in zip(design.nodes, z_nodes):
+        err = die + sd_dev * z
+        errors[node.id] = [float(e) for e in err]
+        try:
+            impacters[node.id] = _impacter(design.spec, node, err)
+        except ValueError:
+            bad.append(node.id)
+    for dev, z in zip(design.devices, z_sliders):
+        dw = die[0] + sd_dev[0] * z[0]
+        dt = die[1] + sd_dev[1] * z[1]
+        try:
+            sliders[dev] = _slider(design.spec, dev, dw, dt)
+        except ValueError:
+            bad.append(dev)
+    return Chip(impacters, sliders, bad, errors)
