@@ -143,6 +143,11 @@ class DesignSpec(_Strict):
     #: must also be silent: the margin for model and fabrication error (the paper's
     #: Section V) [-].
     guard: Annotated[float, Field(ge=0, lt=0.5)] = 0.02
+    #: Robust design: every impacter must respond and stay silent with its natural
+    #: frequency shifted by +-robust_k sigma, sigma from the ``fabrication`` section's
+    #: tolerances at the candidate's own geometry (planner.fabrication.RobustShift).
+    robust: bool = False
+    robust_k: Annotated[float, Field(gt=0, le=6, allow_inf_nan=False)] = 2.0
 
 
 class VerificationSpec(_Strict):

@@ -65,7 +65,8 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
                     amplitude=None, bounds=None, window=3e-3, seed=0, budget="full",
                     slider=None, progress=None, x0_points=None, guard=GUARD,
                     impact_angle=_d.IMPACT_ANGLE, restitution=_d.RESTITUTION,
-                    forbidden_drives=(), max_mass_ratio=None, contact="paper"):
+                    forbidden_drives=(), max_mass_ratio=None, contact="paper",
+                    robust_shift=None):
     """Design one impacter by the paper's max-min problem, eqs. (13)-(18).
 
     Maximise the worst response over initial positions at ``frequency`` subject to
@@ -128,6 +129,14 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         hits harder but pushes a lighter slider less than r alone says, and the
         designs no longer pile up at the area bound.  The predicted slider speed is
         simulated under this law too.
+    robust_shift : float or callable, optional
+        Robust design against fabrication: a relative shift s [-] in [0, 0.5), or a
+        callable ``(area, width, length, gap) -> s`` for a shift that depends on the
+        candidate's own geometry (the array planner passes k sigma of the natural
+        frequency under the spec's ``fabrication`` tolerances, ``design.robust_k`` = k:
+        :class:`planner.fabrication.RobustShift`).  The design must meet the target and
+        stay silent with its natural frequency scaled by 1 - s, 1 and 1 + s; it costs
+        about three times the simulations.  None or 0: the nominal problem only.
 
     Returns
     -------
@@ -209,8 +218,14 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         mass_cap = max_mass_ratio * slider.mass
     q_per_kg = (2.0 * math.cos(float(impact_angle)) ** 2 / slider.mass
                 if contact == "two_body" else 0.0)
+    if robust_shift is not None and not callable(robust_shift):
+        shift = float(robust_shift)
+        if not (math.isfinite(shift) and 0.0 <= shift < 0.5):
+            raise ValueError(f"robust_shift must be in [0, 0.5), {robust_shift!r} was given")
+        robust_shift = None if shift == 0.0 else (lambda geometry, s=shift: s)
     problem = _Problem(frequency, forbidden, factory, tones, bounds, window, budget, guard,
-                       ensembles, mass_cap=mass_cap, q_per_kg=q_per_kg)
+                       ensembles, mass_cap=mass_cap, q_per_kg=q_per_kg,
+                       robust_shift=robust_shift)
 
     report = _progress_hook(progress)
     expected = (budget.initial + budget.chains * budget.anneal_steps
@@ -275,6 +290,8 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         "violated_drives": sorted({problem.check_hz[j].label for j in chk["violated"]
                                    if isinstance(problem.check_hz[j], Ensemble)}),
     }
+    if robust_shift is not None:
+        checks["robust_natural_frequency_scales"] = list(problem.nu_scales(ev.geometry))
     if status == "ok":
         message = (f"feasible: r_min = {chk['r_min']:.4g} N at x0 = {worst_x0 / UM:.4g} um; "
                    f"silent at {len(forbidden)} forbidden frequencies on {chk['points']} x0")

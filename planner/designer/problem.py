@@ -13,7 +13,13 @@ import numpy as np
 from scipy import optimize
 
 from model import SolverWarning, responses
-from planner.designer.runs import PARALLEL_MIN_RUNS, _freq_key, _guard_offsets, _u_grid
+from planner.designer.runs import (
+    PARALLEL_MIN_RUNS,
+    Ensemble,
+    _freq_key,
+    _guard_offsets,
+    _u_grid,
+)
 
 #: Tier offset of the annealing energy; far above any difference of ln r [-].
 PENALTY = 1.0e3
@@ -73,8 +79,14 @@ class _Problem:
     """Geometry <-> search coordinates, cached simulations and the tiered energy."""
 
     def __init__(self, frequency, forbidden, factory, tones, bounds, window, budget, guard,
-                 ensembles=(), mass_cap=math.inf, q_per_kg=0.0):
+                 ensembles=(), mass_cap=math.inf, q_per_kg=0.0, robust_shift=None):
         self.frequency = frequency
+        # robust design: every check is made on the impacter with its natural frequency
+        # scaled by 1, 1 - s and 1 + s, s = robust_shift(geometry) (k sigma of its own
+        # fabrication scatter): the target must be met by all of them (the least
+        # response counts) and the silence kept by all (the largest)
+        self.robust_shift = robust_shift
+        self.shifts = {}     # geometry -> s
         # m <= mass_cap [kg] (design.max_mass_ratio times the slider mass); and under the
         # two-body contact law a kick gives the slider only 1 / (1 + q) of what eq. (10)
         # says, q = 2 (m/M) cos^2(theta) = q_per_kg * m: the objective is r / (1 + q)
@@ -209,14 +221,49 @@ class _Problem:
         if hit is None:
             imp = self.impacter(geometry)
             self._threads_for(u.size)
-            # arguments built here (x0 = u c with |u| <= 1, window > 0): no re-validation
-            r, status = responses(imp, self.tones.drive(frequency), u * imp.gap,
-                                  duration=window, stop_at_first=stop, return_status=True,
-                                  check_input=False)
-            self.simulations += u.size
-            self.faults += int(np.count_nonzero(status))
-            hit = self.runs[key] = (r, status)
+            rs, statuses = [], []
+            for scale in self.nu_scales(geometry):
+                var = imp if scale == 1.0 else self.variant(geometry, scale)
+                # arguments built here (x0 = u c, |u| <= 1, window > 0): no re-validation
+                r, status = responses(var, self.tones.drive(frequency), u * var.gap,
+                                      duration=window, stop_at_first=stop,
+                                      return_status=True, check_input=False)
+                self.simulations += u.size
+                self.faults += int(np.count_nonzero(status))
+                rs.append(r)
+                statuses.append(status)
+            if len(rs) == 1:
+                hit = (rs[0], statuses[0])
+            else:
+                # at the target the variant that responds least counts (all must be
+                # driven); anywhere else the one that responds most (all must be silent)
+                target = (not isinstance(frequency, Ensemble)
+                          and _freq_key(frequency) == _freq_key(self.frequency))
+                hit = ((np.min(rs, axis=0) if target else np.max(rs, axis=0)),
+                       np.max(statuses, axis=0))
+            self.runs[key] = hit
         return hit
+
+    def nu_scales(self, geometry):
+        """Natural-frequency multipliers every check of ``geometry`` is made for."""
+        if self.robust_shift is None:
+            return (1.0,)
+        s = self.shifts.get(geometry)
+        if s is None:
+            s = self.shifts[geometry] = float(self.robust_shift(geometry))
+            if not (math.isfinite(s) and 0.0 <= s < 0.5):
+                raise ValueError(f"robust shift must be in [0, 0.5), {s!r} for {geometry}")
+        return (1.0,) if s == 0.0 else (1.0, 1.0 - s, 1.0 + s)
+
+    def variant(self, geometry, scale):
+        """The impacter of ``geometry`` with its natural frequency times ``scale``."""
+        key = (geometry, scale)
+        imp = self.impacters.get(key)
+        if imp is None:
+            base = self.impacter(geometry)
+            imp = self.impacters[key] = base.with_natural_frequency(
+                base.natural_frequency * scale)
+        return imp
 
     def target(self, geometry, u, levels, window=None):
         """(u, r) at the target frequency, refined by bisection where r jumps."""

@@ -102,6 +102,8 @@ class Settings:
         The designer's budget.
     guard : float
         Relative guard band of the designs [-].
+    robust_k : float or None
+        ``design.robust_k`` when ``design.robust`` is on, else None [-].
     impacters : dict
         Node text -> :class:`ImpacterSettings`, every impacter of every device.
     sliders : dict
@@ -143,6 +145,7 @@ class Settings:
     window_s: float
     budget: str
     guard: float
+    robust_k: float | None
     impacters: dict
     sliders: dict
     x0_points: int
@@ -168,7 +171,18 @@ class Settings:
                     window=self.window_s, seed=self.design_seed, budget=self.budget,
                     guard=self.guard, impact_angle=imp.impact_angle_rad,
                     restitution=imp.restitution,
-                    slider=build_slider(imp.slider, imp.process, self.environment))
+                    slider=build_slider(imp.slider, imp.process, self.environment),
+                    **self._robust_kwargs(imp))
+
+    def _robust_kwargs(self, imp) -> dict:
+        """``robust_shift`` for the designer when ``design.robust`` is on (k sigma of
+        each candidate's natural frequency under the spec's fabrication tolerances)."""
+        if self.robust_k is None:
+            return {}
+        from planner.fabrication import RobustShift
+
+        return {"robust_shift": RobustShift(self.spec, self.robust_k, imp.impact_angle_rad,
+                                            imp.restitution)}
 
 
 def _refuse(loaded, loc, message):
@@ -236,6 +250,15 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
     """
     spec = loaded.spec
     _check_impacter_sections(loaded)
+    fab = spec.fabrication
+    scatter = any(getattr(fab, k).die > 0 or getattr(fab, k).device > 0
+                  for k in type(fab).model_fields)
+    if spec.design.robust and not scatter:
+        _refuse(loaded, ("design", "robust"), "design.robust needs fabrication tolerances "
+                "(a fabrication section with a non-zero sigma) to be robust against")
+    if "robust_k" in spec.design.model_fields_set and not spec.design.robust:
+        _refuse(loaded, ("design", "robust_k"), "design.robust_k has no effect without "
+                "design.robust: true")
     devices = sorted(loaded.device_ids, key=device_key)
     drive, ver, des = spec.drive, spec.verification, spec.design
     return Settings(
@@ -258,6 +281,7 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
         window_s=des.window_ms * MS,
         budget=des.budget,
         guard=des.guard,
+        robust_k=des.robust_k if des.robust else None,
         impacters={Node(d, r).text: _impacter_settings(spec, d, r)
                    for d in devices for r in DIRECTIONS},
         sliders={d: build_slider(spec.slider_config(d), spec.process, spec.environment)

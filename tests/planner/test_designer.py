@@ -402,3 +402,27 @@ def test_max_mass_ratio_and_two_body_objective():
                         max_mass_ratio=1e-6)
     with pytest.raises(ValueError, match="contact must be one of"):
         design_impacter(6000.0, (3000.0,), budget="fast", contact="elastic")
+
+
+def test_robust_design_holds_for_shifted_natural_frequencies():
+    """Issue 16 item 3: with robust_shift s the design responds at its tone from every x0
+    and stays silent at the forbidden tone for nu_n scaled by 1 - s, 1 and 1 + s."""
+    import numpy as np
+
+    import model
+    from planner.config import EnvironmentConfig
+
+    air = EnvironmentConfig(viscosity_mpa_s=0.0179)
+    s = 0.05
+    d = design_impacter(6000.0, (3000.0,), environment=air, budget="fast", seed=1,
+                        robust_shift=s)
+    assert d.feasible and d.checks["robust_natural_frequency_scales"] == [1.0, 1 - s, 1 + s]
+    imp = d.impacter
+    x0s = np.linspace(-imp.gap, imp.gap, 9)
+    for scale in (1 - s, 1.0, 1 + s):
+        var = imp.with_natural_frequency(imp.natural_frequency * scale)
+        own = model.responses(var, model.Drive.tone(6000.0), x0s, duration=d.window_s)
+        other = model.responses(var, model.Drive.tone(3000.0), x0s, duration=d.window_s)
+        assert np.all(own > 0) and np.all(other == 0), scale
+    with pytest.raises(ValueError, match="robust_shift"):
+        design_impacter(6000.0, (3000.0,), budget="fast", robust_shift=0.7)

@@ -84,6 +84,23 @@ CASES = [
 ]
 
 
+def test_robust_design_reaches_the_designer_or_is_refused():
+    """design.robust / robust_k (issue 16): k sigma of each candidate's own natural
+    frequency under the fabrication tolerances goes to the designer."""
+    fab = ("fabrication.line_width_um", {"die": 0.05, "device": 0.02})
+    s = _settings(("design.robust", True), ("design.robust_k", 3.0), fab)
+    shift = s.design_kwargs("A1.forward")["robust_shift"]
+    assert s.robust_k == 3.0 and shift.k == 3.0
+    # 3 sigma of a 4.6 um beam's line width error: about 4.7 % (1.6 % per sigma)
+    assert 0.03 < shift((1.5e-8, 4.6e-6, 1.2e-3, 3e-6)) < 0.07
+    assert "robust_shift" not in _settings(fab).design_kwargs("A1.forward")
+    for changes, field in ([(("design.robust", True),), "design.robust"],
+                           [(("design.robust_k", 3.0),), "design.robust_k"]):
+        with pytest.raises(SpecError) as err:
+            _settings(*changes)
+        assert field in str(err.value) and err.value.line is not None
+
+
 @pytest.mark.parametrize("path, value, get", CASES, ids=[c[0] for c in CASES])
 def test_every_field_changes_the_settings(path, value, get):
     base, changed = _settings(), _settings((path, value))
