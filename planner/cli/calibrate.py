@@ -6,13 +6,13 @@ from pathlib import Path
 
 import click
 
-from planner.cli._common import atomic_path, handle_errors
+from planner.cli._common import atomic_path, handle_errors, output_file
 
 
 @click.command("calibrate")
 @click.argument("sweep_csv", metavar="SWEEP.csv",
                 type=click.Path(exists=True, dir_okay=False, path_type=Path))
-@click.option("--out", type=click.Path(dir_okay=False, path_type=Path),
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), callback=output_file,
               default=Path("measured.csv"), show_default=True,
               help="The measured CSV to write (for `vibroplan replan --measured`).")
 @click.option("--keep-flagged", is_flag=True,

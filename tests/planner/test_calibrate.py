@@ -276,6 +276,7 @@ def test_cli_round_trip(tmp_path, devices, constant_drive_sweep):
         constant_drive_sweep["amplitude_m"].to_numpy(), rel=1e-7)
     assert back["line"].iloc[0] == 2
 
+    out.parent.mkdir()  # vibroplan creates no missing parent folders
     res = run("calibrate", sweep_csv, "--out", out)
     assert res.exit_code == 0, res.output
     measured = pd.read_csv(out)
