@@ -256,9 +256,6 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
     if spec.design.robust and not scatter:
         _refuse(loaded, ("design", "robust"), "design.robust needs fabrication tolerances "
                 "(a fabrication section with a non-zero sigma) to be robust against")
-    if "robust_k" in spec.design.model_fields_set and not spec.design.robust:
-        _refuse(loaded, ("design", "robust_k"), "design.robust_k has no effect without "
-                "design.robust: true")
     devices = sorted(loaded.device_ids, key=device_key)
     drive, ver, des = spec.drive, spec.verification, spec.design
     return Settings(
