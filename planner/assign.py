@@ -265,11 +265,14 @@ def _check_capacity(spec, steps, sep, grid=None, positions=None):
     if need > count:
         lo, hi = spec.drive.band_hz
         fit = (count - 1) // sep + 1
+        what = (f"{count} channels" if count == grid.size else
+                f"{count} positions{_guard_note(spec, grid, sep, count)}")
         raise PlanningError(
             f"{len(nodes)} impacters must each be independently addressable (independent: "
             f"true), so every pair must be {sep} channels apart and outside each other's "
-            f"design guard band: that needs at least {need} positions, but the band "
-            f"{lo:g}-{hi:g} Hz holds {count}{_guard_note(spec, grid, sep, count)}; at most "
+            f"design guard band: that needs at least {need} positions (channels where "
+            f"the guard band is narrower than {sep} channels), but the band {lo:g}-{hi:g} Hz "
+            f"holds {what}; at most "
             f"{fit} independent impacters fit. Fixes: fewer devices (array), independent: "
             f"false with scenes in which devices move together and share channels, more "
             f"channels with a narrower separation (drive.channels.count, "
