@@ -104,7 +104,7 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run):
     try:
         result = plan(loaded, out_dir=out_dir, seed=seed, progress=bars,
                       figures=not no_figures, jobs=jobs, force=force,
-                      on_assignment=None if quiet else announce)
+                      on_assignment=announce)
     finally:
         bars.close()
     d = result.data

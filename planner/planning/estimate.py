@@ -1,9 +1,9 @@
 """What a plan will cost, known once the frequencies are assigned (before any design).
 
 A simple cost model, not a measurement: every constant below was calibrated on the
-default 5 x 5 plan (``configs/array_5x5.yaml``, 2-core machine, see
-benchmarks/results/scaling.md), and the shape of each term follows from what the stage
-simulates:
+default 5 x 5 plan (``configs/array_5x5.yaml``: the README's warm stage split on the idle
+2-core machine, ``--jobs 2``: design 47.4 s, verification 1.7 s, scenes and coupling
+0.3 s), and the shape of each term follows from what the stage simulates:
 
 * a design evaluates candidate geometries over a window of fixed length at its
   target, at every forbidden frequency (across its guard band) and under every summed
@@ -15,8 +15,10 @@ simulates:
   single-impacter step, and the scenes replay each scene once.
 
 The estimate is for the first round; repair rounds (after verification failures) come on
-top.  Reported as an estimate, never as a promise: the shared machine's load moves the
-real time by a factor of two either way.
+top.  The constants are for an idle machine; when the load average exceeds the cores,
+the CLI says so (every stage then runs about load / cores times slower).  Reported as an
+estimate, never as a promise; benchmarks/results/scaling.md compares it with measured
+plans.
 """
 
 from __future__ import annotations
@@ -26,15 +28,18 @@ from dataclasses import dataclass
 from planner.nodes import Node
 from planner.planning.designs import forbidden_tones, idle_ensembles
 
-#: Seconds of one design per (kHz of target / 10) x (1 + checks), serial, retries included
-#: on average; calibrated on the default 5 x 5 plan.
-DESIGN_S_PER_UNIT = 0.05
-#: Weight of a forbidden summed drive relative to one forbidden frequency [-].
+#: Seconds of one design per (target / 10 kHz) x (1 + checks), serial, retries included
+#: on average: 47.4 s x 1.8 effective workers / 5778 units of the default 5 x 5 plan.
+DESIGN_S_PER_UNIT = 0.0148
+#: Weight of a forbidden summed drive relative to one forbidden frequency [-] (a summed
+#: drive is simulated over the design's long window as well; not separately calibrated).
 DRIVE_WEIGHT = 3.0
-#: Seconds per (impacter x x0 point x second of step x kHz of tone) of the verification.
-VERIFY_S_PER_UNIT = 0.004
-#: Seconds per (impacter x tone x x0 point x second x kHz) of the coupling matrix and scenes.
-COUPLING_S_PER_UNIT = 0.004
+#: Seconds per (impacter x x0 point x second of step x kHz of tone) of the verification:
+#: 1.7 s x 1.8 / 4942 units of the default plan.
+VERIFY_S_PER_UNIT = 6.2e-4
+#: Seconds per (impacter x tone x x0 point x second x kHz) of the coupling matrix and the
+#: scenes: 0.3 s x 1.8 / 4780 units of the default plan.
+COUPLING_S_PER_UNIT = 1.1e-4
 #: Parallel efficiency of a second worker (processes for designs, threads for simulation).
 PARALLEL_EFFICIENCY = 0.8
 
@@ -70,6 +75,8 @@ class Estimate:
     verify_s: float
     coupling_s: float
     jobs: int
+    #: 1-minute load average and cores when the estimate was made (None: not known).
+    load: tuple | None = None
 
     @property
     def total_s(self) -> float:
@@ -85,9 +92,16 @@ class Estimate:
             f"estimated time on {self.jobs} worker{'s' if self.jobs > 1 else ''}: "
             f"{_fmt(self.total_s)} (designs {_fmt(self.design_s)}, verification "
             f"{_fmt(self.verify_s)}, scenes and coupling {_fmt(self.coupling_s)}); an "
-            f"estimate from a cost model calibrated on the default 5 x 5 plan, before any "
-            f"repair round",
-        ]
+            f"estimate from a cost model calibrated on the default 5 x 5 plan on an idle "
+            f"machine, before any repair round",
+        ] + self._load_lines()
+
+    def _load_lines(self):
+        if self.load is None or self.load[0] <= self.load[1]:
+            return []
+        avg, cores = self.load
+        return [f"the machine is busy (load average {avg:.1f} on {cores} cores): expect up "
+                f"to ~{avg / cores:.0f}x that"]
 
 
 def _fmt(seconds):
@@ -154,4 +168,13 @@ def estimate(settings, steps, assignment, jobs=1) -> Estimate:
         design_s=design_cpu / _speedup(jobs, len(keys)),
         verify_s=VERIFY_S_PER_UNIT * ver_units / _speedup(jobs, devices),
         coupling_s=COUPLING_S_PER_UNIT * coup_units / _speedup(jobs, len(freqs)),
-        jobs=jobs)
+        jobs=jobs, load=_load())
+
+
+def _load():
+    import os
+
+    try:
+        return (os.getloadavg()[0], os.cpu_count() or 1)
+    except (OSError, AttributeError):
+        return None
