@@ -12,7 +12,14 @@ default 5 x 5 plan (``configs/array_5x5.yaml``: the README's warm stage split on
 * a verification step simulates every device's impacters from every initial position of
   the x0 grid over the step: cost ~ impacters x x0 points x duration x frequency;
 * the coupling matrix simulates every impacter under every tone alone over the
-  single-impacter step, and the scenes replay each scene once.
+  single-impacter step (cheap: most of them are silent), and the scenes replay each
+  scene's steps once, every device's slider and impacters together, carrying the state.
+
+The design constant comes from the 5 x 5 plan alone; the verification and scene
+constants also use the 10 x 10 row plan (``configs/array_10x10_rows.yaml``, 20 steps of
+100 devices: 170 s design, 212 s verification, 218 s scenes and coupling on the busy
+machine, scaled to the idle machine by its design stage's ratio), because the 5 x 5 plan
+spends too little in them (2 s) to fix their shape.
 
 The estimate is for the first round; repair rounds (after verification failures) come on
 top.  The constants are for an idle machine; when the load average exceeds the cores,
@@ -35,11 +42,14 @@ DESIGN_S_PER_UNIT = 0.0148
 #: drive is simulated over the design's long window as well; not separately calibrated).
 DRIVE_WEIGHT = 3.0
 #: Seconds per (impacter x x0 point x second of step x kHz of tone) of the verification:
-#: 1.7 s x 1.8 / 4942 units of the default plan.
-VERIFY_S_PER_UNIT = 6.2e-4
-#: Seconds per (impacter x tone x x0 point x second x kHz) of the coupling matrix and the
-#: scenes: 0.3 s x 1.8 / 4780 units of the default plan.
-COUPLING_S_PER_UNIT = 1.1e-4
+#: 6.2e-4 on the default 5 x 5 plan, 1.0e-3 on the 10 x 10 row plan.
+VERIFY_S_PER_UNIT = 8e-4
+#: Seconds per (impacter x second of scene step x kHz) of the scene simulation: from the
+#: 10 x 10 row plan (~8 s idle-equivalent for 2400 units).
+SCENE_S_PER_UNIT = 6e-3
+#: Seconds per (impacter x tone x x0 point x second x kHz) of the coupling matrix: the
+#: default plan's 0.3 s of scenes and coupling less its scenes.
+COUPLING_S_PER_UNIT = 4e-5
 #: Parallel efficiency of a second worker (processes for designs, threads for simulation).
 PARALLEL_EFFICIENCY = 0.8
 
@@ -92,16 +102,16 @@ class Estimate:
             f"estimated time on {self.jobs} worker{'s' if self.jobs > 1 else ''}: "
             f"{_fmt(self.total_s)} (designs {_fmt(self.design_s)}, verification "
             f"{_fmt(self.verify_s)}, scenes and coupling {_fmt(self.coupling_s)}); an "
-            f"estimate from a cost model calibrated on the default 5 x 5 plan on an idle "
-            f"machine, before any repair round",
+            f"estimate from a cost model calibrated on the 5 x 5 and 10 x 10 plans on an "
+            f"idle machine, before any repair round",
         ] + self._load_lines()
 
     def _load_lines(self):
         if self.load is None or self.load[0] <= self.load[1]:
             return []
         avg, cores = self.load
-        return [f"the machine is busy (load average {avg:.1f} on {cores} cores): expect up "
-                f"to ~{avg / cores:.0f}x that"]
+        return [f"the machine is busy (load average {avg:.1f} on {cores} cores): expect "
+                f"at least ~{avg / cores:.0f}x that"]
 
 
 def _fmt(seconds):
@@ -160,14 +170,15 @@ def estimate(settings, steps, assignment, jobs=1) -> Estimate:
             # the scenes replay their steps once, every device from the state carried in
             scene_units += 2 * devices * (st.duration_s + settings.settle_s) * f_khz
     tones = sorted(set(freqs.values()))
-    coup_units = len(freqs) * x0 * settings.single_step_s * sum(tones) / 1e3 + scene_units
+    coup_units = len(freqs) * x0 * settings.single_step_s * sum(tones) / 1e3
     coup_runs = len(freqs) * len(tones) * x0
     return Estimate(
         impacters=len(freqs), designs=len(keys), steps=len(steps),
         verification_runs=ver_runs, coupling_runs=coup_runs,
         design_s=design_cpu / _speedup(jobs, len(keys)),
         verify_s=VERIFY_S_PER_UNIT * ver_units / _speedup(jobs, devices),
-        coupling_s=COUPLING_S_PER_UNIT * coup_units / _speedup(jobs, len(freqs)),
+        coupling_s=(COUPLING_S_PER_UNIT * coup_units + SCENE_S_PER_UNIT * scene_units)
+        / _speedup(jobs, len(freqs)),
         jobs=jobs, load=_load())
 
 
