@@ -45,6 +45,8 @@ CASES = {
     "10x10_rows": ("array_10x10_rows.yaml", None),
     "default_5x5": ("array_5x5.yaml", None),
 }
+#: Text below this line of scaling.md is kept when the table is rewritten.
+NOTES = "<!-- notes: kept by benchmarks/scaling.py -->"
 STAGES = ["assign", "drive", "design", "verify", "scenes_coupling", "total"]
 
 
@@ -123,7 +125,12 @@ def write_results(rows):
                      f"{r['steps']} | " + " | ".join(f"{r[k]:.1f}" for k in STAGES)
                      + f" | {r['estimate_s']:.0f} | {r['passed']} | {r['rounds']} | "
                      f"{r['load_end']:.1f} |")
-    (RESULTS / "scaling.md").write_text("\n".join(lines) + "\n")
+    # hand-written notes below the marker (what was not run, other measurements) stay
+    md = RESULTS / "scaling.md"
+    notes = ""
+    if md.exists() and NOTES in md.read_text():
+        notes = md.read_text()[md.read_text().index(NOTES):]
+    md.write_text("\n".join(lines) + "\n\n" + (notes or NOTES + "\n"))
     return df
 
 

@@ -333,7 +333,8 @@ def assign(loaded: LoadedSpec, steps, *, separation=None, pair_separation=None,
     # idle impacters least (see _ensemble_severity)
     mapping = _mapping_candidates(result.span, count)
     q0, o0 = mapping[0]
-    freq_of = lambda col: {g: float(grid[positions[o0 + q0 * c]]) for g, c in col.items()}  # noqa: E731
+    freq_of = lambda col: {g: float(grid[positions[o0 + q0 * c]])  # noqa: E731
+                           for g, c in col.items()}
     candidates = _block_layouts(graph, result.coloring, result.span)
     coloring = min(candidates,
                    key=lambda col: (_ensemble_severity(steps, groups, freq_of(col)),

@@ -54,8 +54,12 @@ class _Bars:
               help="Stop after the frequency assignment: print it, the designs and "
                    "verification runs that remain and an estimate of their time, write "
                    "nothing, exit 0 (seconds, even for a large array).")
+@click.option("--scheduler", metavar="ADDRESS", default=None,
+              help="Run the designs on an existing dask.distributed cluster at ADDRESS "
+                   "(tcp://host:8786; its workers need vibroplan installed) instead of a "
+                   "local cluster of --jobs workers. The plan does not depend on it.")
 @handle_errors
-def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run):
+def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, scheduler):
     """Plan an array from a YAML SPEC: channels, designs, drives, verification.
 
     Without SPEC, plans the embedded default: a 5 x 5 array (configs/array_5x5.yaml)
@@ -104,7 +108,7 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run):
     try:
         result = plan(loaded, out_dir=out_dir, seed=seed, progress=bars,
                       figures=not no_figures, jobs=jobs, force=force,
-                      on_assignment=announce)
+                      on_assignment=announce, scheduler=scheduler)
     finally:
         bars.close()
     d = result.data

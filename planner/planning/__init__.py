@@ -31,7 +31,7 @@ __all__ = ["Plan", "Settings", "plan", "resolve_settings", "run_plan", "step_ton
 
 
 def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, jobs=None,
-         force=False, on_assignment=None):
+         force=False, on_assignment=None, scheduler=None):
     """Plan an array: the whole pipeline, optionally writing every output.
 
     Parameters
@@ -58,6 +58,9 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, job
     on_assignment : callable, optional
         ``on_assignment(settings, steps, assignment)``, called once after the first
         assignment, before any design (see :func:`run_plan`).
+    scheduler : str, optional
+        Address of an existing ``dask.distributed`` scheduler (``tcp://host:8786``) to
+        run the designs on; default: a local cluster of ``jobs`` workers (none for 1).
 
     Returns
     -------
@@ -72,12 +75,12 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, job
     settings = resolve_settings(loaded, seed)
     if out_dir is None:
         return run_plan(loaded, seed=seed, progress=progress, jobs=jobs, settings=settings,
-                        on_assignment=on_assignment)
+                        on_assignment=on_assignment, scheduler=scheduler)
     source = Path(loaded.source) if getattr(loaded, "source", None) else None
     inputs = [source] if source is not None and source.exists() else []
     with output_folder(out_dir, command="plan", inputs=inputs, force=force) as tmp:
         result = run_plan(loaded, seed=seed, progress=progress, jobs=jobs, settings=settings,
-                          on_assignment=on_assignment)
+                          on_assignment=on_assignment, scheduler=scheduler)
         write_outputs(result, tmp, figures=figures)
     result.out_dir = Path(out_dir)
     return result

@@ -1,6 +1,9 @@
 """Large arrays (issue 18): one separation rule for assigner and designer, refusals in
 seconds, ``plan --dry-run`` with a time estimate, and the large-array configs."""
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -142,3 +145,44 @@ def test_dry_run_refuses_the_old_7x7_spec_with_exit_2(tmp_path):
     res = CliRunner().invoke(main, ["plan", str(spec), "--dry-run"])
     assert res.exit_code == 2, res.output
     assert "guard band" in res.output and "Traceback" not in res.output
+
+
+def _tiny_spec(tmp_path):
+    """A 1 x 2 array, every impacter independent: four designs, a plan in seconds."""
+    text = (CONFIGS / "array_5x5.yaml").read_text()
+    text = text.replace("rows: 5", "rows: 1").replace("cols: 5", "cols: 2")
+    text = text[: text.index("scenes:")]
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(text)
+    return spec
+
+
+@pytest.mark.slow
+def test_designs_on_a_two_worker_local_cluster_give_the_same_plan_json(tmp_path):
+    """Issue 18 item 3: the designs on Dask (a two-worker LocalCluster reached through
+    --scheduler, as a remote cluster would be) give a byte-identical plan.json.
+
+    The reference runs in a process with BLAS on one thread, as Dask runs its workers
+    (it sets OMP/OPENBLAS/MKL_NUM_THREADS=1): the designer's SQP results move in their
+    8th digit with the BLAS thread count (see docs/large_arrays.md)."""
+    distributed = pytest.importorskip("distributed")
+    spec = _tiny_spec(tmp_path)
+    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
+               MKL_NUM_THREADS="1", PYTHONPATH=str(ROOT))
+    serial = subprocess.run([sys.executable, "-m", "planner.cli", "plan", str(spec),
+                             "--out", str(tmp_path / "serial"), "--jobs", "1",
+                             "--no-figures", "--quiet"], env=env, cwd=tmp_path,
+                            capture_output=True, text=True, timeout=1800)
+    assert serial.returncode in (0, 1), serial.stderr
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        remote = CliRunner().invoke(main, ["plan", str(spec), "--out", str(tmp_path / "dask"),
+                                           "--jobs", "1", "--no-figures", "--quiet",
+                                           "--scheduler", cluster.scheduler_address])
+        # the cluster ran the designs
+        prefixes = set(cluster.scheduler.task_prefixes)
+    assert remote.exit_code == serial.returncode, remote.output
+    assert "design_on_engine" in prefixes     # (dask drops the leading underscore)
+    a = (tmp_path / "serial" / "plan.json").read_bytes()
+    b = (tmp_path / "dask" / "plan.json").read_bytes()
+    assert a == b
