@@ -110,10 +110,12 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
     step in which an impacter is idle is a forbidden drive of its design too.  Designs
     sharing every input (tone, forbidden set, drives and the impacter's own settings:
     contact parameters, process, slider) are designed once; with ``jobs`` > 1 the
-    distinct designs run on a local Dask cluster of that many worker processes, with
-    ``scheduler`` (an address) on that ``dask.distributed`` cluster
-    (:func:`planner.engine.run_tasks`; same results as serial: each design is seeded by
-    the spec alone).
+    distinct designs run in that many worker processes, with ``scheduler`` (an address)
+    on that ``dask.distributed`` cluster (:func:`planner.engine.run_tasks`).  Each design
+    is seeded by the spec alone, so the results do not depend on where it ran -- except
+    through the BLAS thread count of the process (the SQP's last digits): Dask workers
+    run BLAS on one thread, so a plan on Dask equals a serial one run with
+    ``OPENBLAS_NUM_THREADS=1`` (docs/large_arrays.md).
     """
     from planner.designer import Ensemble
 
@@ -139,14 +141,14 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
     for n, key in keys.items():
         if key in cache and progress is not None:
             progress(n)
-    if tasks and (scheduler or (jobs > 1 and len(tasks) > 1)):
+    # longest first, so that no worker is left with a long design at the end: a
+    # design's cost grows with the summed drives it checks and with the drive
+    # cycles in its window (its frequency).  Results do not depend on the order.
+    order = sorted(tasks, key=lambda k: (-len(tasks[k]["forbidden_drives"]),
+                                         -tasks[k]["frequency"]))
+    if tasks and scheduler:
         from planner.engine import run_tasks
 
-        # longest first, so that no worker is left with a long design at the end: a
-        # design's cost grows with the summed drives it checks and with the drive
-        # cycles in its window (its frequency).  Results do not depend on the order.
-        order = sorted(tasks, key=lambda k: (-len(tasks[k]["forbidden_drives"]),
-                                             -tasks[k]["frequency"]))
         # the engine reports each finished task, not which: the bar counts designs
         # done (its total, and the end, are exact)
         done = iter(order)
@@ -160,6 +162,19 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
                             progress=tick if progress is not None else None)
         for key, res in zip(order, results):
             cache[key] = res
+    elif jobs > 1 and len(tasks) > 1:
+        import concurrent.futures as cf
+
+        from planner._workers import process_pool
+
+        with process_pool(jobs) as pool:
+            futures = {pool.submit(_design_task, tasks[key], min_speed): key for key in order}
+            for fut in cf.as_completed(futures):
+                key = futures[fut]
+                cache[key] = fut.result()
+                for n in users[key]:
+                    if progress is not None:
+                        progress(n)
     else:
         for key, kw in tasks.items():
             cache[key] = _design_task(kw, min_speed)
