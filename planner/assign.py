@@ -7,8 +7,12 @@ nodes in the same state in every step may share a channel (they are merged into 
 colouring node).  A device's forward and backward pairs are never driven together,
 so they always conflict when both are used.
 
-The colouring (``planner.coloring.solve_bandwidth``) gives channel offsets; they are
-spread over the channel grid with an integer stride (so every separation is kept,
+The colouring (``planner.coloring.solve_bandwidth``) gives offsets in *positions*:
+the channels of :func:`planner.separation.position_grid`, on which any two positions
+``separation`` apart are also outside each other's design guard band (``design.guard``),
+so that no tone the assigner picks is one the designer must refuse.  Where the guard
+is narrower than the separation the positions are the channels.  The offsets are
+spread over the positions with an integer stride (so every separation is kept,
 multiplied by the stride: that is the spare room turned into guard band), and the
 offset and stride are chosen to avoid harmonic and low-order intermodulation
 products of tones that play together landing in an idle impacter's band.
@@ -25,6 +29,7 @@ import pandas as pd
 
 from planner.errors import PlanningError
 from planner.nodes import DIRECTIONS, Node
+from planner.separation import guard_onset_hz, position_grid
 from planner.spec import LoadedSpec, Step, channel_grid
 
 
@@ -188,11 +193,14 @@ class Assignment:
     optimal: bool
     method: str
     seconds: float
-    stride: int
-    offset: int
+    stride: int               # [positions]
+    offset: int               # [positions]
     channels: dict            # impacter node -> channel index on the grid
     frequencies: dict         # impacter node -> frequency [Hz]
     violations: list = field(default_factory=list)
+    #: impacter node -> index on the position grid (``offset + stride * colour``);
+    #: equal to ``channels`` where the guard band is narrower than the separation
+    positions: dict = field(default_factory=dict)
 
     def table(self) -> pd.DataFrame:
         """One row per impacter: device, direction, channel, frequency_hz."""
@@ -222,30 +230,54 @@ def _mapping_candidates(span: int, count: int, max_candidates=64):
     return out
 
 
-def _check_capacity(spec, steps, sep):
+def _guard_note(spec, grid, sep, positions):
+    """Why the band holds fewer positions than channels (empty if it does not)."""
+    if positions >= grid.size:
+        return ""
+    g = spec.design.guard
+    onset = guard_onset_hz(grid, sep, g)
+    return (f" (above {onset:g} Hz, {sep} channels are inside the designer's guard band: "
+            f"tones there must be more than {100 * g:g} % apart (design.guard {g:g}), so "
+            f"the {grid.size} channels hold only {positions} positions {sep} apart)")
+
+
+def _check_capacity(spec, steps, sep, grid=None, positions=None):
     """Refuse, in well under a second, a spec whose independently addressable impacters
     cannot fit the band whatever the colouring.
 
     When every impacter must be drivable on its own, every impacter is idle while every
     other one plays, so all of them must be told apart: the conflict graph is complete
-    and no colouring spans fewer than (n - 1) sep + 1 channels.  Building that graph
-    for a large array (a 26 x 99 array: 5148 impacters, 13 million edges) takes minutes
-    and gigabytes before the same answer; this bound gives it at once.
+    and no colouring spans fewer than (n - 1) sep + 1 positions (the channels, thinned
+    where the designer's guard band is wider than ``sep`` channels: see
+    :func:`planner.separation.position_grid`).  Building that graph for a large array
+    (a 26 x 99 array: 5148 impacters, 13 million edges) takes minutes and gigabytes
+    before the same answer; this bound gives it at once.
     """
-    if not spec.independent:
+    if not spec.all_independent:
         return
+    if grid is None:
+        grid = channel_grid(spec)
+    if positions is None:
+        positions = position_grid(grid, sep, spec.design.guard)
     nodes = {n for st in steps for n in st.active_nodes()}
     need = (len(nodes) - 1) * sep + 1
-    count = spec.drive.channels.count
+    count = len(positions)
     if need > count:
         lo, hi = spec.drive.band_hz
+        fit = (count - 1) // sep + 1
+        what = (f"{count} channels" if count == grid.size else
+                f"{count} positions{_guard_note(spec, grid, sep, count)}")
         raise PlanningError(
             f"{len(nodes)} impacters must each be independently addressable (independent: "
-            f"true), so every pair must be {sep} channels apart: that needs at least {need} "
-            f"channels, but the band {lo:g}-{hi:g} Hz holds {count} (drive.channels.count). "
-            f"Fixes: fewer devices (array), independent: false with scenes in which devices "
-            f"move together and share channels, more channels with a narrower separation "
-            f"(drive.guard.separation_channels), or a wider band (drive.band_hz).")
+            f"true), so every pair must be {sep} channels apart and outside each other's "
+            f"design guard band: that needs at least {need} positions (channels where "
+            f"the guard band is narrower than {sep} channels), but the band {lo:g}-{hi:g} Hz "
+            f"holds {what}; at most "
+            f"{fit} independent impacters fit. Fixes: fewer devices (array), independent: "
+            f"false with scenes in which devices move together and share channels, more "
+            f"channels with a narrower separation (drive.channels.count, "
+            f"drive.guard.separation_channels), a narrower design guard (design.guard), or "
+            f"a wider band (drive.band_hz).")
 
 
 def assign(loaded: LoadedSpec, steps, *, separation=None, pair_separation=None,
@@ -272,51 +304,58 @@ def assign(loaded: LoadedSpec, steps, *, separation=None, pair_separation=None,
 
     spec = loaded.spec
     sep = spec.drive.guard.separation_channels if separation is None else int(separation)
-    _check_capacity(spec, steps, sep)
+    grid = channel_grid(spec)
+    # every edge is >= sep positions: on these positions that keeps the designer's guard
+    positions = position_grid(grid, sep, spec.design.guard)
+    _check_capacity(spec, steps, sep, grid, positions)
     graph, groups = conflict_graph(steps, sep, pair_separation,
                                    spec.drive.guard.ensemble_separation_channels)
     if graph.number_of_nodes() == 0:
         raise PlanningError("no step drives any impacter: nothing to assign")
     result = solve_bandwidth(graph, "sep", method=method, time_limit=time_limit, seed=0)
-    grid = channel_grid(spec)
-    count = grid.size
+    count = len(positions)
     if result.span > count:
         n_groups = graph.number_of_nodes()
         lo, hi = spec.drive.band_hz
+        what = (f"{grid.size} channels" if count == grid.size else
+                f"{count} positions{_guard_note(spec, grid, sep, count)}")
         raise PlanningError(
-            f"the band {lo:g}-{hi:g} Hz holds {count} channels, but the conflict graph "
+            f"the band {lo:g}-{hi:g} Hz holds {what}, but the conflict graph "
             f"({n_groups} channel groups that must be told apart, separation {sep} channels) "
             f"needs a span of {result.span} (lower bound {result.lower_bound}). Fixes: a wider "
             f"band (drive.band_hz), more channels (drive.channels.count) with a narrower response "
-            f"band (drive.guard.separation_channels), fewer independently addressable devices "
-            f"(independent: false), or scenes in which devices move together and share a channel.")
+            f"band (drive.guard.separation_channels), a narrower design guard (design.guard), "
+            f"fewer independently addressable devices (independent: false), or scenes in "
+            f"which devices move together and share a channel.")
     # layout: a colouring read upward or downward is equally valid, and so is any order
     # of its blocks (runs of channels set apart by wide gaps) that keeps every
     # separation within the span; choose the one whose multi-tone steps stir their
     # idle impacters least (see _ensemble_severity)
     mapping = _mapping_candidates(result.span, count)
     q0, o0 = mapping[0]
-    freq_of = lambda col: {g: float(grid[o0 + q0 * c]) for g, c in col.items()}  # noqa: E731
+    freq_of = lambda col: {g: float(grid[positions[o0 + q0 * c]])  # noqa: E731
+                           for g, c in col.items()}
     candidates = _block_layouts(graph, result.coloring, result.span)
     coloring = min(candidates,
                    key=lambda col: (_ensemble_severity(steps, groups, freq_of(col)),
                                     _ensemble_exposure(steps, groups, col)))
     best = None
     for q, o in mapping:
-        freqs = {}
-        chans = {}
+        freqs, chans, where = {}, {}, {}
         for g, colour in coloring.items():
             for n in groups[g]:
-                chans[n] = o + q * colour
+                where[n] = o + q * colour
+                chans[n] = int(positions[where[n]])
                 freqs[n] = float(grid[chans[n]])
         viol = guard_violations(steps, freqs, spec.drive.guard)
         if best is None or len(viol) < len(best[4]):
-            best = (q, o, chans, freqs, viol)
+            best = (q, o, chans, freqs, viol, where)
         if not viol:
             break
-    q, o, chans, freqs, viol = best
+    q, o, chans, freqs, viol, where = best
     return Assignment(graph, groups, dict(coloring), result.span, result.lower_bound,
-                      result.optimal, result.method, result.seconds, q, o, chans, freqs, viol)
+                      result.optimal, result.method, result.seconds, q, o, chans, freqs, viol,
+                      where)
 
 
 def _blocks(coloring, gap):

@@ -50,8 +50,16 @@ class _Bars:
                    "kernels (default: all cores). The plan does not depend on it.")
 @click.option("--no-figures", is_flag=True, help="Skip the PNG figures (faster).")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
+@click.option("--dry-run", is_flag=True,
+              help="Stop after the frequency assignment: print it, the designs and "
+                   "verification runs that remain and an estimate of their time, write "
+                   "nothing, exit 0 (seconds, even for a large array).")
+@click.option("--scheduler", metavar="ADDRESS", default=None,
+              help="Run the designs on an existing dask.distributed cluster at ADDRESS "
+                   "(tcp://host:8786; its workers need vibroplan installed) instead of "
+                   "--jobs local worker processes.")
 @handle_errors
-def command(spec, out_dir, seed, jobs, no_figures, quiet, force):
+def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, scheduler):
     """Plan an array from a YAML SPEC: channels, designs, drives, verification.
 
     Without SPEC, plans the embedded default: a 5 x 5 array (configs/array_5x5.yaml)
@@ -82,12 +90,25 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force):
         jobs = numba.config.NUMBA_NUM_THREADS
     path = Path(spec) if spec else default_spec_path()
     loaded = load_spec(path)
+    if dry_run:
+        _dry_run(loaded, seed, jobs)
+        return
     # refuse the output folder before any work (the plan takes a minute)
     check_output_folder(out_dir, inputs=[path], force=force)
     bars = _Bars(quiet)
+
+    def announce(settings, steps, assignment):
+        # after the assignment, before any design: what is left and how long it may take
+        from planner.planning.estimate import estimate
+
+        bars.close()
+        for line in estimate(settings, steps, assignment, jobs).lines():
+            click.echo(line, err=True)
+
     try:
         result = plan(loaded, out_dir=out_dir, seed=seed, progress=bars,
-                      figures=not no_figures, jobs=jobs, force=force)
+                      figures=not no_figures, jobs=jobs, force=force,
+                      on_assignment=announce, scheduler=scheduler)
     finally:
         bars.close()
     d = result.data
@@ -117,6 +138,32 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force):
 
 
 command.help = command.help.replace("{EXIT}", EXIT_CODES_HELP)
+
+
+def _dry_run(loaded, seed, jobs):
+    """``--dry-run``: the assignment, the work left and its estimated time; no files."""
+    import time
+
+    from planner.assign import assign
+    from planner.planning.estimate import estimate
+    from planner.planning.settings import resolve_settings
+
+    t0 = time.perf_counter()
+    settings = resolve_settings(loaded, seed)
+    steps = settings.steps
+    a = assign(settings.loaded, steps, separation=settings.separation_channels)
+    seconds = time.perf_counter() - t0
+    spec = settings.spec
+    freqs = sorted(set(a.frequencies.values()))
+    click.echo(f"{spec.name}: {len(a.frequencies)} impacters on {len(settings.sliders)} devices, "
+               f"{len(steps)} steps; {a.graph.number_of_nodes()} channel groups, "
+               f"{len(freqs)} tones {freqs[0]:g}-{freqs[-1]:g} Hz; span {a.span} positions "
+               f"({'optimal' if a.optimal else 'not proven optimal'}, {a.method}), stride "
+               f"{a.stride}; {len(a.violations)} guard-rule warnings; assigned in "
+               f"{seconds:.1f} s")
+    for line in estimate(settings, steps, a, jobs).lines():
+        click.echo(line)
+    click.echo("dry run: nothing written")
 
 
 def _scene_lines(scene_rows):

@@ -21,6 +21,7 @@ from planner.designer.response import _band_and_margins
 from planner.designer.result import DesignResult, PairDesign
 from planner.designer.runs import Ensemble, _Tones, _u_grid
 from planner.designer.search import _recheck, _search_and_recheck
+from planner.separation import check_target
 
 #: Default guard: silent within +-2% of each forbidden frequency, not just at it.  With
 #: guard = 0 the optimiser parks forbidden frequencies in holes of a responding region
@@ -200,10 +201,8 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
     guard = float(guard)
     if not (math.isfinite(guard) and 0.0 <= guard < 0.5):
         raise ValueError(f"guard must be in [0, 0.5), {guard!r} was given")
-    for f in forbidden:
-        if f * (1.0 - guard) <= frequency <= f * (1.0 + guard):
-            raise ValueError(f"the target {frequency:g} Hz lies in the guard band of the "
-                             f"forbidden frequency {f:g} Hz (guard {guard:g})")
+    # the same rule the assigner separates tones by (planner.separation)
+    check_target(frequency, forbidden, guard)
     ensembles = tuple(e if isinstance(e, Ensemble) else Ensemble(e, f"drive {i}")
                       for i, e in enumerate(forbidden_drives))
     if contact not in CONTACTS:

@@ -31,7 +31,7 @@ __all__ = ["Plan", "Settings", "plan", "resolve_settings", "run_plan", "step_ton
 
 
 def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, jobs=None,
-         force=False):
+         force=False, on_assignment=None, scheduler=None):
     """Plan an array: the whole pipeline, optionally writing every output.
 
     Parameters
@@ -55,6 +55,12 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, job
         that passes jobs > 1 needs an ``if __name__ == "__main__":`` guard.
     force : bool
         Replace an existing non-empty ``out_dir`` that vibroplan did not write.
+    on_assignment : callable, optional
+        ``on_assignment(settings, steps, assignment)``, called once after the first
+        assignment, before any design (see :func:`run_plan`).
+    scheduler : str, optional
+        Address of an existing ``dask.distributed`` scheduler (``tcp://host:8786``) to
+        run the designs on; default: a local cluster of ``jobs`` workers (none for 1).
 
     Returns
     -------
@@ -68,11 +74,13 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, job
     # the settings first: a spec field the planner cannot honour fails before any work
     settings = resolve_settings(loaded, seed)
     if out_dir is None:
-        return run_plan(loaded, seed=seed, progress=progress, jobs=jobs, settings=settings)
+        return run_plan(loaded, seed=seed, progress=progress, jobs=jobs, settings=settings,
+                        on_assignment=on_assignment, scheduler=scheduler)
     source = Path(loaded.source) if getattr(loaded, "source", None) else None
     inputs = [source] if source is not None and source.exists() else []
     with output_folder(out_dir, command="plan", inputs=inputs, force=force) as tmp:
-        result = run_plan(loaded, seed=seed, progress=progress, jobs=jobs, settings=settings)
+        result = run_plan(loaded, seed=seed, progress=progress, jobs=jobs, settings=settings,
+                          on_assignment=on_assignment, scheduler=scheduler)
         write_outputs(result, tmp, figures=figures)
     result.out_dir = Path(out_dir)
     return result

@@ -97,16 +97,25 @@ def _design_task(kwargs, min_speed):
     return best[1]
 
 
+def _design_on_engine(min_speed, kwargs):
+    """:func:`_design_task` as a :func:`planner.engine.run_tasks` task (``shared`` first)."""
+    return _design_task(kwargs, min_speed)
+
+
 def design_all(settings: Settings, steps, assignment, cache, progress=None, waveforms=None,
-               jobs=1):
+               jobs=1, scheduler=None):
     """Design every driven impacter; ``cache`` maps the design inputs -> result.
 
     With ``waveforms`` (step key -> Waveform), the summed drive of every multi-tone
     step in which an impacter is idle is a forbidden drive of its design too.  Designs
     sharing every input (tone, forbidden set, drives and the impacter's own settings:
     contact parameters, process, slider) are designed once; with ``jobs`` > 1 the
-    distinct designs run in that many worker processes (same results as serial: each
-    design is seeded by the spec alone).
+    distinct designs run in that many worker processes, with ``scheduler`` (an address)
+    on that ``dask.distributed`` cluster (:func:`planner.engine.run_tasks`).  Each design
+    is seeded by the spec alone, so the results do not depend on where it ran -- except
+    through the BLAS thread count of the process (the SQP's last digits): Dask workers
+    run BLAS on one thread, so a plan on Dask equals a serial one run with
+    ``OPENBLAS_NUM_THREADS=1`` (docs/large_arrays.md).
     """
     from planner.designer import Ensemble
 
@@ -132,16 +141,32 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
     for n, key in keys.items():
         if key in cache and progress is not None:
             progress(n)
-    if jobs > 1 and len(tasks) > 1:
+    # longest first, so that no worker is left with a long design at the end: a
+    # design's cost grows with the summed drives it checks and with the drive
+    # cycles in its window (its frequency).  Results do not depend on the order.
+    order = sorted(tasks, key=lambda k: (-len(tasks[k]["forbidden_drives"]),
+                                         -tasks[k]["frequency"]))
+    if tasks and scheduler:
+        from planner.engine import run_tasks
+
+        # the engine reports each finished task, not which: the bar counts designs
+        # done (its total, and the end, are exact)
+        done = iter(order)
+
+        def tick():
+            for n in users[next(done)]:
+                progress(n)
+
+        results = run_tasks(_design_on_engine, min_speed, [(tasks[k],) for k in order],
+                            jobs=jobs, scheduler=scheduler,
+                            progress=tick if progress is not None else None)
+        for key, res in zip(order, results):
+            cache[key] = res
+    elif jobs > 1 and len(tasks) > 1:
         import concurrent.futures as cf
 
         from planner._workers import process_pool
 
-        # longest first, so that no worker is left with a long design at the end: a
-        # design's cost grows with the summed drives it checks and with the drive
-        # cycles in its window (its frequency).  Results do not depend on the order.
-        order = sorted(tasks, key=lambda k: (-len(tasks[k]["forbidden_drives"]),
-                                             -tasks[k]["frequency"]))
         with process_pool(jobs) as pool:
             futures = {pool.submit(_design_task, tasks[key], min_speed): key for key in order}
             for fut in cf.as_completed(futures):

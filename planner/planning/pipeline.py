@@ -24,12 +24,16 @@ from planner.planning.settings import Settings, resolve_settings
 from planner.planning.verify import check_step, coupling_matrix
 
 
-def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings | None = None):
+def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings | None = None,
+             on_assignment=None, scheduler=None):
     """Run every stage; returns a :class:`Plan` (files are written by :func:`plan`).
 
     ``loaded``: a :class:`~planner.spec.LoadedSpec`; ``settings`` (optional) its
     already resolved :class:`Settings`.  ``jobs``: worker processes for the designs
-    (default 1).
+    (default 1).  ``on_assignment(settings, steps, assignment)`` is called once, after
+    the first assignment and before any design (the CLI prints the work left and a
+    time estimate there).  ``scheduler``: address of a ``dask.distributed`` scheduler
+    to run the designs on instead of a local cluster of ``jobs`` workers.
     """
     jobs = max(1, int(jobs or 1))
     if settings is None:
@@ -60,12 +64,15 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
                            "stopped": str(exc)})
             break
         timings["assign"] = timings.get("assign", 0.0) + time.perf_counter() - ts
+        if round_ == 0 and on_assignment is not None:
+            on_assignment(settings, steps, assignment)
         # the drives depend on the frequencies only, so they come before the designs,
         # which must be silent under the summed drive of every step they sit out
         waveforms = timed("drive", synthesize_steps, settings, steps, assignment)
         tick("design", total=len(assignment.frequencies))
         designs = timed("design", design_all, settings, steps, assignment, cache,
-                        progress=lambda n: tick("design", n), waveforms=waveforms, jobs=jobs)
+                        progress=lambda n: tick("design", n), waveforms=waveforms, jobs=jobs,
+                        scheduler=scheduler)
         impacters = {n: d.impacter for n, d in designs.items()}
         devices = sorted({Node.parse(n).device for n in impacters}, key=device_key)
         sliders = {d: settings.sliders[d] for d in devices}

@@ -14,7 +14,9 @@ from planner.planning.verify import IDLE_RESPONSE
 
 
 def _widen(pair_sep, assignment, a, b, sep):
-    now = abs(assignment.channels[a] - assignment.channels[b]) // max(assignment.stride, 1)
+    # in positions (the channels where the design guard is narrower than the separation)
+    where = assignment.positions or assignment.channels
+    now = abs(where[a] - where[b]) // max(assignment.stride, 1)
     key = frozenset((a, b))
     pair_sep[key] = max(pair_sep.get(key, sep), now + max(1, sep // 2))
 

@@ -1,0 +1,188 @@
+"""Large arrays (issue 18): one separation rule for assigner and designer, refusals in
+seconds, ``plan --dry-run`` with a time estimate, and the large-array configs."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from planner.assign import assign, plan_steps
+from planner.cli import main
+from planner.errors import PlanningError
+from planner.planning.designs import forbidden_tones
+from planner.planning.estimate import estimate
+from planner.planning.settings import resolve_settings
+from planner.separation import check_target, position_grid, separated
+from planner.spec import channel_grid, load_spec
+
+ROOT = Path(__file__).resolve().parents[2]
+CONFIGS = ROOT / "configs"
+
+
+def _old_7x7_text():
+    """The 7 x 7 spec that died in the designer after minutes (issue 18): the default
+    5 x 5 spec on 7 x 7 devices, band 4-60 kHz, 100 Hz channels."""
+    text = (CONFIGS / "array_5x5.yaml").read_text()
+    for old, new in (("rows: 5", "rows: 7"), ("cols: 5", "cols: 7"),
+                     ("band_hz: [4000, 36000]", "band_hz: [4000, 60000]"),
+                     ("count: 321", "count: 561")):
+        assert old in text
+        text = text.replace(old, new)
+    return text
+
+
+@pytest.mark.parametrize("spacing", ["linear", "log"])
+@pytest.mark.parametrize("sep,guard", [(1, 0.01), (5, 0.01), (3, 0.05), (8, 0.02)])
+def test_positions_separate_by_channels_and_by_the_guard(spacing, sep, guard):
+    grid = (np.linspace(4000, 60000, 561) if spacing == "linear"
+            else np.geomspace(2000, 20000, 240))
+    pos = position_grid(grid, sep, guard)
+    assert pos[0] == 0 and np.all(np.diff(pos) >= 1) and pos[-1] < grid.size
+    # any two positions sep or more apart: that many channels apart and outside each
+    # other's guard band (checked on every pair exactly sep apart and on all further
+    # ones of a sample)
+    for i in range(len(pos) - sep):
+        assert pos[i + sep] - pos[i] >= sep
+        assert separated(grid[pos[i]], grid[pos[i + sep]], guard)
+    for i in range(0, len(pos), 37):
+        for j in range(i + sep, len(pos), 11):
+            assert separated(grid[pos[i]], grid[pos[j]], guard)
+    # tight: each position is the lowest channel that keeps the rule
+    for k in range(sep, len(pos)):
+        c = pos[k] - 1
+        if c > pos[k - 1]:
+            assert not separated(grid[pos[k - sep]], grid[c], guard)
+
+
+def test_positions_are_the_channels_where_the_guard_is_narrower():
+    # the default 5 x 5 spec: 500 Hz > 1 % of every tone below 50 kHz
+    loaded = load_spec(CONFIGS / "array_5x5.yaml")
+    grid = channel_grid(loaded.spec)
+    pos = position_grid(grid, loaded.spec.drive.guard.separation_channels,
+                        loaded.spec.design.guard)
+    assert np.array_equal(pos, np.arange(grid.size))
+    assert np.array_equal(position_grid(grid, 5, 0.0), np.arange(grid.size))
+
+
+def test_old_7x7_spec_is_refused_with_the_reason_not_left_to_the_designer():
+    loaded = load_spec(_old_7x7_text(), source="old_7x7")
+    settings = resolve_settings(loaded)
+    with pytest.raises(PlanningError) as err:
+        assign(loaded, settings.steps, separation=settings.separation_channels)
+    msg = str(err.value)
+    assert "guard band" in msg and "design.guard" in msg and "Fixes" in msg
+    assert "49500 Hz" in msg or "positions" in msg
+
+
+def test_capacity_counts_the_guard_band():
+    """A band whose channels would hold every independent impacter at the channel
+    separation, but not once the designer's 1 % guard thins them out above 50 kHz, is
+    refused by the capacity bound, before any colouring."""
+    text = _old_7x7_text().replace("band_hz: [4000, 60000]", "band_hz: [20000, 68600]")
+    text = text.replace("count: 561", "count: 487")
+    # no scenes: only the capacity bound can refuse it this early
+    text = text[: text.index("scenes:")]
+    loaded = load_spec(text, source="tight_7x7")
+    grid = channel_grid(loaded.spec)
+    steps = plan_steps(loaded, 0.01)
+    n = len({nd for st in steps for nd in st.active_nodes()})
+    need = (n - 1) * 5 + 1
+    positions = position_grid(grid, 5, loaded.spec.design.guard)
+    assert len(positions) < need <= grid.size     # the case the old bound let through
+    with pytest.raises(PlanningError) as err:
+        assign(loaded, steps, separation=5)
+    msg = str(err.value)
+    assert f"needs at least {need} positions" in msg
+    assert f"{len(positions)} positions" in msg and "design.guard" in msg
+    assert f"at most {(len(positions) - 1) // 5 + 1} independent impacters fit" in msg
+
+
+@pytest.mark.parametrize("name", ["array_7x7.yaml", "array_10x10_rows.yaml"])
+def test_no_assigned_target_is_forbidden_to_the_designer(name):
+    loaded = load_spec(CONFIGS / name)
+    settings = resolve_settings(loaded)
+    a = assign(loaded, settings.steps, separation=settings.separation_channels)
+    forbidden = forbidden_tones(settings.steps, a.frequencies)
+    assert len(a.frequencies) == 2 * loaded.spec.array.rows * loaded.spec.array.cols
+    for n, f in a.frequencies.items():
+        check_target(f, forbidden[n], settings.guard)    # the designer's entry check
+    assert max(a.frequencies.values()) <= loaded.spec.drive.band_hz[1]
+
+
+def test_estimate_counts_the_work_left():
+    loaded = load_spec(CONFIGS / "array_10x10_rows.yaml")
+    settings = resolve_settings(loaded)
+    a = assign(loaded, settings.steps, separation=settings.separation_channels)
+    one = estimate(settings, settings.steps, a, jobs=1)
+    two = estimate(settings, settings.steps, a, jobs=2)
+    # a row's ten devices share their tone, forbidden set and settings: one design each
+    assert one.designs == len(set(a.frequencies.values())) == a.graph.number_of_nodes()
+    assert one.impacters == len(a.frequencies)
+    assert one.verification_runs == len(settings.steps) * 2 * 100 * settings.x0_points
+    assert 0 < two.total_s < one.total_s
+    assert "estimate" in one.lines()[1]
+
+
+def test_dry_run_on_10x10_prints_an_estimate_and_writes_nothing(tmp_path):
+    out = tmp_path / "never"
+    res = CliRunner().invoke(main, ["plan", str(CONFIGS / "array_10x10_rows.yaml"),
+                                    "--dry-run", "--out", str(out), "--jobs", "1"])
+    assert res.exit_code == 0, res.output
+    assert "200 impacters on 100 devices" in res.output
+    assert "remaining: 20 designs" in res.output
+    line = next(x for x in res.output.splitlines() if x.startswith("estimated time"))
+    assert " s " in line and "estimate" in line
+    assert not out.exists()
+
+
+def test_dry_run_refuses_the_old_7x7_spec_with_exit_2(tmp_path):
+    spec = tmp_path / "old_7x7.yaml"
+    spec.write_text(_old_7x7_text())
+    res = CliRunner().invoke(main, ["plan", str(spec), "--dry-run"])
+    assert res.exit_code == 2, res.output
+    assert "guard band" in res.output and "Traceback" not in res.output
+
+
+def _tiny_spec(tmp_path):
+    """A 1 x 2 array, every impacter independent: four designs, a plan in seconds."""
+    text = (CONFIGS / "array_5x5.yaml").read_text()
+    text = text.replace("rows: 5", "rows: 1").replace("cols: 5", "cols: 2")
+    text = text[: text.index("scenes:")]
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(text)
+    return spec
+
+
+@pytest.mark.slow
+def test_designs_on_a_two_worker_local_cluster_give_the_same_plan_json(tmp_path):
+    """Issue 18 item 3: the designs on Dask (a two-worker LocalCluster reached through
+    --scheduler, as a remote cluster would be) give a byte-identical plan.json.
+
+    The reference runs in a process with BLAS on one thread, as Dask runs its workers
+    (it sets OMP/OPENBLAS/MKL_NUM_THREADS=1): the designer's SQP results move in their
+    8th digit with the BLAS thread count (see docs/large_arrays.md)."""
+    distributed = pytest.importorskip("distributed")
+    spec = _tiny_spec(tmp_path)
+    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
+               MKL_NUM_THREADS="1", PYTHONPATH=str(ROOT))
+    serial = subprocess.run([sys.executable, "-m", "planner.cli", "plan", str(spec),
+                             "--out", str(tmp_path / "serial"), "--jobs", "1",
+                             "--no-figures", "--quiet"], env=env, cwd=tmp_path,
+                            capture_output=True, text=True, timeout=1800)
+    assert serial.returncode in (0, 1), serial.stderr
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        remote = CliRunner().invoke(main, ["plan", str(spec), "--out", str(tmp_path / "dask"),
+                                           "--jobs", "1", "--no-figures", "--quiet",
+                                           "--scheduler", cluster.scheduler_address])
+        # the cluster ran the designs
+        prefixes = set(cluster.scheduler.task_prefixes)
+    assert remote.exit_code == serial.returncode, remote.output
+    assert "design_on_engine" in prefixes     # (dask drops the leading underscore)
+    a = (tmp_path / "serial" / "plan.json").read_bytes()
+    b = (tmp_path / "dask" / "plan.json").read_bytes()
+    assert a == b
