@@ -746,3 +746,67 @@ def replan_chip(plan_data, as_built: dict, seed=None):
     """
     result = replan(plan_data, as_built, seed=seed)
     return result.passed, result
+
+
+# --------------------------------------------------------------------------- outputs
+
+def write_replan_outputs(result: Plan, out_dir, *, figures=True):
+    """Write the re-plan as :func:`planner.planning.outputs.write_outputs` does (plan.json
+    with ``as_built`` and ``replan``, CSVs, waveforms, figures) and put the re-plan
+    section at the top of report.md."""
+    from planner.planning.outputs import write_outputs
+
+    out_dir = Path(out_dir)
+    write_outputs(result, out_dir, figures=figures)
+    report = out_dir / "report.md"
+    text = report.read_text()
+    text = text.replace("# vibroplan plan:", "# vibroplan replan:", 1)
+    head, sep, tail = text.partition("## Frequency assignment")
+    report.write_text(head + "\n".join(replan_report_lines(result.data)) + "\n\n" + sep + tail)
+
+
+def replan_report_lines(data) -> list:
+    """The report's re-plan section: as-built against design, tones moved, the original
+    drive on this chip, impacters that can no longer be told apart."""
+    from planner.planning.outputs import _fmt, _md_table
+
+    rp = data["replan"]
+    od = rp["original_drive"]
+    lines = ["## As-built re-plan", "",
+             "Every impacter's as-built model keeps its design's mass (and its damping and gap "
+             "unless measured); its stiffness follows from the measured natural frequency, "
+             "k = m (2 pi nu_n)^2, and a measured quality factor sets the damping, "
+             "b = m 2 pi nu_n / Q.  Only the drive is re-planned; every check above and below "
+             "is on the as-built models.", "",
+             f"**The original drive on this chip: {'PASSES' if od['passed'] else 'FAILS'}** "
+             f"({od['checks'] - od['failed_checks']} of {od['checks']} step x device checks "
+             "pass).", ""]
+    if od["failures"]:
+        lines += ["<details><summary>the original drive's failures on this chip</summary>", ""]
+        lines += [f"- {f['step']} {f['device']}: {f['cause']}" for f in od["failures"][:40]]
+        if len(od["failures"]) > 40:
+            lines.append(f"- ... and {len(od['failures']) - 40} more (plan.json)")
+        lines += ["", "</details>", ""]
+    rows = []
+    for m in rp["moved"]:
+        rows.append([m["id"], _fmt(m["design_natural_frequency_hz"], ".1f"),
+                     _fmt(m["natural_frequency_hz"], ".1f"),
+                     _fmt(100 * m["natural_frequency_shift"], "+.2f"),
+                     _fmt(m["original_frequency_hz"], ".1f"), _fmt(m["frequency_hz"], ".1f"),
+                     _fmt(100 * m["tone_shift"], "+.2f"),
+                     f"{m['original_channel']} -> {m['channel']}"])
+    lines += ["### What moved", ""]
+    lines += _md_table(["impacter", "design nu_n [Hz]", "as-built nu_n [Hz]", "shift [%]",
+                        "original tone [Hz]", "new tone [Hz]", "tone shift [%]", "channel"],
+                       rows)
+    lines.append("")
+    if rp["inseparable"]:
+        lines += ["### Impacters that can no longer be told apart", ""]
+        for c in rp["inseparable"]:
+            what = ("driven together" if c["resolved"] else "**unresolved: the plan fails**")
+            lines.append(f"- {c['message']} ({what})")
+        if rp["merged_steps"]:
+            lines += ["", "Single-impacter steps merged (these impacters are now driven "
+                      "together): " + ", ".join(rp["merged_steps"])]
+        lines.append("")
+    return lines
