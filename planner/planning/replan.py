@@ -437,6 +437,8 @@ def _resolve_conflicts(steps, blockers, nu_new):
             else:
                 reason = ("only the single-impacter steps separate them: they are driven "
                           "together instead (one step drives both)")
+            reason = (f"{m} responds at every tone within {TONE_WINDOW:.0%} of {n}'s scaled "
+                      f"tone at which {n} responds from every x0; " + reason)
             ok = not same_device and not scene_steps
             if ok:
                 pairs.append((n, m))
