@@ -431,9 +431,9 @@ def _resolve_conflicts(steps, blockers, nu_new):
                 reason = ("they are the two impacters of one device, which are never driven "
                           "together")
             elif scene_steps:
-                reason = (f"the spec's step{'s' if len(scene_steps) > 1 else ''} "
-                          f"{', '.join(scene_steps[:5])} drive{'' if len(scene_steps) > 1 else 's'} "
-                          f"{n} with {m} idle")
+                many = len(scene_steps) > 1
+                reason = (f"the spec's step{'s' if many else ''} {', '.join(scene_steps[:5])} "
+                          f"drive{'' if many else 's'} {n} with {m} idle")
             else:
                 reason = ("only the single-impacter steps separate them: they are driven "
                           "together instead (one step drives both)")
@@ -621,13 +621,12 @@ def replan(plan_data, measured, *, seed=None, progress=None):
     data["replan"] = round_floats(_replan_record(plan_data, plan_imps, params, assignment,
                                                  orig_passed, orig_rows, conflicts, steps))
     timings["total"] = time.perf_counter() - t0
-    fails = [f for f in failures]
     return Plan(
         impacters=pd.DataFrame(impacter_recs), devices=pd.DataFrame(device_recs),
         steps=pd.DataFrame(step_recs), verification=ver, coupling=coupling,
         scenes=pd.DataFrame(scene_rows), passed=passed, data=data, timings=timings,
         settings=settings, waveforms=waveforms, designs=designs, assignment=assignment,
-        failures=tuple(fails))
+        failures=tuple(failures))
 
 
 def _assignment(loaded, steps, settings, chosen, grid, plan_data):
