@@ -1,5 +1,5 @@
 """The docs/replan.md experiment: a chip whose every impacter is off its design by a
-random +-PCT %, re-planned with `vibroplan replan`.
+random +-PCT % (or all by +PCT % with --uniform), re-planned with `vibroplan replan`.
 
     python docs/replan_demo.py PLAN_DIR OUT_DIR [--pct 3] [--seed 0]
 
@@ -25,6 +25,8 @@ def main():
     ap.add_argument("out")
     ap.add_argument("--pct", type=float, default=3.0)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--uniform", action="store_true",
+                    help="shift every impacter by the same +PCT %% (a die-level bias)")
     args = ap.parse_args()
     plan = json.loads((Path(args.plan) / "plan.json").read_text())
     rng = np.random.default_rng(args.seed)
@@ -32,7 +34,7 @@ def main():
     out.mkdir(parents=True, exist_ok=True)
     rows = ["impacter,natural_frequency_hz"]
     for rec in plan["impacters"]:
-        shift = rng.uniform(-args.pct, args.pct) / 100
+        shift = (args.pct if args.uniform else rng.uniform(-args.pct, args.pct)) / 100
         rows.append(f"{rec['id']},{rec['natural_frequency_hz'] * (1 + shift):.6f}")
     (out / "measured.csv").write_text("\n".join(rows) + "\n")
     cmd = [sys.executable, "-m", "planner.cli", "replan", args.plan, "--measured",

@@ -412,7 +412,8 @@ def _merge_independent(steps, pairs):
                 continue
             done.add(group[0])
             nodes = [Node.parse(n) for n in group]
-            st = Step(INDEPENDENT, "+".join(group), 0, st.duration_s,
+            name = "+".join(group) if len(group) <= 3 else f"{group[0]}+{len(group) - 1}more"
+            st = Step(INDEPENDENT, name, 0, st.duration_s,
                       tuple(n.device for n in nodes if n.direction == "forward"),
                       tuple(n.device for n in nodes if n.direction == "backward"))
         out.append(st)
@@ -420,11 +421,21 @@ def _merge_independent(steps, pairs):
                  for i, s in enumerate(out))
 
 
-def _resolve_conflicts(steps, blockers, nu_new):
-    """(pairs to drive together, Conflict records)."""
-    pairs, conflicts = [], []
+#: Why a pair found by the verification (not the screening) cannot be told apart.
+_VERIFIED = ("{m} responds in a step that drives {n} alone, and {n} has no candidate tone "
+             "left further from {m}'s resonance (found by the verification)")
+_SCREENED = ("{m} responds at every tone within {w:.0%} of {n}'s scaled tone at which {n} "
+             "responds from every x0")
+
+
+def _resolve_conflicts(steps, blockers, nu_new, why=_SCREENED):
+    """(pairs to drive together, Conflict records); a pair is reported once."""
+    pairs, conflicts, seen = [], [], set()
     for n, who in sorted(blockers.items()):
         for m, keys in who.items():
+            if frozenset((n, m)) in seen:
+                continue
+            seen.add(frozenset((n, m)))
             scene_steps = [k for k in keys if not k.startswith(INDEPENDENT + "/")]
             same_device = Node.parse(n).device == Node.parse(m).device
             if same_device:
@@ -437,8 +448,7 @@ def _resolve_conflicts(steps, blockers, nu_new):
             else:
                 reason = ("only the single-impacter steps separate them: they are driven "
                           "together instead (one step drives both)")
-            reason = (f"{m} responds at every tone within {TONE_WINDOW:.0%} of {n}'s scaled "
-                      f"tone at which {n} responds from every x0; " + reason)
+            reason = why.format(n=n, m=m, w=TONE_WINDOW) + "; " + reason
             ok = not same_device and not scene_steps
             if ok:
                 pairs.append((n, m))
@@ -572,7 +582,7 @@ def replan(plan_data, measured, *, seed=None, progress=None):
     cands, fallback, blockers = choose_tones(settings, steps, plan_imps, nu_new, tones, grid)
     pairs, conflicts = _resolve_conflicts(steps, blockers, nu_new)
     if pairs:
-        steps = _merge_independent(steps, pairs)
+        steps = _merge_independent(settings.steps, pairs)
         cands, fallback, blockers = choose_tones(settings, steps, plan_imps, nu_new, tones,
                                                  grid)
         _, more = _resolve_conflicts(steps, blockers, nu_new)
@@ -581,7 +591,7 @@ def replan(plan_data, measured, *, seed=None, progress=None):
 
     chosen = {n: (cands[n][0] if cands[n] else fallback[n]) for n in plan_imps}
     tried = {n: {chosen[n]} for n in plan_imps}
-    verified = {}          # (step key, tones) -> (rows, failures)
+    verified = {}          # (step key, index, tones) -> (rows, failures)
     rounds = []
     ts = time.perf_counter()
     for round_ in range(REPAIR_ROUNDS + 1):
@@ -590,7 +600,7 @@ def replan(plan_data, measured, *, seed=None, progress=None):
         ver_rows, failures = [], []
         tick("verify", total=len(steps))
         for st in steps:
-            key = (st.key, tuple(np.round(waveforms[st.key].frequencies, 6)))
+            key = (st.key, st.index, tuple(np.round(waveforms[st.key].frequencies, 6)))
             if key not in verified:
                 verified[key] = check_step(settings, st, waveforms[st.key], models, sliders)
             ver_rows += verified[key][0]
@@ -600,7 +610,36 @@ def replan(plan_data, measured, *, seed=None, progress=None):
         rounds.append({"round": round_, "span": assignment.span, "failures": failed})
         if not failed or round_ == REPAIR_ROUNDS:
             break
-        if not _move_tones(failures, steps, chosen, cands, tried, nu_new, models, tones):
+        stuck = []
+        moved = _move_tones(failures, steps, chosen, cands, tried, nu_new, tones, stuck)
+        # an idle impacter that still responds to a tone that cannot move further from
+        # it: the verification found a pair the single-tone screening did not
+        must_idle = _idle_while(steps, sorted(plan_imps))
+        found = {}
+        for a, m in stuck:
+            if m in must_idle[a] and not any({c.driven, c.idle} == {a, m} for c in conflicts):
+                found.setdefault(a, {})[m] = tuple(must_idle[a][m])
+        new_pairs, new_conf = _resolve_conflicts(steps, found, nu_new, _VERIFIED)
+        # these merge only two impacters neither of which is driven with another yet:
+        # chains of merges would leave whole rows not addressable one by one
+        merged = {x for pr in pairs for x in pr}
+        keep = []
+        for c in new_conf:
+            if c.resolved and ({c.driven, c.idle} & merged):
+                c = Conflict(c.driven, c.idle, c.driven_hz, c.idle_hz, c.steps, False,
+                             c.reason.split("; ")[0] + "; one of them is already driven "
+                             "together with another impacter")
+            elif c.resolved:
+                merged |= {c.driven, c.idle}
+            keep.append(c)
+        new_pairs = [(c.driven, c.idle) for c in keep if c.resolved]
+        conflicts += keep
+        if new_pairs:
+            pairs += new_pairs
+            steps = _merge_independent(settings.steps, pairs)
+            cands, fallback, _ = choose_tones(settings, steps, plan_imps, nu_new, tones, grid)
+            moved = True
+        if not moved:
             break
     timings["verify"] = time.perf_counter() - ts
 
@@ -646,21 +685,17 @@ def _assignment(loaded, steps, settings, chosen, grid, plan_data):
                       guard_violations(steps, freqs, loaded.spec.drive.guard))
 
 
-def _move_tones(failures, steps, chosen, cands, tried, nu_new, models, tones):
-    """Move one tone per failure to its next candidate; returns whether any moved."""
+def _move_tones(failures, steps, chosen, cands, tried, nu_new, tones, stuck):
+    """Move one tone per failure to its next candidate; returns whether any moved.
+
+    ``stuck`` collects (playing node, idle node) of every idle response that no tone
+    could be moved away from.
+    """
     by_index = {st.index: st for st in steps}
     moved = set()
 
-    def move(n, better):
-        if n in moved:
-            return False
-        options = [t for t in cands.get(n, ()) if t not in tried[n] and better(t)]
-        if not options:
-            return False
-        chosen[n] = options[0]
-        tried[n].add(options[0])
-        moved.add(n)
-        return True
+    def strength(n, t):
+        return float(np.min(tones.r_own(n, t)))
 
     for fail in failures:
         st = by_index[fail.step]
@@ -668,19 +703,19 @@ def _move_tones(failures, steps, chosen, cands, tried, nu_new, models, tones):
         if not active:
             continue
         if fail.kind == TOO_SLOW:
-            own = [n for n in active if Node.parse(n).device == fail.device]
-            for n in own:
-                strength = lambda t, n=n: float(np.min(tones.r_own(n, t)))  # noqa: E731
-                cur = strength(chosen[n])
+            # a slow slider: its impacter's tone moves to the untried candidate it
+            # responds to most strongly
+            for n in (n for n in active if Node.parse(n).device == fail.device):
                 opts = sorted((t for t in cands.get(n, ()) if t not in tried[n]),
-                              key=lambda t: -strength(t))
-                if opts and n not in moved and strength(opts[0]) >= cur:
+                              key=lambda t, n=n: -strength(n, t))
+                if opts and n not in moved:
                     chosen[n] = opts[0]
                     tried[n].add(opts[0])
                     moved.add(n)
             continue
-        # an idle impacter responds, or an idle slider moves: the nearest playing tone
-        # moves away from the idle impacter's resonance
+        # an idle impacter responds, or an idle slider moves: the playing tone nearest
+        # to the idle impacter's resonance moves away from it (the next nearest if it
+        # cannot)
         if fail.kind == IDLE_RESPONSE and fail.impacter in nu_new:
             idle = [fail.impacter]
         elif fail.kind == IDLE_MOVES:
@@ -689,10 +724,22 @@ def _move_tones(failures, steps, chosen, cands, tried, nu_new, models, tones):
             continue
         if not idle:
             continue
-        a, m = min(((a, m) for a in active for m in idle),
-                   key=lambda am: abs(math.log(chosen[am[0]] / nu_new[am[1]])))
-        d0 = abs(math.log(chosen[a] / nu_new[m]))
-        move(a, lambda t, m=m, d0=d0: abs(math.log(t / nu_new[m])) > d0)
+        ranked = sorted(((a, m) for a in active for m in idle),
+                        key=lambda am: abs(math.log(chosen[am[0]] / nu_new[am[1]])))
+        for a, m in ranked:
+            if a in moved:
+                break
+            d0 = abs(math.log(chosen[a] / nu_new[m]))
+            options = [t for t in cands.get(a, ())
+                       if t not in tried[a] and abs(math.log(t / nu_new[m])) > d0]
+            if options:
+                chosen[a] = options[0]
+                tried[a].add(options[0])
+                moved.add(a)
+                break
+        else:
+            if st.scene == INDEPENDENT:
+                stuck.append(ranked[0])
     return bool(moved)
 
 
