@@ -80,6 +80,10 @@ def command(plan_path, measured_path, out_dir, force, seed, no_figures, quiet):
                f"shift {big['id']} {100 * big['tone_shift']:+.2f} %")
     click.echo(f"original drive on this chip: {'PASSES' if od['passed'] else 'FAILS'} "
                f"({od['checks'] - od['failed_checks']}/{od['checks']} checks)")
+    if rp.get("outside_band"):
+        click.echo("warning: the as-built resonance moved the tone of "
+                   f"{', '.join(rp['outside_band'])} outside the drive band "
+                   f"{d['spec']['drive']['band_hz']} Hz: driven at the band edge", err=True)
     for c in rp["inseparable"]:
         click.echo(f"{'note' if c['resolved'] else 'error'}: {c['message']}",
                    err=not c["resolved"])

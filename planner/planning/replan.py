@@ -659,6 +659,11 @@ def replan(plan_data, measured, *, seed=None, progress=None):
     data["as_built"] = round_floats(params)
     data["replan"] = round_floats(_replan_record(plan_data, plan_imps, params, assignment,
                                                  orig_passed, orig_rows, conflicts, steps))
+    lo, hi = settings.band_hz
+    data["replan"]["outside_band"] = [
+        n for n in sorted(plan_imps, key=node_key)
+        if not lo <= plan_imps[n]["frequency_hz"] * nu_new[n]
+        / plan_imps[n]["natural_frequency_hz"] <= hi]
     timings["total"] = time.perf_counter() - t0
     return Plan(
         impacters=pd.DataFrame(impacter_recs), devices=pd.DataFrame(device_recs),
@@ -848,6 +853,12 @@ def replan_report_lines(data) -> list:
                         "original tone [Hz]", "new tone [Hz]", "tone shift [%]", "channel"],
                        rows)
     lines.append("")
+    if rp.get("outside_band"):
+        lo, hi = data["spec"]["drive"]["band_hz"]
+        lines += [f"**Outside the drive band {lo:g}-{hi:g} Hz**: the as-built resonance of "
+                  + ", ".join(rp["outside_band"]) + " moved its tone beyond the band; its "
+                  "tone is the band edge nearest to it (drive.band_hz limits the piezo's "
+                  "drive).", ""]
     if rp["inseparable"]:
         lines += ["### Impacters that can no longer be told apart", ""]
         for c in rp["inseparable"]:
