@@ -611,7 +611,9 @@ def replan(plan_data, measured, *, seed=None, progress=None):
         if not failed or round_ == REPAIR_ROUNDS:
             break
         stuck = []
-        moved = _move_tones(failures, steps, chosen, cands, tried, nu_new, tones, stuck)
+        moved = _move_tones(failures, steps, chosen, cands, tried, nu_new, tones, stuck,
+                            speed=lambda n, st, t: _worst_speed(settings, st, chosen, n, t,
+                                                                models, sliders))
         # an idle impacter that still responds to a tone that cannot move further from
         # it: the verification found a pair the single-tone screening did not
         must_idle = _idle_while(steps, sorted(plan_imps))
@@ -690,11 +692,12 @@ def _assignment(loaded, steps, settings, chosen, grid, plan_data):
                       guard_violations(steps, freqs, loaded.spec.drive.guard))
 
 
-def _move_tones(failures, steps, chosen, cands, tried, nu_new, tones, stuck):
+def _move_tones(failures, steps, chosen, cands, tried, nu_new, tones, stuck, speed=None):
     """Move one tone per failure to its next candidate; returns whether any moved.
 
     ``stuck`` collects (playing node, idle node) of every idle response that no tone
-    could be moved away from.
+    could be moved away from.  ``speed(node, step, tone)``: the worst slider speed
+    [m/s] of the node's device in that step with the node at that tone.
     """
     by_index = {st.index: st for st in steps}
     moved = set()
@@ -708,15 +711,20 @@ def _move_tones(failures, steps, chosen, cands, tried, nu_new, tones, stuck):
         if not active:
             continue
         if fail.kind == TOO_SLOW:
-            # a slow slider: its impacter's tone moves to the untried candidate it
-            # responds to most strongly
+            # a slow slider: its impacter's tone moves to the untried candidate that
+            # moves the slider fastest from its worst x0 (this step's drive, this
+            # device alone; the next round verifies everything)
             for n in (n for n in active if Node.parse(n).device == fail.device):
-                opts = sorted((t for t in cands.get(n, ()) if t not in tried[n]),
-                              key=lambda t, n=n: -strength(n, t))
-                if opts and n not in moved:
-                    chosen[n] = opts[0]
-                    tried[n].add(opts[0])
-                    moved.add(n)
+                opts = [t for t in cands.get(n, ()) if t not in tried[n]]
+                if not opts or n in moved:
+                    continue
+                if speed is not None:
+                    best = max(opts, key=lambda t, n=n: speed(n, st, t))
+                else:
+                    best = max(opts, key=lambda t, n=n: strength(n, t))
+                chosen[n] = best
+                tried[n].add(best)
+                moved.add(n)
             continue
         # an idle impacter responds, or an idle slider moves: the playing tone nearest
         # to the idle impacter's resonance moves away from it (the next nearest if it
@@ -746,6 +754,23 @@ def _move_tones(failures, steps, chosen, cands, tried, nu_new, tones, stuck):
             if st.scene == INDEPENDENT:
                 stuck.append(ranked[0])
     return bool(moved)
+
+
+def _worst_speed(settings, step, chosen, node, tone, models, sliders):
+    """Worst signed slider speed [m/s] over the x0 grid of ``node``'s device in ``step``
+    with ``node`` at ``tone`` (the other tones as chosen)."""
+    from planner.planning.verify import device_motion
+
+    freqs = {**chosen, node: tone}
+    wave = synthesize_steps(settings, [step], SimpleNamespace(frequencies=freqs))[step.key]
+    drive = Drive(wave.frequencies, wave.amplitudes, wave.phases)
+    dev = Node.parse(node).device
+    own = {n: imp for n, imp in models.items() if Node.parse(n).device == dev}
+    sign = Node.parse(node).sign
+    speeds = [sign * device_motion(own, sliders[dev], drive, step.duration_s,
+                                   {node: (x0, 0.0, False)})[0] / step.duration_s
+              for x0 in x0_grid(models[node], settings.x0_points)]
+    return float(min(speeds))
 
 
 def _replan_record(plan_data, plan_imps, params, assignment, orig_passed, orig_rows,
