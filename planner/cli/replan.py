@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import sys
 from pathlib import Path
 
@@ -95,4 +96,5 @@ def command(plan_path, measured_path, out_dir, force, seed, no_figures, quiet):
         sys.exit(1)
 
 
-command.help = command.help.replace("{EXIT}", EXIT_CODES_HELP)
+# cleandoc: click keeps the docstring's indentation when help is assigned like this
+command.help = inspect.cleandoc(command.help).replace("{EXIT}", EXIT_CODES_HELP)
