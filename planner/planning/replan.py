@@ -70,6 +70,10 @@ TONE_WINDOW = 0.05
 #: relative distance of its as-built resonance [-] (further off, an impact oscillator
 #: in this band does not respond; the full verification checks every step anyway).
 SCREEN_WINDOW = 0.15
+#: Candidate tones between channels: each channel interval near where an impacter
+#: responds is divided in this many (the synthesis snaps every tone to its loop grid
+#: anyway; a channel is the nearest one).  1 keeps the tones on the channel grid.
+TONE_SUBDIVISION = 4
 #: Rounds of verify-and-move after the first verification.
 REPAIR_ROUNDS = 6
 #: Scene of the implicit single-impacter steps (planner.assign.plan_steps).
@@ -362,6 +366,23 @@ def choose_tones(settings, steps, plan_imps, nu_new, tones: _Tones, grid):
         if not near:   # scaled tone beyond the band: the band edge closest to it
             near = [float(grid[int(np.argmin(dist))])]
         responding = [t for t in near if np.min(tones.r_own(n, t)) > 0]
+        if TONE_SUBDIVISION > 1:
+            # the fixed designs respond from every x0 over only ~1-2 channels (100-200 Hz
+            # at 30 kHz in the default plan): refine between channels around where it
+            # responds (or around its strongest response) so that there is a choice
+            seeds = responding or [max(near, key=lambda t: float(np.max(tones.r_own(n, t))))]
+            lo_hz, hi_hz = grid[0], grid[-1]
+            fine = set()
+            for t in seeds:
+                i = int(np.argmin(np.abs(grid - t)))
+                width = float(grid[min(i + 1, grid.size - 1)] - grid[max(i - 1, 0)]) / 2
+                for k in range(-TONE_SUBDIVISION + 1, TONE_SUBDIVISION):
+                    f = round(t + k * width / TONE_SUBDIVISION, 6)
+                    if lo_hz <= f <= hi_hz and f not in near:
+                        fine.add(f)
+            extra = [f for f in fine if np.min(tones.r_own(n, f)) > 0]
+            responding = sorted(set(responding) | set(extra),
+                                key=lambda t: (abs(math.log(t / target)), t))
         ok, blocked = [], {}
         for t in responding:
             hit = [m for m in must_idle[n]
@@ -454,6 +475,22 @@ def _resolve_conflicts(steps, blockers, nu_new, why=_SCREENED):
                 pairs.append((n, m))
             conflicts.append(Conflict(n, m, nu_new[n], nu_new[m], tuple(keys), ok, reason))
     return pairs, conflicts
+
+
+def _share_tones(steps, cands, chosen):
+    """Impacters driven together after a collision share one tone where every one of
+    them responds (one tone, no beating of two close ones that stirs idle impacters)."""
+    for st in steps:
+        if st.scene != INDEPENDENT:
+            continue
+        group = sorted(_active(st) & set(chosen), key=node_key)
+        if len(group) < 2:
+            continue
+        common = [t for t in cands.get(group[0], ())
+                  if all(t in cands.get(m, ()) for m in group[1:])]
+        if common:
+            for m in group:
+                chosen[m] = common[0]
 
 
 def _original_waveforms(plan_data):
@@ -590,6 +627,7 @@ def replan(plan_data, measured, *, seed=None, progress=None):
     timings["tones"] = time.perf_counter() - ts
 
     chosen = {n: (cands[n][0] if cands[n] else fallback[n]) for n in plan_imps}
+    _share_tones(steps, cands, chosen)
     tried = {n: {chosen[n]} for n in plan_imps}
     verified = {}          # (step key, index, tones) -> (rows, failures)
     rounds = []
@@ -640,6 +678,10 @@ def replan(plan_data, measured, *, seed=None, progress=None):
             pairs += new_pairs
             steps = _merge_independent(settings.steps, pairs)
             cands, fallback, _ = choose_tones(settings, steps, plan_imps, nu_new, tones, grid)
+            for n in {x for pr in new_pairs for x in pr}:
+                chosen[n] = cands[n][0] if cands[n] else fallback[n]
+                tried[n].add(chosen[n])
+            _share_tones(steps, cands, chosen)
             moved = True
         if not moved:
             break
@@ -751,7 +793,7 @@ def _move_tones(failures, steps, chosen, cands, tried, nu_new, tones, stuck, spe
                 moved.add(a)
                 break
         else:
-            if st.scene == INDEPENDENT:
+            if st.scene == INDEPENDENT and len(active) == 1:
                 stuck.append(ranked[0])
     return bool(moved)
 
