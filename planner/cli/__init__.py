@@ -26,6 +26,7 @@ COMMANDS = {
     "color": "color",
     "drive": "drive",
     "calibrate": "calibrate",
+    "replan": "replan",
     "bench": "bench",
     "yield": "yield_",
 }

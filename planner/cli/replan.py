@@ -1,0 +1,100 @@
+"""``vibroplan replan``: a new drive for a fabricated chip from its measured resonances."""
+
+from __future__ import annotations
+
+import inspect
+import sys
+from pathlib import Path
+
+import click
+
+from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_errors
+
+
+@click.command("replan")
+@click.argument("plan_path", metavar="PLAN", type=click.Path(path_type=Path))
+@click.option("--measured", "measured_path", required=True,
+              type=click.Path(dir_okay=False, path_type=Path),
+              help="measured.csv: impacter,natural_frequency_hz[,quality_factor][,gap_um] "
+                   "(e.g. from `vibroplan calibrate`).")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="replan_out",
+              show_default=True,
+              help="Output folder (the same rules as `vibroplan plan --out`).")
+@click.option("--force", is_flag=True,
+              help="Replace --out even if it is a non-empty folder vibroplan did not write.")
+@click.option("--seed", type=int, default=None, help="Drive phases' seed (default: the plan's).")
+@click.option("--no-figures", is_flag=True, help="Skip the PNG figures (faster).")
+@click.option("--quiet", is_flag=True, help="No progress output.")
+@handle_errors
+def command(plan_path, measured_path, out_dir, force, seed, no_figures, quiet):
+    """Re-plan the drive of a fabricated chip from its measured resonances.
+
+    PLAN is a `vibroplan plan` output folder or its plan.json.  Each impacter's
+    as-built model keeps its design's mass (and damping and gap unless measured);
+    k = m (2 pi nu_n)^2 from the measured natural frequency; a quality factor sets
+    b = m 2 pi nu_n / Q.  The designs are fixed: each impacter's tone moves with its
+    resonance (scaled by measured / designed nu_n, snapped to the channel grid) and
+    is repaired by local search until every step verifies on the as-built models.
+
+    \b
+    measured.csv: header, then one row per impacter (any column order):
+      impacter              name, as in the plan (e.g. A1.forward)
+      natural_frequency_hz  measured nu_n [Hz], > 0
+      quality_factor        optional, Q [-], > 0
+      gap_um                optional, measured gap [um], > 0
+    Columns ending in _std (calibrate's uncertainties) are ignored; an impacter
+    without a row keeps its design.  A malformed file is an error naming its row
+    and column (exit 2, nothing written).
+
+    Writes OUT/ as `vibroplan plan` does (plan.json with `as_built` and `replan`,
+    report.md, waveforms/, CSVs, figures/).  The report says what moved and whether
+    the ORIGINAL drive would have failed on this chip.  Impacters whose as-built
+    resonances collide are named; they are driven together when only the implicit
+    single-impacter steps separate them, otherwise the plan fails (exit 1).
+
+    {EXIT}
+    """
+    from planner.planning.replan import load_plan, read_measured, replan, write_replan_outputs
+
+    from planner._io import output_folder
+
+    plan_data = load_plan(plan_path)
+    measured = read_measured(measured_path, [r["id"] for r in plan_data["impacters"]])
+    check_output_folder(out_dir, inputs=[plan_path, measured_path], force=force)
+
+    def progress(stage, item=None, total=None):
+        if total is not None and not quiet:
+            click.echo(f"{stage}...", err=True)
+
+    with output_folder(out_dir, command="replan", inputs=[plan_path, measured_path],
+                       force=force) as tmp:
+        result = replan(plan_data, measured, seed=seed, progress=progress)
+        write_replan_outputs(result, tmp, figures=not no_figures)
+    d = result.data
+    rp = d["replan"]
+    od = rp["original_drive"]
+    missing = sorted(set(r["id"] for r in plan_data["impacters"]) - set(measured))
+    if missing:
+        click.echo(f"warning: not measured, taken as designed: {', '.join(missing)}", err=True)
+    big = max(rp["moved"], key=lambda m: abs(m["tone_shift"]))
+    click.echo(f"{d['spec']['name']}: {len(d['impacters'])} impacters re-planned; largest tone "
+               f"shift {big['id']} {100 * big['tone_shift']:+.2f} %")
+    click.echo(f"original drive on this chip: {'PASSES' if od['passed'] else 'FAILS'} "
+               f"({od['checks'] - od['failed_checks']}/{od['checks']} checks)")
+    if rp.get("outside_band"):
+        click.echo("warning: the as-built resonance moved the tone of "
+                   f"{', '.join(rp['outside_band'])} outside the drive band "
+                   f"{d['spec']['drive']['band_hz']} Hz: driven at the band edge", err=True)
+    for c in rp["inseparable"]:
+        click.echo(f"{'note' if c['resolved'] else 'error'}: {c['message']}",
+                   err=not c["resolved"])
+    ver = result.verification
+    click.echo(f"re-planned drive: {'PASSED' if result.passed else 'FAILED'} "
+               f"({int(ver['passed'].sum())}/{len(ver)} checks); wrote {out_dir}/ "
+               f"(see {out_dir}/report.md)")
+    if not result.passed:
+        sys.exit(1)
+
+
+# cleandoc: click keeps the docstring's indentation when help is assigned like this
+command.help = inspect.cleandoc(command.help).replace("{EXIT}", EXIT_CODES_HELP)

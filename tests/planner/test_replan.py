@@ -1,0 +1,207 @@
+"""`vibroplan replan`: as-built re-plan of a fabricated chip from measured resonances.
+
+A tiny 1 x 2 plan is made once (real designer, real verification); the chips are its
+impacters with their natural frequencies moved, re-planned and verified by simulation.
+"""
+
+import json
+import math
+
+import pytest
+from click.testing import CliRunner
+
+from tests.planner.test_pipeline import TINY
+
+
+@pytest.fixture(scope="module")
+def tiny_plan_dir(tmp_path_factory):
+    from planner.planning import plan
+    from planner.spec import load_spec
+
+    out = tmp_path_factory.mktemp("replan") / "plan"
+    result = plan(load_spec(TINY), out_dir=out, figures=False)
+    assert result.passed, "the tiny plan itself must verify"
+    return out
+
+
+@pytest.fixture(scope="module")
+def plan_data(tiny_plan_dir):
+    from planner.planning.replan import load_plan
+
+    return load_plan(tiny_plan_dir)
+
+
+def _write(path, text):
+    path.write_text(text)
+    return path
+
+
+def _measured_csv(path, freqs, extra=""):
+    rows = ["impacter,natural_frequency_hz" + extra]
+    rows += [f"{n},{f!r}" + ("," * extra.count(",")) for n, f in freqs.items()]
+    return _write(path, "\n".join(rows) + "\n")
+
+
+def _run(*args):
+    from planner.cli import main
+
+    return CliRunner().invoke(main, ["replan", *map(str, args)], catch_exceptions=False)
+
+
+def test_as_built_parameters_follow_the_measurement(plan_data):
+    from planner.planning.replan import as_built_parameters
+
+    rec = plan_data["impacters"][0]
+    nu = 1.03 * rec["natural_frequency_hz"]
+    p = as_built_parameters(plan_data, {rec["id"]: {"natural_frequency_hz": nu,
+                                                    "quality_factor": 12.0,
+                                                    "gap_m": 2.5e-6}})[rec["id"]]
+    m = rec["mass_kg"]
+    assert p["stiffness_n_per_m"] == pytest.approx(m * (2 * math.pi * nu) ** 2, rel=1e-12)
+    assert p["damping_ns_per_m"] == pytest.approx(m * 2 * math.pi * nu / 12.0, rel=1e-12)
+    assert p["gap_m"] == 2.5e-6
+    other = plan_data["impacters"][1]
+    q = as_built_parameters(plan_data, {})[other["id"]]
+    # not measured: the design's damping and gap, and its own resonance
+    assert q["damping_ns_per_m"] == other["damping_ns_per_m"]
+    assert q["gap_m"] == other["gap_m"]
+    assert q["stiffness_n_per_m"] == pytest.approx(other["stiffness_n_per_m"], rel=1e-6)
+
+
+def test_replan_of_the_design_verifies(plan_data, tmp_path):
+    freqs = {r["id"]: r["natural_frequency_hz"] for r in plan_data["impacters"]}
+    csv = _measured_csv(tmp_path / "measured.csv", freqs)
+    out = tmp_path / "out"
+    res = _run(plan_data_path(plan_data, tmp_path), "--measured", csv, "--out", out)
+    assert res.exit_code == 0, res.output
+    d = json.loads((out / "plan.json").read_text())
+    assert d["verification"]["passed"] is True
+    assert d["replan"]["original_drive"]["passed"] is True
+    # the as-built record of the pinned contract, equal to the design here
+    for r in plan_data["impacters"]:
+        ab = d["as_built"][r["id"]]
+        assert set(ab) == {"natural_frequency_hz", "stiffness_n_per_m", "damping_ns_per_m",
+                           "gap_m"}
+        assert ab["natural_frequency_hz"] == pytest.approx(r["natural_frequency_hz"])
+    # same output contract as vibroplan plan
+    assert {"impacters", "devices", "steps", "verification", "spec", "seed",
+            "assignment", "scenes"} <= set(d)
+    for st in d["steps"]:
+        for rel in st["files"].values():
+            assert (out / rel).exists()
+    assert "As-built re-plan" in (out / "report.md").read_text()
+
+
+def plan_data_path(plan_data, tmp_path):
+    path = tmp_path / "orig_plan.json"
+    path.write_text(json.dumps(plan_data))
+    return path
+
+
+def test_shifted_chip_is_rescued(plan_data, tmp_path):
+    # every impacter a few percent off its design, in opposite directions
+    shifts = [1.04, 0.96]
+    freqs = {r["id"]: s * r["natural_frequency_hz"]
+             for r, s in zip(plan_data["impacters"], shifts)}
+    csv = _measured_csv(tmp_path / "measured.csv", freqs)
+    out = tmp_path / "out"
+    res = _run(plan_data_path(plan_data, tmp_path), "--measured", csv, "--out", out)
+    assert res.exit_code == 0, res.output
+    d = json.loads((out / "plan.json").read_text())
+    assert d["verification"]["passed"] is True
+    assert d["replan"]["original_drive"]["passed"] is False
+    assert "original drive on this chip: FAILS" in res.output
+    # the tones moved with the resonances
+    for m in d["replan"]["moved"]:
+        assert (m["tone_shift"] > 0) == (m["natural_frequency_shift"] > 0)
+    # and the re-planned drive, checked independently on the same models, passes
+    from planner.planning.replan import verify_drive
+
+    passed, rows = verify_drive(d, {n: {"natural_frequency_hz": f} for n, f in freqs.items()})
+    assert passed and len(rows) == 4
+    # while the original drive does not
+    passed, _ = verify_drive(plan_data, {n: {"natural_frequency_hz": f}
+                                         for n, f in freqs.items()})
+    assert not passed
+
+
+def test_replan_chip_api(plan_data):
+    from planner.planning.replan import replan_chip
+
+    chip = {r["id"]: {"natural_frequency_hz": 1.02 * r["natural_frequency_hz"]}
+            for r in plan_data["impacters"]}
+    passed, result = replan_chip(plan_data, chip, seed=1)
+    assert passed is result.passed
+    assert result.data["seed"] == 1
+    assert set(result.data["as_built"]) == set(chip)
+
+
+def test_colliding_resonances_fail_naming_both(plan_data, tmp_path):
+    # A2.backward lands on A1.forward's resonance; the spec's own steps drive each alone
+    nu = {r["id"]: r["natural_frequency_hz"] for r in plan_data["impacters"]}
+    csv = _measured_csv(tmp_path / "measured.csv",
+                        {"A1.forward": nu["A1.forward"], "A2.backward": nu["A1.forward"]})
+    out = tmp_path / "out"
+    res = _run(plan_data_path(plan_data, tmp_path), "--measured", csv, "--out", out)
+    assert res.exit_code == 1
+    assert "cannot be told apart" in res.output
+    assert "A1.forward" in res.output and "A2.backward" in res.output
+    d = json.loads((out / "plan.json").read_text())
+    assert d["verification"]["passed"] is False
+    (c,) = d["replan"]["inseparable"]
+    assert {c["driven"], c["idle"]} == {"A1.forward", "A2.backward"}
+    assert not c["resolved"]
+
+
+def test_single_steps_merge_when_only_they_separate_a_pair():
+    from planner.planning.replan import _merge_independent, _resolve_conflicts
+    from planner.spec import Step
+
+    steps = (Step("s", "all", 0, 0.005, ("A1", "A2"), ()),
+             Step("independent", "A1.forward", 1, 0.01, ("A1",), ()),
+             Step("independent", "A2.forward", 2, 0.01, ("A2",), ()),
+             Step("independent", "A1.backward", 3, 0.01, (), ("A1",)))
+    nu = {"A1.forward": 5000.0, "A2.forward": 5001.0, "A1.backward": 5002.0}
+    blockers = {"A1.forward": {"A2.forward": ("independent/A1.forward",),
+                               "A1.backward": ("independent/A1.forward",)}}
+    pairs, conflicts = _resolve_conflicts(steps, blockers, nu)
+    assert pairs == [("A1.forward", "A2.forward")]
+    by_idle = {c.idle: c for c in conflicts}
+    assert by_idle["A2.forward"].resolved
+    assert not by_idle["A1.backward"].resolved       # one device's two impacters
+    merged = _merge_independent(steps, pairs)
+    assert [s.key for s in merged] == ["s/all", "independent/A1.forward+A2.forward",
+                                       "independent/A1.backward"]
+    assert merged[1].forward == ("A1", "A2") and [s.index for s in merged] == [0, 1, 2]
+    # a scene step that separates them forbids the fallback
+    pairs, (c,) = _resolve_conflicts(steps, {"A1.forward": {"A2.forward": ("s/one",)}}, nu)
+    assert pairs == [] and not c.resolved and "s/one" in c.reason
+
+
+@pytest.mark.parametrize("text, row, column", [
+    ("impacter,quality_factor\nA1.forward,10\n", 1, "natural_frequency_hz"),
+    ("impacter,natural_frequency_hz\nA1.forward,2600\nB7.forward,3000\n", 3, "impacter"),
+    ("impacter,natural_frequency_hz\nA1.forward,-2600\n", 2, "natural_frequency_hz"),
+    ("impacter,natural_frequency_hz,gap_um\nA1.forward,2600,0\n", 2, "gap_um"),
+    ("impacter,natural_frequency_hz\nA1.forward,nan\n", 2, "natural_frequency_hz"),
+])
+def test_malformed_csv_exit_2_nothing_written(plan_data, tmp_path, text, row, column):
+    csv = _write(tmp_path / "measured.csv", text)
+    out = tmp_path / "out"
+    res = _run(plan_data_path(plan_data, tmp_path), "--measured", csv, "--out", out)
+    assert res.exit_code == 2
+    assert f"row {row}, column {column}" in res.output
+    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["measured.csv", "orig_plan.json"]
+
+
+def test_calibrate_output_is_accepted(plan_data, tmp_path):
+    # calibrate's *_std columns are ignored
+    from planner.planning.replan import read_measured
+
+    csv = _write(tmp_path / "m.csv",
+                 "impacter,natural_frequency_hz,quality_factor,natural_frequency_std_hz,"
+                 "quality_factor_std\nA1.forward,2600.5,11.2,3.1,0.4\n")
+    got = read_measured(csv, [r["id"] for r in plan_data["impacters"]])
+    assert got == {"A1.forward": {"natural_frequency_hz": 2600.5, "quality_factor": 11.2,
+                                  "gap_m": None}}
