@@ -202,9 +202,16 @@ def _check_impacter_sections(loaded):
         for key in ("impacter", "forward", "backward"):
             if getattr(over, key) is not None:
                 sections.append((("devices", dev, key), getattr(over, key)))
+    from planner.config import DEFAULT_IMPACTER
+
     for loc, cfg in sections:
         for name in sorted(cfg.model_fields_set):
-            if name in DESIGNED_FIELDS and getattr(cfg, name) is not None:
+            value = getattr(cfg, name)
+            # a spec read back from plan.json carries the device defaults verbatim: those
+            # are no request for a fixed geometry
+            if loc == ("device", "impacter") and value == getattr(DEFAULT_IMPACTER, name):
+                continue
+            if name in DESIGNED_FIELDS and value is not None:
                 instead = DESIGNED_FIELDS[name]
                 _refuse(loaded, loc + (name,),
                         "the array planner designs every impacter's geometry, so it cannot "
