@@ -28,3 +28,35 @@ def synthesize_steps(settings: Settings, steps, assignment, seed=None):
 def drive_of(waveform) -> Drive:
     """The model's drive of a waveform (its tones, amplitudes and phases)."""
     return Drive(waveform.frequencies, waveform.amplitudes, waveform.phases)
+
+
+def limit_acceleration(settings: Settings, waveforms):
+    """Enforce ``drive.max_acceleration_g``: every step whose summed drive's peak base
+    acceleration exceeds it has all its tone amplitudes lowered by one factor (limit /
+    peak; phases and frequencies kept), and says so.
+
+    Returns
+    -------
+    (waveforms, notes)
+        ``notes``: step key -> {"peak_displacement_m", "peak_acceleration_m_s2"
+        (after any lowering), "acceleration_scale" (1 if none)}.
+    """
+    from planner.planning.motion import drive_peaks
+    from planner.synthesis import synthesize
+
+    out, notes = {}, {}
+    limit = settings.max_acceleration_m_s2
+    for key, w in waveforms.items():
+        zp, ap = drive_peaks(w)
+        scale = 1.0
+        if limit is not None and ap > limit:
+            # a hair under the limit, so that the refined peak of the lowered drive is
+            # not above it by rounding
+            scale = limit / ap * (1.0 - 1e-6)
+            w = synthesize(w.frequencies, w.amplitudes * scale, settings.sample_rate_hz,
+                           phases=w.phases, peak_limit=settings.peak_limit_m)
+            zp, ap = drive_peaks(w)
+        out[key] = w
+        notes[key] = {"peak_displacement_m": zp, "peak_acceleration_m_s2": ap,
+                      "acceleration_scale": scale}
+    return out, notes
