@@ -41,8 +41,9 @@ def limit_acceleration(settings: Settings, waveforms):
         ``notes``: step key -> {"peak_displacement_m", "peak_acceleration_m_s2"
         (after any lowering), "acceleration_scale" (1 if none)}.
     """
+    import dataclasses
+
     from planner.planning.motion import drive_peaks
-    from planner.synthesis import synthesize
 
     out, notes = {}, {}
     limit = settings.max_acceleration_m_s2
@@ -53,8 +54,12 @@ def limit_acceleration(settings: Settings, waveforms):
             # a hair under the limit, so that the refined peak of the lowered drive is
             # not above it by rounding
             scale = limit / ap * (1.0 - 1e-6)
-            w = synthesize(w.frequencies, w.amplitudes * scale, settings.sample_rate_hz,
-                           phases=w.phases, peak_limit=settings.peak_limit_m)
+            # the same loop scaled: frequencies, phases and crest factor unchanged
+            w = dataclasses.replace(
+                w, samples=w.samples * scale, amplitudes=w.amplitudes * scale,
+                peak=w.peak * scale, rms=w.rms * scale, scale=w.scale * scale,
+                warnings=w.warnings + (f"every amplitude lowered by x{scale:.4g} to meet "
+                                       "drive.max_acceleration_g",))
             zp, ap = drive_peaks(w)
         out[key] = w
         notes[key] = {"peak_displacement_m": zp, "peak_acceleration_m_s2": ap,

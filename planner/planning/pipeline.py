@@ -26,6 +26,27 @@ from planner.planning.settings import Settings, resolve_settings
 from planner.planning.verify import check_step, coupling_matrix
 
 
+def design_problems(designs, settings):
+    """One readable entry per infeasible design: which impacter, why, what to change."""
+    out = []
+    for n in sorted(designs):
+        d = designs[n]
+        if d.feasible:
+            continue
+        advice = ("widen the separations (drive.guard.separation_channels, "
+                  "ensemble_separation_channels) or the band, so that its forbidden tones "
+                  "sit further from its own")
+        if d.checks.get("violated_drives"):
+            advice += ("; it responds under the summed drive of a step it sits out: fewer "
+                       "tones per step or a lower drive.power_m2_s3 also help")
+        if getattr(d, "mass_ratio", 0.0) >= 0.99 * settings.max_mass_ratio:
+            advice += (f"; it sits at the mass-ratio cap m/M = {settings.max_mass_ratio:g} "
+                       "(design.max_mass_ratio, or a heavier slider)")
+        out.append({"impacter": n, "frequency_hz": d.frequency_hz, "why": d.message,
+                    "what_to_change": advice})
+    return out
+
+
 def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings | None = None):
     """Run every stage; returns a :class:`Plan` (files are written by :func:`plan`).
 
@@ -123,9 +144,12 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     coupling = coupling_matrix(impacters, tones, settings, settings.single_step_s)
     timings["scenes_coupling"] = time.perf_counter() - ts
     ver = pd.DataFrame(ver_rows)
-    passed = bool(ver["passed"].all())
+    problems = design_problems(designs, settings)
+    # an infeasible design fails the plan even if the steps happen to verify: it was
+    # not shown silent at its forbidden tones on the designer's fine grid
+    passed = bool(ver["passed"].all()) and not problems
     motion = {"sizing": sizing, "drive": drive_notes, "settle_s": settle_by_step,
-              "repairs": motion_repairs}
+              "repairs": motion_repairs, "design_problems": problems}
     data, impacter_recs, device_recs, step_recs = build_record(
         settings, run_steps, assignment, designs, sliders, waveforms, ver_rows, passed, rounds,
         scene_rows, motion)

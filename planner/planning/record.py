@@ -131,6 +131,7 @@ def build_record(settings, steps, assignment, designs, sliders, waveforms, ver_r
         "steps": step_recs,
         "verification": {"passed": passed, "repair_rounds": rounds,
                          "motion_repairs": (motion or {}).get("repairs", []),
+                         "design_problems": (motion or {}).get("design_problems", []),
                          "max_travel_m": settings.max_travel_m, "steps": per_step},
         "scenes": scene_rows,
     }
