@@ -126,11 +126,6 @@ def test_travel_over_limit_is_a_failure_and_repair_shortens_the_burst():
     assert any(a.startswith("s/push: burst 40 ->") for a in actions), actions
     push = next(st for st in d["steps"] if st["name"] == "push")
     assert push["duration_s"] < 0.04
-    for st in d["steps"]:
-        for dev, z in st["travel_m"].items():
-            row = d["verification"]["steps"][f"s/{st['name']}"][dev]
-            assert row["passed"] == (abs(z) <= 5e-6 and "cause" in row and not row["cause"]) \
-                or not row["passed"]
     # whatever the outcome, the headline agrees with the rows
     rows = [r for s in d["verification"]["steps"].values() for r in s.values()]
     assert d["verification"]["passed"] == all(r["passed"] for r in rows)
