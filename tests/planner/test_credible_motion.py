@@ -267,29 +267,55 @@ def test_paper_contact_is_the_old_kick_path():
     run_phase({"A1.forward": imp}, {"A1": sl}, {"A1": "two_body"}, drive, 3e-3, {}, sl_states)
 
 
+def _tip_speeds(step_rec, imp_recs):
+    """Node -> fastest impact speed v- [m/s] of each mover's impacter under the step's
+    summed drive (from rest, the step's burst)."""
+    import model
+
+    drive = model.Drive([t["frequency_hz"] for t in step_rec["tones"]],
+                        [t["amplitude_m"] for t in step_rec["tones"]],
+                        [t["phase_rad"] for t in step_rec["tones"]])
+    out = {}
+    for rec in imp_recs:
+        dev, direction = rec["device"], rec["direction"]
+        if dev not in step_rec[direction]:
+            continue
+        imp = model.Impacter(rec["mass_kg"], rec["stiffness_n_per_m"], rec["damping_ns_per_m"],
+                             rec["gap_m"], rec["impact_angle_rad"], rec["restitution"])
+        res = model.simulate(imp, drive, 0.0, 0.0, step_rec["duration_s"], max_events=1_000_000)
+        out[dev] = float(res.velocities.max()) if res.velocities.size else 0.0
+    return out
+
+
+def test_slider_slower_than_the_tips_that_push_it(travel_plan):
+    d = travel_plan.data
+    for st in d["steps"]:
+        tips = _tip_speeds(st, d["impacters"])
+        for dev, v in tips.items():
+            speed = abs(st["travel_m"][dev]) / (st["duration_s"] + st["settle_s"])
+            assert 0 < speed < v
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1, 2, 3, 4])
 def test_default_plan_is_credible(seed, tmp_path):
-    """`vibroplan plan --seed N` verifies with the new semantics, sliders slower than
-    the tips that push them, travel per step well under the pitch."""
+    """`vibroplan plan --seed N` verifies with the new semantics; every mover's slider
+    is slower than the impacter tips that push it, its travel per step well under the
+    pitch, and every design within the mass-ratio cap."""
     out = tmp_path / "plan"
     proc = subprocess.run([sys.executable, "-m", "planner.cli", "plan", "--seed", str(seed),
                            "--out", str(out), "--no-figures"],
-                          capture_output=True, text=True, timeout=1800, cwd=tmp_path)
+                          capture_output=True, text=True, timeout=3600, cwd=tmp_path)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     d = json.loads((out / "plan.json").read_text())
     assert d["verification"]["passed"] is True
     pitch = d["spec"]["array"]["pitch_um"] * 1e-6
-    tips = {}
     for imp in d["impacters"]:
         assert imp["mass_ratio"] <= 0.4 * (1 + 1e-9)
-        # the tip's speed bound: a driven impacter's tip never moves faster than
-        # 2 pi nu_drive times its swing, and its swing is bounded by the wall (2 c)
-        tips[imp["id"]] = 2 * np.pi * imp["frequency_hz"] * 2 * imp["gap_m"]
     for st in d["steps"]:
-        dur = st["duration_s"]
         for dev, z in st["travel_m"].items():
-            assert abs(z) < 0.5 * pitch
-            speed = abs(z) / dur
-            nodes = [n for n in tips if n.startswith(dev + ".")]
-            assert speed < min(tips[n] for n in nodes)
+            assert abs(z) <= 0.1 * pitch
+        if st["scene"] != "independent":
+            tips = _tip_speeds(st, d["impacters"])
+            for dev, v in tips.items():
+                assert abs(st["travel_m"][dev]) / st["duration_s"] < v
