@@ -271,7 +271,8 @@ def _motion_notes(d):
                          f"drive.max_acceleration_g (peak now {rec['peak_acceleration_g']:.0f} g)")
         if rec.get("requested_travel_m") is not None:
             v = (rec.get("sizing") or {}).get("slowest_probe_speed_m_s")
-            lines.append(f"- {key}: burst {rec['duration_s'] * 1e3:g} ms sized for "
+            sized = (rec.get("sizing") or {}).get("sized_s") or rec["duration_s"]
+            lines.append(f"- {key}: burst {sized * 1e3:g} ms sized for "
                          f"{rec['requested_travel_m'] / UM:g} um at the slowest predicted "
                          f"speed {_fmt(v * 1e3 if v is not None else None, '.3g')} mm/s")
     for rnd in d["verification"].get("motion_repairs", []):

@@ -69,7 +69,7 @@ def step_record(step, waveform, motion=None):
             sized = motion["sizing"].get(step.key, {})
             extra["requested_travel_m"] = step.travel_m
             extra["sizing"] = {"slowest_probe_speed_m_s": sized.get("slowest_m_s"),
-                               "probe_s": PROBE_S}
+                               "probe_s": PROBE_S, "sized_s": sized.get("sized_s")}
     return {
         "scene": step.scene, "name": step.name, "index": step.index,
         "duration_s": step.duration_s, **extra,
