@@ -42,6 +42,9 @@ NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 
 _Strict = Strict
 
+#: Longest burst [s] of a ``travel_um`` step without ``duration_ms``.
+DEFAULT_MAX_BURST_S = 0.1
+
 
 class ArrayConfig(_Strict):
     """Grid of devices: ``rows`` x ``cols`` at ``pitch_um``."""
@@ -62,6 +65,10 @@ class DeviceDefaults(_Strict):
     forward: ImpacterConfig | None = None
     backward: ImpacterConfig | None = None
     slider: SliderConfig = SliderConfig()
+    #: Contact law of every impacter pair on its slider (:data:`model.CONTACTS`,
+    #: docs/contact.md): ``two_body`` (the default of array specs) never creates energy;
+    #: ``paper`` is eq. (10) as printed, the small-m/M limit.
+    contact: Literal["paper", "two_body"] = "two_body"
 
 
 class ChannelGrid(_Strict):
@@ -101,6 +108,9 @@ class DriveSpec(_Strict):
     power_m2_s3: PositiveFloat = 50.0
     amplitude_um: PositiveFloat | None = None
     peak_limit_um: PositiveFloat = 10.0
+    #: Largest peak base acceleration of any step's summed drive [g] (None: no limit);
+    #: a step above it has every tone amplitude lowered by one factor.
+    max_acceleration_g: PositiveFloat | None = None
     sample_rate_hz: PositiveFloat = 200000.0
     over_limit: Literal["scale", "split"] = "scale"
     channels: ChannelGrid = ChannelGrid()
@@ -148,6 +158,9 @@ class DesignSpec(_Strict):
     #: tolerances at the candidate's own geometry (planner.fabrication.RobustShift).
     robust: bool = False
     robust_k: Annotated[float, Field(gt=0, le=6, allow_inf_nan=False)] = 2.0
+    #: Upper bound on m/M, one impacter's mass over its slider's [-]: eq. (10) is the
+    #: small-m/M limit of an impact, and the paper's measured devices had 0.23 and 0.38.
+    max_mass_ratio: PositiveFloat = 0.4
 
 
 class VerificationSpec(_Strict):
@@ -157,6 +170,9 @@ class VerificationSpec(_Strict):
     min_speed_mm_s: NonNegFloat = 0.2
     idle_tolerance_um: NonNegFloat = 0.5
     repair_rounds: Annotated[int, Field(ge=0, le=20)] = 3
+    #: Largest travel of any slider in one step (burst and settle dwell) [um]; None:
+    #: half the array pitch.
+    max_travel_um: PositiveFloat | None = None
 
 
 class Tolerance(_Strict):
@@ -209,12 +225,24 @@ class FabricationSpec(_Strict):
 
 
 class StepSpec(_Strict):
-    """One step of a scene: who moves which way, for how long."""
+    """One step of a scene: who moves which way, for how long or how far.
+
+    ``duration_ms`` is the burst's length; ``travel_um`` asks the planner to size the
+    burst so that the slowest slider of the step moves that far (predicted under the
+    step's summed drive); with both, ``duration_ms`` is the longest burst allowed.
+    """
 
     name: str
-    duration_ms: PositiveFloat
+    duration_ms: PositiveFloat | None = None
+    travel_um: PositiveFloat | None = None
     forward: list[str] = []
     backward: list[str] = []
+
+    @model_validator(mode="after")
+    def _how_long(self):
+        if self.duration_ms is None and self.travel_um is None:
+            raise ValueError("a step needs duration_ms or travel_um (or both)")
+        return self
 
 
 class DeviceOverride(_Strict):
@@ -224,6 +252,7 @@ class DeviceOverride(_Strict):
     forward: ImpacterConfig | None = None
     backward: ImpacterConfig | None = None
     slider: SliderConfig | None = None
+    contact: Literal["paper", "two_body"] | None = None
 
 
 class ArraySpec(_Strict):
@@ -254,6 +283,13 @@ class ArraySpec(_Strict):
             cfg = cfg.merged(over.impacter).merged(getattr(over, direction))
         return cfg
 
+    def contact(self, device_id: str) -> str:
+        """The contact law of ``device_id`` (``devices.<id>.contact``, else ``device.contact``)."""
+        over = self.devices.get(device_id)
+        if over is not None and over.contact is not None:
+            return over.contact
+        return self.device.contact
+
     def slider_config(self, device_id: str) -> SliderConfig:
         over = self.devices.get(device_id)
         if over is not None and over.slider is not None:
@@ -273,6 +309,10 @@ class Step:
     duration_s: float
     forward: tuple[str, ...]
     backward: tuple[str, ...]
+    #: Travel [m] the burst is sized for (step ``travel_um``), or None.
+    travel_m: float | None = None
+    #: Longest burst [s] a ``travel_um`` step may get (its ``duration_ms``), or None.
+    max_duration_s: float | None = None
 
     @property
     def key(self) -> str:
@@ -356,7 +396,13 @@ def resolve_steps(spec: ArraySpec, lines=None, source=None) -> tuple[Step, ...]:
             if not fwd and not bwd:
                 raise SpecError("a step must move at least one device", path=format_loc(base),
                                 line=line_of(lines, base), source=source)
-            steps.append(Step(scene, st.name, len(steps), st.duration_ms * 1e-3, fwd, bwd))
+            travel = st.travel_um * 1e-6 if st.travel_um is not None else None
+            cap = st.duration_ms * 1e-3 if st.duration_ms is not None else None
+            # a travel_um step gets its burst from the planner (planning.motion); until
+            # then its duration is its cap, or the default cap
+            duration = cap if cap is not None else DEFAULT_MAX_BURST_S
+            steps.append(Step(scene, st.name, len(steps), duration, fwd, bwd,
+                              travel_m=travel, max_duration_s=cap if travel else None))
     return tuple(steps)
 
 

@@ -47,8 +47,9 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, job
         ``force``).  The files are written to a temporary folder beside it and
         swapped in atomically only when complete.
     seed : int, optional
-        Overrides the spec's ``design.seed``; same spec and seed give a
-        byte-identical plan.json.
+        Overrides the spec's ``design.seed``: the designs' seed and the drive phases'
+        (so ``vibroplan plan --seed N`` gives different designs, not only phases); same
+        spec and seed give a byte-identical plan.json.
     jobs : int, optional
         Worker processes for the designs (default 1; the CLI uses every core).  The
         plan does not depend on it.  As with any ``multiprocessing`` code, a script

@@ -28,3 +28,40 @@ def synthesize_steps(settings: Settings, steps, assignment, seed=None):
 def drive_of(waveform) -> Drive:
     """The model's drive of a waveform (its tones, amplitudes and phases)."""
     return Drive(waveform.frequencies, waveform.amplitudes, waveform.phases)
+
+
+def limit_acceleration(settings: Settings, waveforms):
+    """Enforce ``drive.max_acceleration_g``: every step whose summed drive's peak base
+    acceleration exceeds it has all its tone amplitudes lowered by one factor (limit /
+    peak; phases and frequencies kept), and says so.
+
+    Returns
+    -------
+    (waveforms, notes)
+        ``notes``: step key -> {"peak_displacement_m", "peak_acceleration_m_s2"
+        (after any lowering), "acceleration_scale" (1 if none)}.
+    """
+    import dataclasses
+
+    from planner.planning.motion import drive_peaks
+
+    out, notes = {}, {}
+    limit = settings.max_acceleration_m_s2
+    for key, w in waveforms.items():
+        zp, ap = drive_peaks(w)
+        scale = 1.0
+        if limit is not None and ap > limit:
+            # a hair under the limit, so that the refined peak of the lowered drive is
+            # not above it by rounding
+            scale = limit / ap * (1.0 - 1e-6)
+            # the same loop scaled: frequencies, phases and crest factor unchanged
+            w = dataclasses.replace(
+                w, samples=w.samples * scale, amplitudes=w.amplitudes * scale,
+                peak=w.peak * scale, rms=w.rms * scale, scale=w.scale * scale,
+                warnings=w.warnings + (f"every amplitude lowered by x{scale:.4g} to meet "
+                                       "drive.max_acceleration_g",))
+            zp, ap = drive_peaks(w)
+        out[key] = w
+        notes[key] = {"peak_displacement_m": zp, "peak_acceleration_m_s2": ap,
+                      "acceleration_scale": scale}
+    return out, notes

@@ -135,7 +135,20 @@ def _report(result, out_dir):
              f"**Verification: {'PASSED' if result.passed else 'FAILED'}** "
              f"({int(ver['passed'].sum())} of {len(ver)} step x device checks pass): every step "
              "re-simulated with its summed drive for its whole duration, from "
-             f"{d['spec']['verification']['x0_points']} initial positions over [-c, c].", ""]
+             f"{d['spec']['verification']['x0_points']} initial positions over [-c, c], then "
+             "through its settle dwell with the drive off; every scene simulated with every "
+             "impacter's and slider's state carried from step to step (a carried-state "
+             "failure fails its step x device check too).  Contact law: "
+             + ", ".join(sorted(set(result.settings.contacts.values())))
+             + f"; no slider may travel more than {d['verification']['max_travel_m'] / UM:g} um "
+             "in one step.", ""]
+    problems = d["verification"].get("design_problems", [])
+    if problems:
+        lines += [f"**{len(problems)} impacter design(s) infeasible** (the plan fails on them "
+                  "whatever the checks below say):", ""]
+        lines += [f"- {p['impacter']} at {p['frequency_hz'] / 1e3:.2f} kHz: {p['why']}. "
+                  f"What to change: {p['what_to_change']}." for p in problems] + [""]
+    lines += _motion_notes(d)
     a = d["assignment"]
     lines += ["## Frequency assignment", "",
               f"Conflict graph: {a['graph_nodes']} channel groups, {a['graph_edges']} edges; span "
@@ -162,11 +175,12 @@ def _report(result, out_dir):
                      _fmt(g["length_m"] / UM, ".0f"), _fmt(r["gap_m"] / UM, ".2f"),
                      _fmt(r["mass_kg"] * 1e12, ".3f"),
                      _fmt(r.get("r_min_n", math.nan) * 1e9, ".1f"),
+                     _fmt(r.get("mass_ratio"), ".3f"),
                      _fmt(r.get("predicted_slider_speed_m_s", math.nan) * 1e3, ".2f"),
                      "yes" if r.get("feasible", True) else "**no**"])
     lines += _md_table(["impacter", "channel", "tone [kHz]", "nu_n [kHz]", "A [um^2]", "w [um]",
-                        "l [um]", "gap [um]", "mass [ng]", "r_min [nN]", "speed [mm/s]",
-                        "feasible"], rows)
+                        "l [um]", "gap [um]", "mass [ng]", "r_min [nN]", "m/M",
+                        "speed [mm/s]", "feasible"], rows)
     lines += ["", "![response curves](figures/response_curves.png)", "",
               "## Cross-coupling", "",
               "Worst response of every impacter to every tone alone, over the x0 grid "
@@ -178,14 +192,23 @@ def _report(result, out_dir):
             continue
         sm = summary[(rec["scene"], rec["name"])]
         rows.append([f"{rec['scene']}/{rec['name']}", _fmt(rec["duration_s"] * 1e3, "g"),
+                     _fmt(rec.get("settle_s", math.nan) * 1e3, "g"),
                      len(rec["tones"]), _fmt(rec["crest_factor"], ".2f"), _moves(rec),
-                     _fmt(sm["slowest"] * 1e3, ".2f"), _fmt(sm["idle_disp"] / UM, ".3f"),
+                     _fmt(rec.get("peak_displacement_m", math.nan) / UM, ".2f"),
+                     _fmt(rec.get("peak_acceleration_g", math.nan), ".0f"),
+                     _fmt(sm["slowest"] * 1e3, ".2f"), _travel_range(rec),
+                     _fmt(sm["idle_disp"] / UM, ".3f"),
                      f"{sm['passed']}/{sm['checks']}"])
     if rows:
-        lines += _md_table(["step", "ms", "tones", "crest factor", "moves",
-                            "slowest mover [mm/s]", "largest idle displacement [um]",
-                            "checks passed"], rows)
-        lines.append("")
+        lines += _md_table(["step", "burst [ms]", "dwell [ms]", "tones", "crest factor",
+                            "moves", "peak drive [um]", "peak acceleration [g]",
+                            "slowest mover [mm/s]", "mover travel [um]",
+                            "largest idle displacement [um]", "checks passed"], rows)
+        lines += ["", "Burst: the drive on; dwell: the drive off afterwards until every slider "
+                  "and impacter has stopped (simulated).  Travel: each moving slider's "
+                  "predicted travel over burst and dwell from rest under the summed drive "
+                  "(steps[].travel_m); peak acceleration: the true peak of the summed drive's "
+                  "base acceleration over its loop.", ""]
     for rec in d["steps"]:         # in step order
         name = _drive_figure_name(f"{rec['scene']}/{rec['name']}")
         if (out_dir / "figures" / name).exists():
@@ -202,9 +225,13 @@ def _report(result, out_dir):
         for rec in independent:
             sm = summary[(rec["scene"], rec["name"])]
             rows.append([rec["name"], _fmt(rec["tones"][0]["frequency_hz"] / 1e3, ".2f"),
-                         _fmt(sm["slowest"] * 1e3, ".2f"), _fmt(sm["idle_disp"] / UM, ".3f"),
+                         _fmt(sm["slowest"] * 1e3, ".2f"), _travel_range(rec),
+                         _fmt(rec.get("settle_s", math.nan) * 1e3, "g"),
+                         _fmt(rec.get("peak_acceleration_g", math.nan), ".0f"),
+                         _fmt(sm["idle_disp"] / UM, ".3f"),
                          f"{sm['passed']}/{sm['checks']}"])
-        lines += _md_table(["impacter", "tone [kHz]", "slowest over x0 [mm/s]",
+        lines += _md_table(["impacter", "tone [kHz]", "slowest over x0 [mm/s]", "travel [um]",
+                            "dwell [ms]", "peak acceleration [g]",
                             "largest idle displacement [um]", "checks passed"], rows)
         lines.append("")
     if d["scenes"]:
@@ -223,13 +250,44 @@ def _report(result, out_dir):
     (out_dir / "report.md").write_text("\n".join(lines) + "\n")
 
 
+def _travel_range(rec):
+    """The moving sliders' travel of a step [um], as 'a' or 'a to b'."""
+    movers = set(rec["forward"]) | set(rec["backward"])
+    vals = [abs(z) / UM for dev, z in rec.get("travel_m", {}).items() if dev in movers]
+    if not vals:
+        return "-"
+    lo, hi = min(vals), max(vals)
+    return f"{lo:.3g}" if math.isclose(lo, hi, rel_tol=1e-3) else f"{lo:.3g} to {hi:.3g}"
+
+
+def _motion_notes(d):
+    """What the planner changed to the steps: acceleration limit, sized bursts, repairs."""
+    lines = []
+    for rec in d["steps"]:
+        key = f"{rec['scene']}/{rec['name']}"
+        scale = rec.get("acceleration_scale", 1.0)
+        if scale is not None and scale < 1.0:
+            lines.append(f"- {key}: every tone amplitude lowered by x{scale:.3g} to meet "
+                         f"drive.max_acceleration_g (peak now {rec['peak_acceleration_g']:.0f} g)")
+        if rec.get("requested_travel_m") is not None:
+            v = (rec.get("sizing") or {}).get("slowest_probe_speed_m_s")
+            sized = (rec.get("sizing") or {}).get("sized_s") or rec["duration_s"]
+            lines.append(f"- {key}: burst {sized * 1e3:g} ms sized for "
+                         f"{rec['requested_travel_m'] / UM:g} um at the slowest predicted "
+                         f"speed {_fmt(v * 1e3 if v is not None else None, '.3g')} mm/s")
+    for rnd in d["verification"].get("motion_repairs", []):
+        lines += [f"- repair round {rnd['round']}: {a}" for a in rnd["actions"]]
+    return (["## What the planner changed", ""] + lines + [""]) if lines else []
+
+
 def _scene_section(scene_rows):
     """Slider positions after each step of each scene, the overshoot once the drive
     stops, and the impacters that hit while their step did not drive them."""
     lines = ["## Scenes (state carried across steps)", "",
-             "Each scene from rest, every step from the state the previous one left; after the "
-             f"last step the drive is off for {SETTLE_S * 1e3:g} ms, and the overshoot is how far "
-             "each slider moves then, pushed by impacters still ringing.", "",
+             "Each scene from rest, every step from the state the previous one left, each "
+             "followed by its settle dwell (positions below are at the end of the dwell); after "
+             f"the last dwell the drive stays off for {SETTLE_S * 1e3:g} ms more, and the "
+             "overshoot is how far each slider moves then.", "",
              "![slider positions](figures/slider_positions.png)", ""]
     overshoot = scene_overshoot(scene_rows)
     for scene in dict.fromkeys(r["scene"] for r in scene_rows):
@@ -256,10 +314,11 @@ def _scene_section(scene_rows):
                              + ", ".join(f"{n} ({k} impact{'s' if k > 1 else ''})"
                                          for n, k in shown[:10])
                              + (f" and {len(hits) - 10} more" if len(hits) > 10 else ""))
-            if moved and r["driven"]:
+            if moved:
                 shown = sorted(moved.items(), key=lambda kv: -abs(kv[1]))
                 lines.append(f"- **idle sliders moved more than the idle tolerance {what}** "
-                             "(state carried from the previous step): "
+                             "(state carried from the previous step; a verification "
+                             "failure): "
                              + ", ".join(f"{dv} {z / UM:+.2f} um" for dv, z in shown[:10])
                              + (f" and {len(moved) - 10} more" if len(moved) > 10 else ""))
         lines.append("")

@@ -1,7 +1,8 @@
 """The stage order and the repair loop; each stage lives in its own module.
 
-settings -> steps -> assign -> drives -> designs -> verify (-> repair, re-assign ...)
--> scenes and coupling -> record.  Data flows one way; every stage reads the
+settings -> steps -> assign -> drives (acceleration limit) -> designs -> burst sizing
+-> verify (-> repair, re-assign ...) -> scenes with carried state (-> motion repair:
+shorter bursts, longer dwells) -> coupling -> record.  Data flows one way; every stage reads the
 :class:`~planner.planning.settings.Settings` and the earlier stages' results only.
 """
 
@@ -15,13 +16,35 @@ from planner.assign import assign
 from planner.errors import PlanningError
 from planner.nodes import Node, device_key
 from planner.planning.designs import design_all
-from planner.planning.drives import synthesize_steps
+from planner.planning.drives import drive_of, limit_acceleration, synthesize_steps
+from planner.planning.motion import size_bursts
 from planner.planning.record import build_record
-from planner.planning.repair import widen_separations
+from planner.planning.repair import merge_carried, repair_motion, widen_separations
 from planner.planning.result import Plan
-from planner.planning.scenes import simulate_scenes
+from planner.planning.scenes import scene_failures, simulate_scenes
 from planner.planning.settings import Settings, resolve_settings
 from planner.planning.verify import check_step, coupling_matrix
+
+
+def design_problems(designs, settings):
+    """One readable entry per infeasible design: which impacter, why, what to change."""
+    out = []
+    for n in sorted(designs):
+        d = designs[n]
+        if d.feasible:
+            continue
+        advice = ("widen the separations (drive.guard.separation_channels, "
+                  "ensemble_separation_channels) or the band, so that its forbidden tones "
+                  "sit further from its own")
+        if d.checks.get("violated_drives"):
+            advice += ("; it responds under the summed drive of a step it sits out: fewer "
+                       "tones per step or a lower drive.power_m2_s3 also help")
+        if getattr(d, "mass_ratio", 0.0) >= 0.99 * settings.max_mass_ratio:
+            advice += (f"; it sits at the mass-ratio cap m/M = {settings.max_mass_ratio:g} "
+                       "(design.max_mass_ratio, or a heavier slider)")
+        out.append({"impacter": n, "frequency_hz": d.frequency_hz, "why": d.message,
+                    "what_to_change": advice})
+    return out
 
 
 def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings | None = None,
@@ -69,6 +92,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         # the drives depend on the frequencies only, so they come before the designs,
         # which must be silent under the summed drive of every step they sit out
         waveforms = timed("drive", synthesize_steps, settings, steps, assignment)
+        waveforms, drive_notes = timed("drive", limit_acceleration, settings, waveforms)
         tick("design", total=len(assignment.frequencies))
         designs = timed("design", design_all, settings, steps, assignment, cache,
                         progress=lambda n: tick("design", n), waveforms=waveforms, jobs=jobs,
@@ -77,9 +101,12 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         devices = sorted({Node.parse(n).device for n in impacters}, key=device_key)
         sliders = {d: settings.sliders[d] for d in devices}
         ts = time.perf_counter()
+        # steps that give travel_um get their burst from the predicted speed
+        run_steps, sizing = size_bursts(settings, steps, waveforms, impacters, sliders,
+                                        drive_of)
         tick("verify", total=len(steps))
         ver_rows, failures = [], []
-        for st in steps:
+        for st in run_steps:
             rows, fails = check_step(settings, st, waveforms[st.key], impacters, sliders)
             ver_rows += rows
             failures += fails
@@ -93,15 +120,46 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         if not widen_separations(failures, designs, steps, assignment, pair_sep, sep):
             break
     ts = time.perf_counter()
-    scene_rows = simulate_scenes(settings, steps, waveforms, impacters, sliders)
+    # the scenes carry every impacter's and slider's state from step to step, each step
+    # followed by its settle dwell; what they find counts in the verification, and the
+    # motion repair acts on it (shorter bursts, longer dwells)
+    motion_repairs, longer_dwells = [], {}
+    for mround in range(settings.repair_rounds + 1):
+        dwells = dict(longer_dwells)
+        for r in ver_rows:
+            key = f"{r['scene']}/{r['step']}"
+            dwells[key] = max(dwells.get(key, 0.0), r["settle_s"])
+        scene_rows = simulate_scenes(settings, run_steps, waveforms, impacters, sliders, dwells)
+        carried = scene_failures(settings, run_steps, scene_rows)
+        if mround == settings.repair_rounds:
+            break
+        fixed = repair_motion(settings, run_steps, failures + carried, dwells, longer_dwells)
+        if fixed is None:
+            break
+        run_steps, actions, redo = fixed
+        motion_repairs.append({"round": mround + 1, "actions": actions})
+        for st in run_steps:
+            if st.index not in redo:
+                continue
+            rows, fails = check_step(settings, st, waveforms[st.key], impacters, sliders)
+            ver_rows = [r for r in ver_rows if r["index"] != st.index] + rows
+            failures = [f for f in failures if f.step != st.index] + fails
+        ver_rows.sort(key=lambda r: r["index"])
+    ver_rows, settle_by_step = merge_carried(ver_rows, carried, run_steps, scene_rows, dwells)
+    failures = failures + carried
     tones = sorted(set(assignment.frequencies.values()))
     coupling = coupling_matrix(impacters, tones, settings, settings.single_step_s)
     timings["scenes_coupling"] = time.perf_counter() - ts
     ver = pd.DataFrame(ver_rows)
-    passed = bool(ver["passed"].all())
+    problems = design_problems(designs, settings)
+    # an infeasible design fails the plan even if the steps happen to verify: it was
+    # not shown silent at its forbidden tones on the designer's fine grid
+    passed = bool(ver["passed"].all()) and not problems
+    motion = {"sizing": sizing, "drive": drive_notes, "settle_s": settle_by_step,
+              "repairs": motion_repairs, "design_problems": problems}
     data, impacter_recs, device_recs, step_recs = build_record(
-        settings, steps, assignment, designs, sliders, waveforms, ver_rows, passed, rounds,
-        scene_rows)
+        settings, run_steps, assignment, designs, sliders, waveforms, ver_rows, passed, rounds,
+        scene_rows, motion)
     timings["total"] = time.perf_counter() - t0
     return Plan(
         impacters=pd.DataFrame(impacter_recs), devices=pd.DataFrame(device_recs),

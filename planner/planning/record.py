@@ -9,8 +9,11 @@ import numpy as np
 from planner._io import version_string
 from planner.assign import verify_assignment
 from planner.exporters import EXPORTERS
-from planner.nodes import Node, node_key
+from planner.planning.motion import PROBE_S
+from planner.nodes import Node, device_key, node_key
 
+#: Standard gravity [m/s^2].
+G0 = 9.80665
 #: Formats every step's waveform is exported in.
 EXPORT_FORMATS = ("wav", "wav16", "csv", "arb")
 
@@ -42,16 +45,34 @@ def impacter_record(n, assignment, design):
     for key in ("r_min_n", "worst_x0_m", "predicted_slider_speed_m_s", "feasible"):
         if key in d:
             rec[key] = d[key]
+    rec["mass_ratio"] = getattr(design, "mass_ratio", None)
+    rec["contact"] = getattr(design, "contact", None)
     return rec
 
 
-def step_record(step, waveform):
-    """One step's plan.json entry: its tones, crest factor and waveform files."""
+def step_record(step, waveform, motion=None):
+    """One step's plan.json entry: its tones, crest factor and waveform files; with
+    ``motion`` (the pipeline's motion notes, see :func:`build_record`) its settle dwell,
+    the summed drive's peaks and every slider's predicted travel."""
     stem = f"{step.scene}__{step.name}"
     w = waveform
+    extra = {}
+    if motion is not None:
+        drive = motion["drive"][step.key]
+        extra = {"settle_s": motion["settle_s"].get(step.key, 0.0),
+                 "peak_displacement_m": drive["peak_displacement_m"],
+                 "peak_acceleration_m_s2": drive["peak_acceleration_m_s2"],
+                 "peak_acceleration_g": drive["peak_acceleration_m_s2"] / G0,
+                 "acceleration_scale": drive["acceleration_scale"],
+                 "travel_m": motion["travel"].get(step.key, {})}
+        if step.travel_m is not None:
+            sized = motion["sizing"].get(step.key, {})
+            extra["requested_travel_m"] = step.travel_m
+            extra["sizing"] = {"slowest_probe_speed_m_s": sized.get("slowest_m_s"),
+                               "probe_s": PROBE_S, "sized_s": sized.get("sized_s")}
     return {
         "scene": step.scene, "name": step.name, "index": step.index,
-        "duration_s": step.duration_s,
+        "duration_s": step.duration_s, **extra,
         "forward": list(step.forward), "backward": list(step.backward),
         "tones": [{"frequency_hz": float(f), "amplitude_m": float(z), "phase_rad": float(p)}
                   for f, z, p in zip(w.frequencies, w.amplitudes, w.phases)],
@@ -61,15 +82,35 @@ def step_record(step, waveform):
     }
 
 
+def step_travels(ver_rows):
+    """Step key -> {device: travel [m]} of every slider that moves in the step (burst and
+    dwell, from rest, under the step's summed drive), in device order."""
+    out = {}
+    for r in ver_rows:
+        key = f"{r['scene']}/{r['step']}"
+        out.setdefault(key, {})
+        if r["expected"] != "idle" or r.get("travel_m", 0.0) != 0.0:
+            out[key][r["device"]] = r.get("travel_m", 0.0)
+    return {k: dict(sorted(v.items(), key=lambda kv: device_key(kv[0])))
+            for k, v in out.items()}
+
+
 def build_record(settings, steps, assignment, designs, sliders, waveforms, ver_rows, passed,
-                 rounds, scene_rows):
-    """(plan.json dict, impacter records, device records, step records)."""
+                 rounds, scene_rows, motion=None):
+    """(plan.json dict, impacter records, device records, step records).
+
+    ``motion``: {"sizing", "drive", "settle_s", "repairs"} of the pipeline (burst sizing
+    notes, drive peaks and acceleration scales, settle dwells by step key, motion
+    repairs); adds the per-step motion keys.
+    """
+    if motion is not None:
+        motion = {**motion, "travel": step_travels(ver_rows)}
     impacter_recs = [impacter_record(n, assignment, designs[n])
                      for n in sorted(designs, key=node_key)]
     device_recs = [{"id": d, "slider_mass_kg": s.mass, "slider_damping_ns_per_m": s.damping,
                     "static_friction_n": s.static_friction,
                     "dynamic_friction_n": s.dynamic_friction} for d, s in sliders.items()]
-    step_recs = [step_record(st, waveforms[st.key]) for st in steps]
+    step_recs = [step_record(st, waveforms[st.key], motion) for st in steps]
     per_step = {}
     for r in ver_rows:
         per_step.setdefault(f"{r['scene']}/{r['step']}", {})[r["device"]] = {
@@ -88,7 +129,10 @@ def build_record(settings, steps, assignment, designs, sliders, waveforms, ver_r
         "impacters": impacter_recs,
         "devices": device_recs,
         "steps": step_recs,
-        "verification": {"passed": passed, "repair_rounds": rounds, "steps": per_step},
+        "verification": {"passed": passed, "repair_rounds": rounds,
+                         "motion_repairs": (motion or {}).get("repairs", []),
+                         "design_problems": (motion or {}).get("design_problems", []),
+                         "max_travel_m": settings.max_travel_m, "steps": per_step},
         "scenes": scene_rows,
     }
     return round_floats(data), impacter_recs, device_recs, step_recs

@@ -41,3 +41,107 @@ def widen_separations(failures, designs, steps, assignment, pair_sep, sep):
         _widen(pair_sep, assignment, fail.impacter, near, sep)
         changed = True
     return changed
+
+
+def repair_motion(settings, steps, failures, dwells, longer_dwells):
+    """Act on the motion failures of a verification and its scene simulation.
+
+    - a slider travels over ``verification.max_travel_um`` in a step: that step's burst
+      is shortened in proportion (to 0.8 of limit / travel, at least one burst quantum);
+    - an idle slider moves in a scene step from the state the previous step left: the
+      previous step's dwell is doubled (up to ``settings.max_settle_s``), so that its
+      impacters ring down further before the next tones start;
+    - a step still moving at the end of the longest dwell is not repaired (the cap is
+      the limit; it stays a failure).
+
+    ``longer_dwells`` (step key -> dwell [s]) is updated in place.
+
+    Returns
+    -------
+    (steps, actions, redo) or None
+        The steps with their new bursts, the readable actions taken and the indices of
+        the steps to re-verify; None when nothing could be done.
+    """
+    import dataclasses
+
+    from planner.planning.motion import BURST_QUANTUM_S, SETTLE_CHUNK_S
+    from planner.planning.verify import CARRIED_IDLE, TRAVEL_OVER
+
+    by_index = {st.index: st for st in steps}
+    actions, redo, new = [], set(), {}
+    worst = {}
+    for f in failures:
+        if f.kind == TRAVEL_OVER:
+            worst[f.step] = max(worst.get(f.step, 0.0), abs(f.value))
+    for i, travel in sorted(worst.items()):
+        st = by_index[i]
+        factor = 0.8 * settings.max_travel_m / travel
+        burst = max(BURST_QUANTUM_S,
+                    math.floor(st.duration_s * factor / BURST_QUANTUM_S) * BURST_QUANTUM_S)
+        if burst >= st.duration_s:
+            continue
+        new[i] = dataclasses.replace(st, duration_s=float(burst))
+        redo.add(i)
+        actions.append(f"{st.key}: burst {st.duration_s * 1e3:g} -> {burst * 1e3:g} ms "
+                       f"(a slider travels {travel * 1e6:.4g} um > "
+                       f"{settings.max_travel_m * 1e6:g} um)")
+    carried_steps = sorted({f.step for f in failures if f.kind == CARRIED_IDLE})
+    for i in carried_steps:
+        st = by_index[i]
+        before = [s for s in steps if s.scene == st.scene and s.index < i]
+        if not before:
+            continue
+        prev = before[-1]
+        now = dwells.get(prev.key, 0.0)
+        longer = min(settings.max_settle_s, max(2.0 * now, 2.0 * SETTLE_CHUNK_S))
+        if longer <= now:
+            continue
+        longer_dwells[prev.key] = longer
+        actions.append(f"{prev.key}: dwell {now * 1e3:g} -> {longer * 1e3:g} ms (idle "
+                       f"sliders move in {st.key} from the state it leaves)")
+    if not actions:
+        return None
+    return tuple(new.get(s.index, s) for s in steps), actions, redo
+
+
+def merge_carried(ver_rows, carried, steps, scene_rows, dwells):
+    """Fold the scene simulation's failures into the verification rows.
+
+    Each :class:`~planner.planning.verify.Failure` of
+    :func:`planner.planning.scenes.scene_failures` fails the row of its step and
+    device (an unsettled step: every driven device's row) with a ``carried state:``
+    cause, so that ``verification.passed`` and every count of the report include it.
+
+    Returns
+    -------
+    (rows, settle)
+        ``settle``: step key -> the step's settle dwell [s]: the scene's for scene
+        steps (at least the verification's), else the verification's.
+    """
+    from planner.planning.verify import CARRIED_IDLE, TRAVEL_OVER, UNSETTLED
+
+    rows = [dict(r) for r in ver_rows]
+    for f in carried:
+        if f.kind == CARRIED_IDLE:
+            text = f"carried state: idle slider moves {f.value * 1e6:.3g} um over the step and its dwell"
+        elif f.kind == TRAVEL_OVER:
+            text = f"carried state: travel {f.value * 1e6:.4g} um over the limit"
+        elif f.kind == UNSETTLED:
+            text = f"carried state: still moving {f.value * 1e3:g} ms after the drive stops"
+        else:
+            text = f"carried state: {f.kind}"
+        for r in rows:
+            if r["index"] != f.step:
+                continue
+            if f.device and r["device"] != f.device:
+                continue
+            if not f.device and r["expected"] == "idle":
+                continue
+            r["passed"] = False
+            r["cause"] = "; ".join(c for c in (r["cause"], text) if c)
+    settle = {st.key: float(dwells.get(st.key, 0.0)) for st in steps}
+    for r in scene_rows:
+        if r["driven"] and "settle_s" in r:
+            key = f"{r['scene']}/{r['step']}"
+            settle[key] = max(settle.get(key, 0.0), float(r["settle_s"]))
+    return rows, settle

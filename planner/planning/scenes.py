@@ -2,14 +2,10 @@
 
 from __future__ import annotations
 
-import numpy as np
-
-import model
-from model import Drive
 from planner.nodes import Node
 from planner.planning.drives import drive_of
-from planner.planning.settings import SETTLE_S
-from planner.planning.verify import kicks
+from planner.planning.motion import REST, run_phase, settle
+from planner.planning.settings import SETTLE_S  # noqa: F401  (re-exported)
 
 #: Step name of the undriven tail in the scene rows (``"driven": false``).
 SETTLE_NAME = "(drive off)"
@@ -17,51 +13,59 @@ SETTLE_NAME = "(drive off)"
 RINGING_V = 1e-6
 
 
-def _scene_phase(impacters, sliders, drive, duration, states, sl_states, active,
-                 idle_tolerance):
-    """Advance every impacter and slider through one phase (a step, or the undriven
-    tail) from the carried states; updates them in place and returns the scene row's
-    fields.  ``idle_tolerance`` [m]: a slider none of whose impacters is driven and that
-    moves more than this is listed in ``idle_moved_m``."""
-    kick_lists = {d: ([], []) for d in sliders}
-    idle_hits = {}
-    for n, imp in impacters.items():
-        x0, v0, stuck = states[n]
-        res = model.simulate(imp, drive, x0, v0, duration, stuck=stuck or None,
-                             max_events=1_000_000)
-        states[n] = (min(res.x_end, imp.gap), res.v_end, res.stuck_end)
-        node = Node.parse(n)
-        t, dv = kicks(imp, sliders[node.device], res, node.sign)
-        kick_lists[node.device][0].append(t)
-        kick_lists[node.device][1].append(dv)
-        hits = res.times.size + res.chatter_times.size
-        if hits and n not in active:
-            idle_hits[n] = int(hits)
-    positions, moved = {}, {}
+def _scene_phase(settings, impacters, sliders, drive, duration, states, sl_states, active,
+                 dwell=None):
+    """Advance every impacter and slider through one phase (a step and its settle
+    dwell, or the undriven tail) from the carried states; updates them in place and
+    returns the scene row's fields.
+
+    ``dwell`` [s]: None for the undriven tail (the phase is then ``duration`` of drive
+    off); else the dwell the verification found for the step, extended here in whole
+    chunks while the carried state still moves, up to ``settings.max_settle_s``.  A
+    slider none of whose impacters is driven and that moves more than the idle
+    tolerance over the phase is listed in ``idle_moved_m``; every slider's travel over
+    the phase is in ``travel_m``.
+    """
+    z_start = {d: sl_states[d][0] for d in sliders}
+    hits = run_phase(impacters, sliders, settings.contacts, drive, duration, states, sl_states)
+    idle_hits = {n: h for n, h in hits.items() if h and n not in active}
+    fields = {}
+    if dwell is not None:
+        burst_end = {d: sl_states[d][0] for d in sliders}
+        cap = max(settings.max_settle_s, dwell)
+        took, calm, dwell_hits = settle(impacters, sliders, settings.contacts, states,
+                                        sl_states, cap, at_least=dwell)
+        fields = {"settle_s": took, "settled": calm, "dwell_hits": dwell_hits,
+                  "burst_positions_m": burst_end}
+    positions, moved, travel = {}, {}, {}
     driven_devices = {Node.parse(n).device for n in active}
-    for dev, slider in sliders.items():
-        z0, v0 = sl_states[dev]
-        t = np.concatenate(kick_lists[dev][0]) if kick_lists[dev][0] else np.empty(0)
-        dv = np.concatenate(kick_lists[dev][1]) if kick_lists[dev][1] else np.empty(0)
-        _, _, z, v, _ = model.slider_motion(slider, drive, t, dv, duration, z0, v0)
-        sl_states[dev] = (z, v)
+    for dev in sliders:
+        z = sl_states[dev][0]
         positions[dev] = float(z)
-        if abs(z - z0) > idle_tolerance and dev not in driven_devices:
-            moved[dev] = float(z - z0)
+        travel[dev] = float(z - z_start[dev])
+        if abs(z - z_start[dev]) > settings.idle_tolerance_m and dev not in driven_devices:
+            moved[dev] = float(z - z_start[dev])
     ringing = sorted(n for n, (x, v, s) in states.items()
                      if abs(v) > RINGING_V and n not in active)
     return {"positions_m": positions, "ringing_impacters": ringing, "idle_hits": idle_hits,
-            "idle_moved_m": moved}
+            "idle_moved_m": moved, "travel_m": travel, **fields}
 
 
-def simulate_scenes(settings, steps, waveforms, impacters, sliders):
+def simulate_scenes(settings, steps, waveforms, impacters, sliders, dwells=None):
     """Each scene in order, carrying impacter and slider states across steps.
 
     Every scene starts from rest; each step starts from the state the previous one
     left, so an impacter that keeps ringing after its tone stops moves its slider in
-    the next step.  After the last step the drive is switched off for
-    ``settings.settle_s`` (:data:`planner.planning.settings.SETTLE_S`) so that the
-    overshoot of that ringing is counted too.
+    the next step.  Every step is followed by its settle dwell with the drive off
+    (``dwells``: step key -> dwell [s] the verification found, default 0), extended
+    while the carried state still moves (:func:`planner.planning.motion.settle`, up
+    to ``settings.max_settle_s``): a driven row's positions are at the end of its
+    dwell, and it records ``settle_s`` (the dwell simulated), ``settled``,
+    ``dwell_hits`` (node -> impacts during the dwell),
+    ``burst_positions_m`` (at the end of the burst) and ``travel_m`` (device ->
+    travel over burst and dwell [m]).  After the last step the drive stays off for
+    ``settings.settle_s`` (:data:`planner.planning.settings.SETTLE_S`) so that any
+    overshoot left is counted too.
 
     ``settings`` is a :class:`~planner.planning.settings.Settings` (a
     :class:`~planner.spec.LoadedSpec` is converted).
@@ -83,22 +87,22 @@ def simulate_scenes(settings, steps, waveforms, impacters, sliders):
 
     if not isinstance(settings, Settings):
         settings = resolve_settings(settings)
-    tol = settings.idle_tolerance_m
-    settle = settings.settle_s
+    settle_s = settings.settle_s
     rows = []
-    rest = Drive([1.0], [0.0])      # the drive switched off
     for scene in settings.scenes:
         states = {n: (0.0, 0.0, False) for n in impacters}
         sl_states = {d: (0.0, 0.0) for d in sliders}
         for st in [s for s in steps if s.scene == scene]:
             active = {Node(d, r).text for d, r in st.active_nodes()}
-            fields = _scene_phase(impacters, sliders, drive_of(waveforms[st.key]),
-                                  st.duration_s, states, sl_states, active, tol)
+            fields = _scene_phase(settings, impacters, sliders, drive_of(waveforms[st.key]),
+                                  st.duration_s, states, sl_states, active,
+                                  dwell=(dwells or {}).get(st.key, 0.0))
             rows.append({"scene": scene, "step": st.name, "driven": True,
                          "duration_s": st.duration_s, **fields})
-        fields = _scene_phase(impacters, sliders, rest, settle, states, sl_states, set(), tol)
+        fields = _scene_phase(settings, impacters, sliders, REST, settle_s, states, sl_states,
+                              set())
         rows.append({"scene": scene, "step": SETTLE_NAME, "driven": False,
-                     "duration_s": settle, **fields})
+                     "duration_s": settle_s, **fields})
     return rows
 
 
@@ -114,4 +118,40 @@ def scene_overshoot(scene_rows):
             continue
         last = driven[-1]["positions_m"] if driven else {}
         out[scene] = {dev: z - last.get(dev, 0.0) for dev, z in tail[0]["positions_m"].items()}
+    return out
+
+
+def scene_failures(settings, steps, scene_rows):
+    """The carried-state checks of the scene rows, as :class:`Failure` records.
+
+    - :data:`~planner.planning.verify.CARRIED_IDLE`: a slider none of whose impacters
+      the step drives moves more than the idle tolerance over the step and its dwell;
+    - :data:`~planner.planning.verify.TRAVEL_OVER`: a slider travels more than
+      ``settings.max_travel_m`` over a step and its dwell;
+    - :data:`~planner.planning.verify.UNSETTLED`: something still moves at the end of
+      the longest dwell;
+    - after the scene's last dwell, a slider that still moves beyond the idle tolerance
+      in the undriven tail (CARRIED_IDLE, on the last step).
+    """
+    from planner.planning.verify import CARRIED_IDLE, TRAVEL_OVER, UNSETTLED, Failure
+
+    by_name = {(s.scene, s.name): s for s in steps}
+    out = []
+    for scene in dict.fromkeys(r["scene"] for r in scene_rows):
+        rows = [r for r in scene_rows if r["scene"] == scene]
+        last = None
+        for r in rows:
+            if r["driven"]:
+                st = by_name[(scene, r["step"])]
+                last = st
+                for dev, z in sorted(r["idle_moved_m"].items()):
+                    out.append(Failure(st.index, dev, None, CARRIED_IDLE, z))
+                for dev, z in sorted(r["travel_m"].items()):
+                    if abs(z) > settings.max_travel_m:
+                        out.append(Failure(st.index, dev, None, TRAVEL_OVER, z))
+                if not r.get("settled", True):
+                    out.append(Failure(st.index, "", None, UNSETTLED, r["settle_s"]))
+            elif last is not None:
+                for dev, z in sorted(r["idle_moved_m"].items()):
+                    out.append(Failure(last.index, dev, None, CARRIED_IDLE, z))
     return out

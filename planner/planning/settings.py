@@ -32,6 +32,12 @@ SINGLE_STEP_S = 0.01
 #: every impact takes (1 - e^2) of its kinetic energy, so the hits die out within a few
 #: of its periods, and 10 ms is hundreds of periods anywhere in the band.
 SETTLE_S = 0.01
+#: Longest settle dwell after a step [s]: a step whose sliders or impacters still move
+#: after it fails ("unsettled").  Film damping stops an impacter's ringing within a few
+#: ms in air and friction a slider within microseconds once the kicks stop.
+MAX_SETTLE_S = 0.05
+#: Standard gravity [m/s^2] (drive.max_acceleration_g).
+G0 = 9.80665
 #: Impacter fields the planner designs: refused in an array spec.
 DESIGNED_FIELDS = {
     "area_um2": "design.bounds.area_um2", "width_um": "design.bounds.width_um",
@@ -54,12 +60,15 @@ class ImpacterSettings:
         The spec's process with this impacter's ``mass_thickness_um`` if it sets one.
     slider : SliderConfig
         Its device's slider (the designer's predicted speed).
+    contact : str
+        The contact law of its device (``device.contact`` / ``devices.<id>.contact``).
     """
 
     impact_angle_rad: float
     restitution: float
     process: ProcessConfig
     slider: SliderConfig
+    contact: str = "two_body"
 
 
 @dataclass(frozen=True)
@@ -73,7 +82,9 @@ class Settings:
     seed : int
         Drive phases' seed (``seed`` argument, else ``design.seed``).
     design_seed : int
-        The designer's seed (``design.seed``).
+        The designer's seed: the ``seed`` argument too when given (so that
+        ``vibroplan plan --seed N`` gives different designs, not only phases), else
+        ``design.seed``.
     steps : tuple of Step
         The spec's steps plus the implicit single-impacter steps.
     scenes : tuple of str
@@ -122,6 +133,16 @@ class Settings:
         Undriven tail after each scene [s].
     array_pitch_m : float
         Device pitch [m] (the array map).
+    contacts : dict
+        Device id -> contact law ("paper" or "two_body").
+    max_mass_ratio : float
+        Upper bound of every design's m/M [-].
+    max_travel_m : float
+        Largest travel of any slider in one step [m] (default half the pitch).
+    max_acceleration_m_s2 : float or None
+        Largest peak base acceleration of a step's summed drive [m/s^2].
+    max_settle_s : float
+        Longest settle dwell after a step [s].
     spec_record : dict
         The spec as plan.json records it.
     """
@@ -156,6 +177,11 @@ class Settings:
     settle_s: float
     array_pitch_m: float
     spec_record: dict
+    contacts: dict
+    max_mass_ratio: float
+    max_travel_m: float
+    max_acceleration_m_s2: float | None
+    max_settle_s: float
 
     @property
     def spec(self):
@@ -172,6 +198,7 @@ class Settings:
                     guard=self.guard, impact_angle=imp.impact_angle_rad,
                     restitution=imp.restitution,
                     slider=build_slider(imp.slider, imp.process, self.environment),
+                    max_mass_ratio=self.max_mass_ratio, contact=imp.contact,
                     **self._robust_kwargs(imp))
 
     def _robust_kwargs(self, imp) -> dict:
@@ -228,7 +255,8 @@ def _impacter_settings(spec, device, direction):
     angle = (math.radians(cfg.impact_angle_deg) if cfg.impact_angle_deg is not None
              else _d.IMPACT_ANGLE)
     e = cfg.restitution if cfg.restitution is not None else _d.RESTITUTION
-    return ImpacterSettings(float(angle), float(e), process, spec.slider_config(device))
+    return ImpacterSettings(float(angle), float(e), process, spec.slider_config(device),
+                            spec.contact(device))
 
 
 def _bounds(spec):
@@ -248,7 +276,7 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
     loaded : LoadedSpec
         From :func:`planner.spec.load_spec`.
     seed : int, optional
-        Overrides ``design.seed`` for the drive phases and the record.
+        Overrides ``design.seed`` for the designs, the drive phases and the record.
 
     Raises
     ------
@@ -268,7 +296,7 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
     return Settings(
         loaded=loaded,
         seed=des.seed if seed is None else int(seed),
-        design_seed=des.seed,
+        design_seed=des.seed if seed is None else int(seed),
         steps=plan_steps(loaded, SINGLE_STEP_S),
         scenes=tuple(spec.scenes),
         band_hz=(float(drive.band_hz[0]), float(drive.band_hz[1])),
@@ -298,6 +326,13 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
         settle_s=SETTLE_S,
         array_pitch_m=spec.array.pitch_um * UM,
         spec_record=json.loads(spec.model_dump_json()),
+        contacts={d: spec.contact(d) for d in devices},
+        max_mass_ratio=float(des.max_mass_ratio),
+        max_travel_m=(ver.max_travel_um * UM if ver.max_travel_um is not None
+                      else 0.5 * spec.array.pitch_um * UM),
+        max_acceleration_m_s2=(drive.max_acceleration_g * G0
+                               if drive.max_acceleration_g is not None else None),
+        max_settle_s=MAX_SETTLE_S,
     )
 
 

@@ -16,12 +16,19 @@ import model
 from model import Drive
 from planner.nodes import Node, device_key
 from planner.planning.drives import drive_of
+from planner.planning.motion import device_travel, run_phase
 from planner.planning.settings import Settings, tone_amplitudes
 from planner.units import UM
 
 #: Failure kinds: an idle impacter hits its slider; a moving slider is too slow from some
 #: x0; an idle slider moves beyond the tolerance.
 IDLE_RESPONSE, TOO_SLOW, IDLE_MOVES = "idle_response", "too_slow", "idle_moves"
+#: Failure kinds of the motion checks: a slider travels more than
+#: ``verification.max_travel_um`` in one step (burst and dwell); a step's sliders or
+#: impacters still move at the end of the longest dwell; in the scene simulation
+#: (state carried from step to step), an idle slider moves beyond the tolerance.
+TRAVEL_OVER, UNSETTLED, CARRIED_IDLE = ("travel_over_limit", "unsettled",
+                                        "carried_idle_motion")
 
 
 @dataclass(frozen=True)
@@ -37,9 +44,11 @@ class Failure:
     impacter : str or None
         The offending impacter (node text) for ``idle_response``; None otherwise.
     kind : str
-        :data:`IDLE_RESPONSE`, :data:`TOO_SLOW` or :data:`IDLE_MOVES`.
+        :data:`IDLE_RESPONSE`, :data:`TOO_SLOW`, :data:`IDLE_MOVES`,
+        :data:`TRAVEL_OVER`, :data:`UNSETTLED` or :data:`CARRIED_IDLE`.
     value : float
-        Worst response r [N], worst speed [m/s] or displacement [m], by kind.
+        Worst response r [N], worst speed [m/s], displacement or travel [m], or dwell
+        [s] (unsettled), by kind.
     """
 
     step: int
@@ -55,30 +64,33 @@ def x0_grid(impacter, n):
 
 
 def kicks(impacter, slider, res, direction):
-    """Times [s] and slider velocity kicks [m/s] of a simulation's impacts."""
+    """Times [s] and slider velocity kicks [m/s] of a simulation's impacts (eq. 10, the
+    "paper" law; the plan itself uses :func:`planner.planning.motion.run_phase`)."""
     times = np.concatenate([res.times, res.chatter_times])
     dv = model.kick(impacter, slider, np.concatenate([res.velocities, res.chatter_sums]),
                     direction)
     return times, dv
 
 
-def device_motion(impacters, slider, drive, duration, starts):
-    """Slider displacement [m] of one device; ``starts`` maps node -> (x0, v0, stuck)."""
-    times, dvs = [np.empty(0)], [np.empty(0)]
-    for n, imp in impacters.items():
-        x0, v0, stuck = starts.get(n, (0.0, 0.0, False))
-        res = model.simulate(imp, drive, x0, v0, duration, stuck=stuck or None,
-                             max_events=1_000_000)
-        t, dv = kicks(imp, slider, res, Node.parse(n).sign)
-        times.append(t)
-        dvs.append(dv)
-    _, _, z, v, _ = model.slider_motion(slider, drive, np.concatenate(times),
-                                        np.concatenate(dvs), duration)
-    return z, v
+def device_motion(impacters, slider, drive, duration, starts, contact="paper"):
+    """Slider displacement [m] and end velocity [m/s] of one device under ``contact``;
+    ``starts`` maps node -> (x0, v0, stuck)."""
+    if not impacters:
+        _, _, z, v, _ = model.slider_motion(slider, drive, np.empty(0), np.empty(0), duration)
+        return z, v
+    dev = Node.parse(next(iter(impacters))).device
+    states, sl = dict(starts), {dev: (0.0, 0.0)}
+    run_phase(impacters, {dev: slider}, {dev: contact}, drive, duration, states, sl)
+    return sl[dev]
 
 
 def check_step(settings: Settings, step, waveform, impacters, sliders):
     """Re-simulate one step with its actual summed drive.
+
+    Besides the response and speed checks, every device is run from rest through the
+    burst and the settle dwell (:func:`planner.planning.motion.device_travel`): its
+    travel (``travel_m``) must stay within ``max_travel_m`` and the dwell it needs
+    (``settle_s``) within the cap.
 
     Returns
     -------
@@ -109,13 +121,24 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
                 causes.append(f"{n} responds (r = {full.max():.3g} N from x0 = "
                               f"{x0s[int(np.argmax(full))] / UM:.2f} um)")
                 failures.append(Failure(step.index, dev, n, IDLE_RESPONSE, float(full.max())))
-        displacement, _ = device_motion(own, sliders[dev], drive, duration, {})
+        contact = settings.contacts[dev]
+        displacement, travel, dwell, calm = device_travel(own, dev, sliders[dev], contact,
+                                                          drive, duration,
+                                                          settings.max_settle_s)
+        if abs(travel) > settings.max_travel_m:
+            causes.append(f"travel {travel / UM:.4g} um over the limit "
+                          f"{settings.max_travel_m / UM:g} um")
+            failures.append(Failure(step.index, dev, None, TRAVEL_OVER, float(travel)))
+        if not calm:
+            causes.append(f"still moving {dwell * 1e3:g} ms after the drive stops")
+            failures.append(Failure(step.index, dev, None, UNSETTLED, float(dwell)))
         if moving:
             n = moving[0]
             sign = Node.parse(n).sign
             speeds = []
             for x0 in x0_grid(own[n], settings.x0_points):
-                z, _ = device_motion(own, sliders[dev], drive, duration, {n: (x0, 0.0, False)})
+                z, _ = device_motion(own, sliders[dev], drive, duration, {n: (x0, 0.0, False)},
+                                     contact)
                 speeds.append(sign * z / duration)
             worst = float(min(speeds))
             if worst < settings.min_speed_m_s:
@@ -125,15 +148,16 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
             worst_case = {"min_speed_m_s": worst}
         else:
             worst_case = {"max_response_n": worst_idle_r}
-            if abs(displacement) > settings.idle_tolerance_m:
-                causes.append(f"idle slider moves {displacement / UM:.3g} um > "
+            if abs(travel) > settings.idle_tolerance_m:
+                causes.append(f"idle slider moves {travel / UM:.3g} um > "
                               f"{settings.idle_tolerance_m / UM:g} um")
-                failures.append(Failure(step.index, dev, None, IDLE_MOVES, float(displacement)))
+                failures.append(Failure(step.index, dev, None, IDLE_MOVES, float(travel)))
         if moving:
             worst_case["max_idle_response_n"] = worst_idle_r
         rows.append({"scene": step.scene, "step": step.name, "index": step.index,
                      "device": dev, "expected": expected,
                      "predicted_displacement_m": float(displacement),
+                     "travel_m": float(travel), "settle_s": float(dwell),
                      **worst_case, "passed": not causes, "cause": "; ".join(causes)})
     return rows, failures
 

@@ -140,10 +140,12 @@ def test_row_assembly_config_shares_channels_and_verifies():
     assert res.passed, res.verification[~res.verification.passed].cause.tolist()
 
 
+@pytest.mark.slow
 def test_default_plan_verifies_end_to_end(tmp_path):
     """The README's first command: the embedded 5 x 5 default plans, every step of every
     scene passes re-simulation (exit 0), and the report's figures and the drive files
-    exist.  ~1 min on 2 cores (the designs run in worker processes)."""
+    exist.  Slow: with the two-body law, the settle dwells and the carried-state checks
+    (issue 15) a run with its repair rounds took 33 min on the loaded 2-core machine."""
     out = tmp_path / "plan_out"
     proc = subprocess.run([sys.executable, "-m", "planner.cli", "plan", "--out", str(out)],
                           capture_output=True, text=True, timeout=1200, cwd=tmp_path)
@@ -181,16 +183,19 @@ scenes:
 def test_scene_counts_the_overshoot_after_the_drive_stops():
     # Fig. 7's device (nu_n = 5.2 kHz, vacuum) at 6.2 kHz hits its wall every cycle
     # (paper, Fig. 7).  When the drive stops it is still swinging into the wall: the
-    # undriven tail must record those hits and the slider's extra travel forward.
+    # step's settle dwell must record those hits and the slider's extra travel forward,
+    # and last until the hits stop (every hit takes 1 - e^2 of the impacter's energy).
     import model
     from planner.assign import plan_steps
     from planner.config import build_slider
     from planner.pipeline import SETTLE_NAME, SETTLE_S, SINGLE_STEP_S, simulate_scenes
+    from planner.planning.settings import resolve_settings
     from planner.spec import load_spec
     from planner.synthesis import synthesize
 
     loaded = load_spec(ONE)
     spec = loaded.spec
+    settings = resolve_settings(loaded)
     steps = plan_steps(loaded, SINGLE_STEP_S)
     imp = model.Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6).with_natural_frequency(5200)
     slider = build_slider(spec.slider_config("A1"), spec.process, spec.environment)
@@ -200,16 +205,21 @@ def test_scene_counts_the_overshoot_after_the_drive_stops():
     assert [r["step"] for r in rows] == ["go", SETTLE_NAME]
     go, tail = rows
     assert go["driven"] and not tail["driven"] and tail["duration_s"] == SETTLE_S
-    # the driven step from rest is exactly the one-device slider simulation
+    # the burst from rest is exactly the one-device slider simulation under the spec's
+    # contact law (array specs: two_body)
+    assert settings.contacts["A1"] == "two_body"
     ref = model.simulate_slider(imp, slider, model.Drive(w.frequencies, w.amplitudes, w.phases),
-                                duration=3e-3)
-    assert go["positions_m"]["A1"] == pytest.approx(ref.displacement, rel=1e-12, abs=1e-15)
+                                duration=3e-3, contact="two_body")
+    assert go["burst_positions_m"]["A1"] == pytest.approx(ref.displacement, rel=1e-12, abs=1e-15)
     assert go["idle_hits"] == {}          # driven in its step: not an idle hit
-    assert tail["idle_hits"].get("A1.forward", 0) >= 1
-    overshoot = tail["positions_m"]["A1"] - go["positions_m"]["A1"]
+    assert go["dwell_hits"].get("A1.forward", 0) >= 1
+    overshoot = go["positions_m"]["A1"] - go["burst_positions_m"]["A1"]
     assert overshoot > 0
-    tol = spec.verification.idle_tolerance_um * 1e-6
-    assert ("A1" in tail["idle_moved_m"]) == (overshoot > tol)
+    assert go["travel_m"]["A1"] == pytest.approx(go["positions_m"]["A1"])
+    assert go["settled"] is True and 0 < go["settle_s"] <= settings.max_settle_s
+    # nothing moves after the dwell (this impacter is undamped: it keeps grazing its
+    # wall at a vanishing speed, below what can overcome the slider's static friction)
+    assert tail["positions_m"]["A1"] == pytest.approx(go["positions_m"]["A1"], abs=1e-12)
 
 
 def test_report_tables_and_figures(tiny_plan, tmp_path):
@@ -220,6 +230,7 @@ def test_report_tables_and_figures(tiny_plan, tmp_path):
     report = (tmp_path / "report.md").read_text()
     assert "| impacter | channel | tone [kHz] |" in report
     assert "overshoot [um]" in report and "after push [um]" in report
+    assert "| step | burst [ms] | dwell [ms] |" in report and "peak acceleration [g]" in report
     freq = tiny_plan.data["impacters"][0]["frequency_hz"]
     assert f"| {freq / 1e3:.2f} |" in report
     figures = [line.split("](", 1)[1].rstrip(")") for line in report.splitlines()

@@ -1,0 +1,248 @@
+"""Slider motion under a step's summed drive: phases with carried state, the settle
+dwell after a burst, burst sizing for ``travel_um`` steps and the drive's peaks.
+
+Every slider simulation of the plan goes through :func:`run_phase`, which kicks each
+slider by its device's contact law (``device.contact``): impacts are collected as
+:class:`model.Kicks` records, which either law can use ("paper" gives exactly the
+velocity changes of :func:`model.kick`, bit for bit as before the option existed).
+
+The settle dwell
+----------------
+After a burst the drive is switched off and the plan waits until nothing moves: every
+slider at rest (friction holds it) and no impacter able to hit its slider again.  With
+the drive off an impacter's mechanical energy never grows (film damping, and each hit
+takes (1 - e^2) of it), so once its energy amplitude sqrt(x^2 + m v^2 / k) is at most
+its gap c it can no longer reach the wall with a positive speed.  :func:`settle` runs
+the undriven phase in chunks of :data:`SETTLE_CHUNK_S` until both hold, up to a cap;
+the dwell is the simulated time, rounded up to whole chunks.
+
+Burst sizing
+------------
+A step with ``travel_um`` gets the burst that moves its slowest driven slider that far:
+every driven device is simulated under the step's summed drive from rest for
+:data:`PROBE_S`; the slowest mean speed v_min gives duration = travel / v_min, rounded
+up to :data:`BURST_QUANTUM_S` and bounded to [:data:`MIN_BURST_S`, the step's
+``duration_ms`` or :data:`planner.spec.DEFAULT_MAX_BURST_S`].  Faster sliders of the
+same step travel further; ``verification.max_travel_um`` bounds them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+
+import numpy as np
+
+import model
+from model import Drive
+from planner.nodes import Node
+
+#: Chunk [s] of the undriven settle simulation, and the dwell's granularity.
+SETTLE_CHUNK_S = 5e-4
+#: Probe window [s] of the burst sizing.
+PROBE_S = 5e-3
+#: Shortest burst [s] a ``travel_um`` step gets.
+MIN_BURST_S = 1e-3
+#: Bursts sized from a travel are rounded up to this [s].
+BURST_QUANTUM_S = 1e-4
+#: Samples per period of the highest tone on the coarse grid of :func:`drive_peaks`.
+PEAK_SAMPLES_PER_PERIOD = 16
+#: The drive switched off.
+REST = Drive([1.0], [0.0])
+
+
+def _empty_kicks():
+    return np.empty(0), np.empty(0)
+
+
+def run_phase(impacters, sliders, contacts, drive, duration, states, sl_states):
+    """Advance impacters and sliders through one phase of ``duration`` [s].
+
+    Parameters
+    ----------
+    impacters : dict
+        Node text -> model.Impacter.
+    sliders : dict
+        Device id -> model.Slider (only these sliders move; each is kicked by its
+        own impacters among ``impacters``).
+    contacts : dict
+        Device id -> contact law ("paper" or "two_body").
+    drive : model.Drive
+    duration : float
+        [s].
+    states : dict
+        Node -> (x [m], v [m/s], stuck); updated in place (missing: rest at x = 0).
+    sl_states : dict
+        Device -> (z [m], v [m/s]); updated in place (missing: rest at 0).
+
+    Returns
+    -------
+    dict
+        Node -> number of impacts in the phase (chatter tails count once).
+    """
+    per_device = {d: [] for d in sliders}
+    hits = {}
+    for n, imp in impacters.items():
+        node = Node.parse(n)
+        if node.device not in sliders:
+            continue
+        x0, v0, stuck = states.get(n, (0.0, 0.0, False))
+        res = model.simulate(imp, drive, x0, v0, duration, stuck=stuck or None,
+                             max_events=1_000_000)
+        states[n] = (min(res.x_end, imp.gap), res.v_end, res.stuck_end)
+        per_device[node.device].append(
+            model.Kicks.from_impacts(imp, sliders[node.device], res, node.sign))
+        hits[n] = int(res.times.size + res.chatter_times.size)
+    for dev, slider in sliders.items():
+        z0, v0 = sl_states.get(dev, (0.0, 0.0))
+        if per_device[dev]:
+            kicks = model.Kicks.concatenate(per_device[dev])
+            _, _, z, v, _ = model.slider_motion(slider, drive, kicks, duration=duration,
+                                                z0=z0, v0=v0, contact=contacts[dev])
+        else:
+            t, dv = _empty_kicks()
+            _, _, z, v, _ = model.slider_motion(slider, drive, t, dv, duration, z0, v0)
+        sl_states[dev] = (float(z), float(v))
+    return hits
+
+
+def can_hit(impacter, state):
+    """Whether an undriven impacter in ``state`` (x, v, stuck) can still reach its wall
+    with a positive speed: its energy amplitude sqrt(x^2 + m v^2 / k) exceeds c."""
+    x, v, _ = state
+    amp2 = x * x + impacter.mass * v * v / impacter.stiffness
+    return amp2 > impacter.gap * impacter.gap * (1.0 + 1e-9)
+
+
+def settled(impacters, sliders, states, sl_states):
+    """Every slider of ``sliders`` at rest and no impacter of theirs able to hit."""
+    if any(sl_states.get(d, (0.0, 0.0))[1] != 0.0 for d in sliders):
+        return False
+    return not any(can_hit(imp, states.get(n, (0.0, 0.0, False)))
+                   for n, imp in impacters.items() if Node.parse(n).device in sliders)
+
+
+def settle(impacters, sliders, contacts, states, sl_states, cap, at_least=0.0):
+    """Drive off until :func:`settled` (at least ``at_least`` [s], at most ``cap`` [s]).
+
+    Returns
+    -------
+    (dwell [s], settled, hits)
+        ``hits``: node -> impacts during the dwell.
+    """
+    t, hits = 0.0, {}
+    n_min = math.ceil(at_least / SETTLE_CHUNK_S - 1e-9)
+    n_max = max(1, math.ceil(cap / SETTLE_CHUNK_S - 1e-9))
+    k = 0
+    while True:
+        if k >= n_min and settled(impacters, sliders, states, sl_states):
+            return k * SETTLE_CHUNK_S, True, hits
+        if k >= n_max:
+            return k * SETTLE_CHUNK_S, False, hits
+        for n, h in run_phase(impacters, sliders, contacts, REST, SETTLE_CHUNK_S, states,
+                              sl_states).items():
+            if h:
+                hits[n] = hits.get(n, 0) + h
+        k += 1
+        t += SETTLE_CHUNK_S
+
+
+def device_travel(own, dev, slider, contact, drive, duration, cap, starts=None):
+    """One device from rest (or ``starts``: node -> (x0, v0, stuck)) through a burst
+    and its settle dwell.
+
+    Returns
+    -------
+    (burst displacement [m], travel incl. the dwell [m], dwell [s], settled)
+    """
+    states = dict(starts or {})
+    sl = {dev: (0.0, 0.0)}
+    run_phase(own, {dev: slider}, {dev: contact}, drive, duration, states, sl)
+    burst = sl[dev][0]
+    dwell, ok, _ = settle(own, {dev: slider}, {dev: contact}, states, sl, cap)
+    return burst, sl[dev][0], dwell, ok
+
+
+def probe_speeds(settings, step, drive, impacters, sliders, window=PROBE_S):
+    """Device -> mean speed [m/s] along its commanded direction over ``window`` [s]
+    from rest, under the step's summed drive (every driven device)."""
+    out = {}
+    for d, direction in sorted(step.active_nodes()):
+        own = {n: imp for n, imp in impacters.items() if Node.parse(n).device == d}
+        states, sl = {}, {d: (0.0, 0.0)}
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", model.SolverWarning)
+            run_phase(own, {d: sliders[d]}, {d: settings.contacts[d]}, drive, window,
+                      states, sl)
+        sign = 1.0 if direction == "forward" else -1.0
+        out[d] = sign * sl[d][0] / window
+    return out
+
+
+def size_bursts(settings, steps, waveforms, impacters, sliders, drive_of):
+    """Steps with their bursts sized from ``travel_m`` (see the module docstring).
+
+    Returns
+    -------
+    (steps, notes)
+        ``notes``: step key -> {"probe_speeds_m_s": ..., "sized_s": ...} of each sized
+        step.
+    """
+    from planner.spec import DEFAULT_MAX_BURST_S
+
+    out, notes = [], {}
+    for st in steps:
+        if st.travel_m is None:
+            out.append(st)
+            continue
+        speeds = probe_speeds(settings, st, drive_of(waveforms[st.key]), impacters, sliders)
+        slowest = min(speeds.values()) if speeds else 0.0
+        cap = st.max_duration_s if st.max_duration_s is not None else DEFAULT_MAX_BURST_S
+        if slowest > 0:
+            want = math.ceil(st.travel_m / slowest / BURST_QUANTUM_S - 1e-9) * BURST_QUANTUM_S
+            duration = min(max(want, MIN_BURST_S), cap)
+        else:
+            duration = cap
+        notes[st.key] = {"probe_speeds_m_s": speeds, "slowest_m_s": slowest,
+                         "sized_s": duration}
+        out.append(dataclasses.replace(st, duration_s=float(duration)))
+    return tuple(out), notes
+
+
+def drive_peaks(waveform):
+    """(peak |zeta| [m], peak |zeta''| [m/s^2]) of a summed drive over its loop.
+
+    zeta(t) = sum Z_i cos(w_i t + phi_i) and zeta''(t) = -sum w_i^2 Z_i cos(w_i t +
+    phi_i) on a grid of :data:`PEAK_SAMPLES_PER_PERIOD` points per period of the
+    highest tone over the loop, then refined near each of the largest grid maxima by
+    a bounded scalar search (the bound sum w_i^2 Z_i is only reached if every tone
+    peaks together, which a low-crest-factor drive avoids by construction).
+    """
+    from scipy.optimize import minimize_scalar
+
+    f = np.asarray(waveform.frequencies, dtype=float)
+    z = np.asarray(waveform.amplitudes, dtype=float)
+    ph = np.asarray(waveform.phases, dtype=float)
+    w = 2.0 * np.pi * f
+    loop = float(waveform.loop_length)
+    dt = 1.0 / (PEAK_SAMPLES_PER_PERIOD * f.max())
+    n = min(int(math.ceil(loop / dt)), 4_000_000)
+    dt = loop / n
+    out = []
+    for weight in (z, w * w * z):
+        def value(t, weight=weight):
+            return abs(float(np.sum(weight * np.cos(w * t + ph))))
+        best = 0.0
+        cands = []
+        for start in range(0, n, 200_000):
+            t = (np.arange(start, min(n, start + 200_000)) * dt)
+            y = np.abs(np.cos(np.outer(t, w) + ph) @ weight)
+            top = np.argsort(y)[-4:]
+            cands += [(float(y[i]), float(t[i])) for i in top]
+        for _, t0 in sorted(cands)[-8:]:
+            res = minimize_scalar(lambda t: -value(t), bounds=(t0 - dt, t0 + dt),
+                                  method="bounded", options={"xatol": dt * 1e-6})
+            best = max(best, value(t0), -float(res.fun))
+        out.append(best)
+    return out[0], out[1]
