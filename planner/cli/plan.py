@@ -137,7 +137,8 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
         sys.exit(1)
 
 
-command.help = command.help.replace("{EXIT}", EXIT_CODES_HELP)
+# indented like the docstring around it, so that click still dedents the whole help
+command.help = command.help.replace("{EXIT}", EXIT_CODES_HELP.replace("\n", "\n    "))
 
 
 def _dry_run(loaded, seed, jobs):

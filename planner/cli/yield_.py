@@ -89,4 +89,4 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
         sys.exit(1)
 
 
-command.help = command.help.replace("{EXIT}", EXIT_CODES_HELP)
+command.help = command.help.replace("{EXIT}", EXIT_CODES_HELP.replace("\n", "\n    "))
