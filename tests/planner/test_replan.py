@@ -137,10 +137,15 @@ def test_replan_chip_api(plan_data):
 
 
 def test_colliding_resonances_fail_naming_both(plan_data, tmp_path):
-    # A2.backward lands on A1.forward's resonance; the spec's own steps drive each alone
+    # A2.backward's resonance moves by the ratio that puts its re-planned tone on
+    # A1.forward's (designs need not sit their resonance inside the band: a design's tone
+    # is above its natural frequency); the spec's own steps drive each alone
     nu = {r["id"]: r["natural_frequency_hz"] for r in plan_data["impacters"]}
+    tone = {r["id"]: r["frequency_hz"] for r in plan_data["impacters"]}
     csv = _measured_csv(tmp_path / "measured.csv",
-                        {"A1.forward": nu["A1.forward"], "A2.backward": nu["A1.forward"]})
+                        {"A1.forward": nu["A1.forward"],
+                         "A2.backward": nu["A2.backward"] * tone["A1.forward"]
+                         / tone["A2.backward"]})
     out = tmp_path / "out"
     res = _run(plan_data_path(plan_data, tmp_path), "--measured", csv, "--out", out)
     assert res.exit_code == 1
