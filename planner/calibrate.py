@@ -456,20 +456,7 @@ def read_sweep(path) -> pd.DataFrame:
         number, a frequency <= 0, an amplitude < 0, a drive amplitude <= 0, or an
         impacter with fewer than :data:`MIN_POINTS` distinct frequencies.
     """
-    path = Path(path)
-    source = str(path)
-
-    def fail(line, column, message):
-        return SpecError(message, path=f"row {line}, column {column}", source=source)
-
-    try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
-            lines = list(_csv_rows(fh))
-    except (UnicodeDecodeError, csv.Error) as exc:
-        raise SpecError(f"not a CSV text file: {exc}", source=source) from None
-    if not lines:
-        raise SpecError(f"empty file: a sweep needs the header {','.join(SWEEP_COLUMNS)}",
-                        source=source)
+    lines, fail = read_csv_rows(path, SWEEP_COLUMNS)
     header_line, header = lines[0]
     header = [h.strip() for h in header]
     for column in header:
@@ -528,6 +515,44 @@ def read_sweep(path) -> pd.DataFrame:
         out["drive_amplitude_m"] = frame["drive_amplitude_um"] * UM
     out["line"] = frame["line"]
     return out
+
+
+def read_csv_rows(path, header):
+    """The rows of a lab CSV file and a row/column error maker, for its reader.
+
+    Parameters
+    ----------
+    path : path
+        The CSV file (UTF-8, an optional BOM; blank lines and ``#`` comments skipped).
+    header : sequence of str
+        The columns the file needs, named in the error for an empty file.
+
+    Returns
+    -------
+    lines : list of (int, list of str)
+        (1-based line, fields) of every row, the header first.
+    fail : callable(line, column, message) -> SpecError
+        An error naming the file, the row and the column.
+
+    Raises
+    ------
+    SpecError
+        Not a CSV text file, or empty.
+    """
+    path = Path(path)
+    source = str(path)
+
+    def fail(line, column, message):
+        return SpecError(message, path=f"row {line}, column {column}", source=source)
+
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            lines = list(_csv_rows(fh))
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise SpecError(f"not a CSV text file: {exc}", source=source) from None
+    if not lines:
+        raise SpecError(f"empty file: it needs the header {','.join(header)}", source=source)
+    return lines, fail
 
 
 def _csv_rows(fh):

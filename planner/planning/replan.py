@@ -34,7 +34,6 @@ point for a yield study.
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 import time
@@ -148,23 +147,10 @@ def read_measured(path, impacter_ids) -> dict:
         column, an unknown or repeated impacter, a value that is not a finite number, or
         a frequency, quality factor or gap <= 0.
     """
-    from planner.calibrate import _csv_rows
+    from planner.calibrate import read_csv_rows
 
-    path = Path(path)
-    source = str(path)
     known = set(impacter_ids)
-
-    def fail(line, column, message):
-        return SpecError(message, path=f"row {line}, column {column}", source=source)
-
-    try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
-            lines = list(_csv_rows(fh))
-    except (UnicodeDecodeError, csv.Error) as exc:
-        raise SpecError(f"not a CSV text file: {exc}", source=source) from None
-    if not lines:
-        raise SpecError(f"empty file: measured.csv needs the header "
-                        f"{','.join(MEASURED_REQUIRED)}", source=source)
+    lines, fail = read_csv_rows(path, MEASURED_REQUIRED)
     header_line, header = lines[0]
     header = [h.strip() for h in header]
     for column in header:

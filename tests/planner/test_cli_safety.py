@@ -5,7 +5,6 @@ elsewhere) on real folders; nothing is mocked.
 """
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -18,22 +17,10 @@ from click.testing import CliRunner
 from planner._io import MARKER, check_output_folder, output_folder
 from planner.cli import main
 from planner.errors import OutputError
+from tests.planner.test_pipeline import TINY  # the 1 x 2 spec every plan test uses
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
-TINY = """\
-name: tiny
-array: {rows: 1, cols: 2}
-independent: false
-drive:
-  band_hz: [3000, 12000]
-  channels: {count: 60}
-verification: {repair_rounds: 0, x0_points: 5}
-scenes:
-  s:
-    - {name: push, duration_ms: 5, forward: [A1]}
-    - {name: pull, duration_ms: 5, backward: [A2]}
-"""
 
 
 def _snapshot(folder):

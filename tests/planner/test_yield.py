@@ -14,20 +14,8 @@ import pytest
 from click.testing import CliRunner
 
 from planner.cli import main
+from tests.planner.test_pipeline import TINY  # the 1 x 2 spec every plan test uses
 
-TINY = """\
-name: tiny
-array: {rows: 1, cols: 2}
-independent: false
-drive:
-  band_hz: [3000, 12000]
-  channels: {count: 60}
-verification: {repair_rounds: 0, x0_points: 5}
-scenes:
-  s:
-    - {name: push, duration_ms: 5, forward: [A1]}
-    - {name: pull, duration_ms: 5, backward: [A2]}
-"""
 
 HUGE = """\
 name: huge tolerance
