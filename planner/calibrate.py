@@ -456,22 +456,10 @@ def read_sweep(path) -> pd.DataFrame:
         number, a frequency <= 0, an amplitude < 0, a drive amplitude <= 0, or an
         impacter with fewer than :data:`MIN_POINTS` distinct frequencies.
     """
-    lines, fail = read_csv_rows(path, SWEEP_COLUMNS)
-    header_line, header = lines[0]
-    header = [h.strip() for h in header]
-    for column in header:
-        if column not in SWEEP_COLUMNS + SWEEP_OPTIONAL:
-            raise fail(header_line, column or "(empty)",
-                       f"unknown column (a sweep has {', '.join(SWEEP_COLUMNS)} and optionally "
-                       f"{', '.join(SWEEP_OPTIONAL)}; units are in the names)")
-        if header.count(column) > 1:
-            raise fail(header_line, column, "column given twice")
-    for column in SWEEP_COLUMNS:
-        if column not in header:
-            raise fail(header_line, column, f"missing (the header has: {','.join(header)})")
-
+    header_line, header, rows, fail = read_csv_rows(path, SWEEP_COLUMNS, SWEEP_OPTIONAL,
+                                                    what="a sweep")
     records = []
-    for line, row in lines[1:]:
+    for line, row in rows:
         if len(row) != len(header):
             raise fail(line, header[min(len(row), len(header) - 1)],
                        f"{len(row)} values where the header has {len(header)} columns")
@@ -517,27 +505,36 @@ def read_sweep(path) -> pd.DataFrame:
     return out
 
 
-def read_csv_rows(path, header):
-    """The rows of a lab CSV file and a row/column error maker, for its reader.
+def read_csv_rows(path, required, optional=(), *, what="the file", ignore=None):
+    """A lab CSV file's checked header, its rows and a row/column error maker.
 
     Parameters
     ----------
     path : path
         The CSV file (UTF-8, an optional BOM; blank lines and ``#`` comments skipped).
-    header : sequence of str
-        The columns the file needs, named in the error for an empty file.
+    required, optional : sequence of str
+        The columns the file needs and those it may have (units are in the names).
+    what : str
+        The file's kind in messages ("a sweep", "measured.csv").
+    ignore : callable(str) -> bool, optional
+        Extra columns to accept and leave alone (e.g. calibrate's ``*_std``).
 
     Returns
     -------
-    lines : list of (int, list of str)
-        (1-based line, fields) of every row, the header first.
+    header_line : int
+        1-based line of the header.
+    header : list of str
+        The column names, stripped.
+    rows : list of (int, list of str)
+        (1-based line, fields) of every data row.
     fail : callable(line, column, message) -> SpecError
         An error naming the file, the row and the column.
 
     Raises
     ------
     SpecError
-        Not a CSV text file, or empty.
+        Not a CSV text file, empty, or a header with an unknown, repeated or missing
+        column.
     """
     path = Path(path)
     source = str(path)
@@ -551,8 +548,23 @@ def read_csv_rows(path, header):
     except (UnicodeDecodeError, csv.Error) as exc:
         raise SpecError(f"not a CSV text file: {exc}", source=source) from None
     if not lines:
-        raise SpecError(f"empty file: it needs the header {','.join(header)}", source=source)
-    return lines, fail
+        raise SpecError(f"empty file: {what} needs the header {','.join(required)}",
+                        source=source)
+    header_line, header = lines[0]
+    header = [h.strip() for h in header]
+    for column in header:
+        if ignore is not None and ignore(column):
+            continue
+        if column not in list(required) + list(optional):
+            raise fail(header_line, column or "(empty)",
+                       f"unknown column ({what} has {', '.join(required)} and optionally "
+                       f"{', '.join(optional)}; units are in the names)")
+        if header.count(column) > 1:
+            raise fail(header_line, column, "column given twice")
+    for column in required:
+        if column not in header:
+            raise fail(header_line, column, f"missing (the header has: {','.join(header)})")
+    return header_line, header, lines[1:], fail
 
 
 def _csv_rows(fh):

@@ -150,23 +150,12 @@ def read_measured(path, impacter_ids) -> dict:
     from planner.calibrate import read_csv_rows
 
     known = set(impacter_ids)
-    lines, fail = read_csv_rows(path, MEASURED_REQUIRED)
-    header_line, header = lines[0]
-    header = [h.strip() for h in header]
-    for column in header:
-        if column.endswith("_std") or column.endswith("_std_hz"):
-            continue
-        if column not in MEASURED_REQUIRED + MEASURED_OPTIONAL:
-            raise fail(header_line, column or "(empty)",
-                       f"unknown column (measured.csv has {', '.join(MEASURED_REQUIRED)} and "
-                       f"optionally {', '.join(MEASURED_OPTIONAL)}; units are in the names)")
-        if header.count(column) > 1:
-            raise fail(header_line, column, "column given twice")
-    for column in MEASURED_REQUIRED:
-        if column not in header:
-            raise fail(header_line, column, f"missing (the header has: {','.join(header)})")
+    # calibrate writes uncertainties beside the values: accepted and left alone
+    header_line, header, rows, fail = read_csv_rows(
+        path, MEASURED_REQUIRED, MEASURED_OPTIONAL, what="measured.csv",
+        ignore=lambda c: c.endswith("_std") or c.endswith("_std_hz"))
     out, first_line = {}, {}
-    for line, row in lines[1:]:
+    for line, row in rows:
         if len(row) != len(header):
             raise fail(line, header[min(len(row), len(header) - 1)],
                        f"{len(row)} values where the header has {len(header)} columns")
