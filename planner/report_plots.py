@@ -215,7 +215,8 @@ def slider_positions(scene_rows, path):
         ax.grid(alpha=0.3)
         if len(devices) <= 100:
             ncol = len({d[1:] for d in devices})
+            # beside the axes: inside, 25 entries hide the lines they name
             ax.legend(fontsize=6, ncol=min(ncol, 10), title="colour: column, marker: row",
-                      title_fontsize=6)
+                      title_fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     save(fig, path)
