@@ -1,10 +1,17 @@
-"""Worker processes that never outlive the run that started them.
+"""Worker processes that never outlive the run that started them, and the BLAS thread
+pin that makes a task's result independent of the process it ran in.
 
 :func:`process_pool` is a ``concurrent.futures.ProcessPoolExecutor`` (spawn context)
 whose workers ignore SIGINT (Ctrl-C reaches the whole process group; the parent
 decides) and are terminated, not waited for, when the block ends with an exception:
 an interrupted plan stops within a second instead of waiting for every running design
 to finish, and a SIGTERM to the main process leaves no orphaned worker behind.
+
+:func:`single_thread_blas` runs a block with BLAS limited to one thread: the
+designer's SQP (scipy) moves in its 8th significant digit with the BLAS thread count, which
+differs between the main process (all cores), the spawned pool workers and Dask workers
+(``OMP/OPENBLAS/MKL_NUM_THREADS=1``); pinned to one thread, every path computes the same
+digits.
 """
 
 from __future__ import annotations
@@ -13,9 +20,45 @@ import concurrent.futures as cf
 import contextlib
 import multiprocessing
 import signal
+import threading
 
 #: Seconds to wait for a terminated worker before killing it.
 TERMINATE_WAIT_S = 1.0
+
+
+#: Blocks inside :func:`single_thread_blas` in this process, and the limiter that the first
+#: of them started (restored when the last one ends: the BLAS thread count is global to the
+#: process, so a block in one thread must not restore it while another still runs).
+_blas_lock = threading.Lock()
+_blas_depth = 0
+_blas_limiter = None
+
+
+@contextlib.contextmanager
+def single_thread_blas():
+    """Run the block with the BLAS thread pools (numpy's and scipy's) limited to one thread.
+
+    Reentrant and safe across threads of one process: the limit holds from the first
+    entry to the last exit, then the previous thread counts come back.
+    """
+    # threadpoolctl limits the libraries loaded so far: load numpy's and scipy's BLAS first
+    import numpy  # noqa: F401
+    import scipy.linalg  # noqa: F401
+    from threadpoolctl import threadpool_limits
+
+    global _blas_depth, _blas_limiter
+    with _blas_lock:
+        if _blas_depth == 0:
+            _blas_limiter = threadpool_limits(limits=1, user_api="blas")
+        _blas_depth += 1
+    try:
+        yield
+    finally:
+        with _blas_lock:
+            _blas_depth -= 1
+            if _blas_depth == 0:
+                _blas_limiter.restore_original_limits()
+                _blas_limiter = None
 
 
 def _ignore_sigint():

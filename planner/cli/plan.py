@@ -55,9 +55,9 @@ class _Bars:
                    "verification runs that remain and an estimate of their time, write "
                    "nothing, exit 0 (seconds, even for a large array).")
 @click.option("--scheduler", metavar="ADDRESS", default=None,
-              help="Run the designs on an existing dask.distributed cluster at ADDRESS "
-                   "(tcp://host:8786; its workers need vibroplan installed) instead of "
-                   "--jobs local worker processes.")
+              help="Run the designs and the verification steps on an existing "
+                   "dask.distributed cluster at ADDRESS (tcp://host:8786; its workers "
+                   "need vibroplan installed) instead of --jobs local worker processes.")
 @handle_errors
 def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, scheduler):
     """Plan an array from a YAML SPEC: channels, designs, drives, verification.

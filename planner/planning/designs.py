@@ -84,16 +84,20 @@ def _design_task(kwargs, min_speed):
     """One impacter's design; retried with the next seeds while it is infeasible or
     predicted slower than ``SPEED_MARGIN * min_speed`` [m/s] (the search is
     stochastic; the best of the tries is kept: feasible first, then the fastest)."""
+    from planner._workers import single_thread_blas
     from planner.designer import design_impacter
 
     best = None
-    for k in range(DESIGN_RETRIES + 1):
-        res = design_impacter(**{**kwargs, "seed": kwargs["seed"] + k})
-        rank = (bool(res.feasible), float(res.predicted_slider_speed_m_s))
-        if best is None or rank > best[0]:
-            best = (rank, res)
-        if res.feasible and res.predicted_slider_speed_m_s >= SPEED_MARGIN * min_speed:
-            break
+    # BLAS on one thread wherever this runs (main process, pool or Dask worker): the SQP's
+    # last digits depend on its thread count, the plan must not
+    with single_thread_blas():
+        for k in range(DESIGN_RETRIES + 1):
+            res = design_impacter(**{**kwargs, "seed": kwargs["seed"] + k})
+            rank = (bool(res.feasible), float(res.predicted_slider_speed_m_s))
+            if best is None or rank > best[0]:
+                best = (rank, res)
+            if res.feasible and res.predicted_slider_speed_m_s >= SPEED_MARGIN * min_speed:
+                break
     return best[1]
 
 
@@ -112,10 +116,9 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
     contact parameters, process, slider) are designed once; with ``jobs`` > 1 the
     distinct designs run in that many worker processes, with ``scheduler`` (an address)
     on that ``dask.distributed`` cluster (:func:`planner.engine.run_tasks`).  Each design
-    is seeded by the spec alone, so the results do not depend on where it ran -- except
-    through the BLAS thread count of the process (the SQP's last digits): Dask workers
-    run BLAS on one thread, so a plan on Dask equals a serial one run with
-    ``OPENBLAS_NUM_THREADS=1`` (docs/large_arrays.md).
+    is seeded by the spec alone and runs with BLAS on one thread
+    (:func:`planner._workers.single_thread_blas`), so the results do not depend on where
+    it ran: serial, the process pool and Dask give the same plan.json.
     """
     from planner.designer import Ensemble
 

@@ -23,7 +23,7 @@ from planner.planning.repair import merge_carried, repair_motion, widen_separati
 from planner.planning.result import Plan
 from planner.planning.scenes import scene_failures, simulate_scenes
 from planner.planning.settings import Settings, resolve_settings
-from planner.planning.verify import check_step, coupling_matrix
+from planner.planning.verify import check_steps, coupling_matrix
 
 
 def design_problems(designs, settings):
@@ -56,7 +56,8 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     (default 1).  ``on_assignment(settings, steps, assignment)`` is called once, after
     the first assignment and before any design (the CLI prints the work left and a
     time estimate there).  ``scheduler``: address of a ``dask.distributed`` scheduler
-    to run the designs on instead of a local cluster of ``jobs`` workers.
+    to run the designs and the verification steps on (without it, the designs run in
+    ``jobs`` local worker processes and the steps in this process).
     """
     jobs = max(1, int(jobs or 1))
     if settings is None:
@@ -106,11 +107,11 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
                                         drive_of)
         tick("verify", total=len(steps))
         ver_rows, failures = [], []
-        for st in run_steps:
-            rows, fails = check_step(settings, st, waveforms[st.key], impacters, sliders)
+        for rows, fails in check_steps(settings, run_steps, waveforms, impacters, sliders,
+                                       progress=lambda k: tick("verify", k),
+                                       scheduler=scheduler):
             ver_rows += rows
             failures += fails
-            tick("verify", st.key)
         timings["verify"] = timings.get("verify", 0.0) + time.perf_counter() - ts
         failed_rows = sum(1 for r in ver_rows if not r["passed"])
         rounds.append({"round": round_, "span": assignment.span, "failures": failed_rows})
@@ -138,10 +139,9 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
             break
         run_steps, actions, redo = fixed
         motion_repairs.append({"round": mround + 1, "actions": actions})
-        for st in run_steps:
-            if st.index not in redo:
-                continue
-            rows, fails = check_step(settings, st, waveforms[st.key], impacters, sliders)
+        again = [st for st in run_steps if st.index in redo]
+        for st, (rows, fails) in zip(again, check_steps(settings, again, waveforms, impacters,
+                                                         sliders, scheduler=scheduler)):
             ver_rows = [r for r in ver_rows if r["index"] != st.index] + rows
             failures = [f for f in failures if f.step != st.index] + fails
         ver_rows.sort(key=lambda r: r["index"])

@@ -162,6 +162,61 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
     return rows, failures
 
 
+def _check_on_engine(shared, step, waveform):
+    """:func:`check_step` as a :func:`planner.engine.run_tasks` task: ``shared`` is
+    (settings, impacters, sliders), sent to each worker once."""
+    settings, impacters, sliders = shared
+    return check_step(settings, step, waveform, impacters, sliders)
+
+
+def check_steps(settings: Settings, steps, waveforms, impacters, sliders, *, progress=None,
+                scheduler=None):
+    """:func:`check_step` of every step of ``steps``, in their order.
+
+    The steps are independent (each starts every device from rest or from its x0 grid
+    and reads nothing another step wrote), so with ``scheduler`` (the address of a
+    ``dask.distributed`` scheduler) they run as tasks on that cluster
+    (:func:`planner.engine.run_tasks`); without, in this process, one after another.
+    The result is the same either way (the simulation kernels give the same digits on
+    any number of threads).
+
+    Parameters
+    ----------
+    settings : Settings
+    steps : sequence of Step
+    waveforms : dict
+        Step key -> Waveform of its summed drive.
+    impacters, sliders : dict
+        Node text -> model.Impacter; device -> model.Slider.
+    progress : callable, optional
+        Called with a step's key after each finished step (on Dask, in completion
+        order with the keys in list order: the count is exact, not which step).
+    scheduler : str, optional
+
+    Returns
+    -------
+    list of (rows, failures)
+        One :func:`check_step` result per step.
+    """
+    steps = list(steps)
+    if not steps:
+        return []
+    if not scheduler:
+        out = []
+        for st in steps:
+            out.append(check_step(settings, st, waveforms[st.key], impacters, sliders))
+            if progress is not None:
+                progress(st.key)
+        return out
+    from planner.engine import run_tasks
+
+    done = iter(steps)
+    tick = (lambda: progress(next(done).key)) if progress is not None else None
+    return run_tasks(_check_on_engine, (settings, impacters, sliders),
+                     [(st, waveforms[st.key]) for st in steps], scheduler=scheduler,
+                     progress=tick)
+
+
 def verify_step(settings: Settings, step, waveform, impacters, sliders):
     """The rows of :func:`check_step` (one per device in scope)."""
     return check_step(settings, step, waveform, impacters, sliders)[0]

@@ -157,32 +157,57 @@ def _tiny_spec(tmp_path):
     return spec
 
 
-@pytest.mark.slow
-def test_designs_on_a_two_worker_local_cluster_give_the_same_plan_json(tmp_path):
-    """Issue 18 item 3: the designs on Dask (a two-worker LocalCluster reached through
-    --scheduler, as a remote cluster would be) give a byte-identical plan.json.
+def _plan_in_subprocess(spec, out, *args):
+    """``vibroplan plan`` in a fresh process with the environment as it is (BLAS on its
+    default thread count), from this tree."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.run([sys.executable, "-m", "planner.cli", "plan", str(spec), "--out",
+                           str(out), "--no-figures", "--quiet", *args], env=env,
+                          cwd=out.parent, capture_output=True, text=True, timeout=1800)
 
-    The reference runs in a process with BLAS on one thread, as Dask runs its workers
-    (it sets OMP/OPENBLAS/MKL_NUM_THREADS=1): the designer's SQP results move in their
-    8th digit with the BLAS thread count (see docs/large_arrays.md)."""
+
+@pytest.mark.slow
+def test_serial_process_pool_and_local_cluster_give_the_same_plan_json(tmp_path):
+    """Issue 18 item 3: the designs and the verification steps on Dask (a two-worker
+    LocalCluster reached through --scheduler, as a remote cluster would be), the designs
+    in a two-process pool (--jobs 2) and a serial run give a byte-identical plan.json.
+
+    No BLAS environment variables: every design runs with BLAS pinned to one thread
+    (planner._workers.single_thread_blas), whatever the process's default."""
     distributed = pytest.importorskip("distributed")
     spec = _tiny_spec(tmp_path)
-    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
-               MKL_NUM_THREADS="1", PYTHONPATH=str(ROOT))
-    serial = subprocess.run([sys.executable, "-m", "planner.cli", "plan", str(spec),
-                             "--out", str(tmp_path / "serial"), "--jobs", "1",
-                             "--no-figures", "--quiet"], env=env, cwd=tmp_path,
-                            capture_output=True, text=True, timeout=1800)
+    serial = _plan_in_subprocess(spec, tmp_path / "serial", "--jobs", "1")
     assert serial.returncode in (0, 1), serial.stderr
+    pool = _plan_in_subprocess(spec, tmp_path / "pool", "--jobs", "2")
+    assert pool.returncode == serial.returncode, pool.stderr
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster:
         remote = CliRunner().invoke(main, ["plan", str(spec), "--out", str(tmp_path / "dask"),
                                            "--jobs", "1", "--no-figures", "--quiet",
                                            "--scheduler", cluster.scheduler_address])
-        # the cluster ran the designs
+        # the cluster ran the designs and the verification steps
         prefixes = set(cluster.scheduler.task_prefixes)
     assert remote.exit_code == serial.returncode, remote.output
-    assert "design_on_engine" in prefixes     # (dask drops the leading underscore)
+    # (dask drops the leading underscore)
+    assert {"design_on_engine", "check_on_engine"} <= prefixes, prefixes
     a = (tmp_path / "serial" / "plan.json").read_bytes()
-    b = (tmp_path / "dask" / "plan.json").read_bytes()
-    assert a == b
+    assert (tmp_path / "pool" / "plan.json").read_bytes() == a
+    assert (tmp_path / "dask" / "plan.json").read_bytes() == a
+
+
+def test_single_thread_blas_pins_blas_and_restores_it_after_the_last_block():
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+    from planner._workers import single_thread_blas
+
+    def blas_threads():
+        return sorted({i["num_threads"] for i in threadpoolctl.threadpool_info()
+                       if i["user_api"] == "blas"})
+
+    with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):
+        before = blas_threads()
+        with single_thread_blas():
+            assert blas_threads() == [1]
+            with single_thread_blas():          # nested (reentrant): still one thread
+                assert blas_threads() == [1]
+            assert blas_threads() == [1]        # the outer block still holds the limit
+        assert blas_threads() == before
