@@ -1,46 +1,64 @@
 """What a plan will cost, known once the frequencies are assigned (before any design).
 
-A simple cost model, not a measurement: every constant below was calibrated on the
-default 5 x 5 plan (``configs/array_5x5.yaml``: the README's warm stage split on the idle
-2-core machine, ``--jobs 2``: design 47.4 s, verification 1.7 s, scenes and coupling
-0.3 s), and the shape of each term follows from what the stage simulates:
+A cost model, not a measurement.  It prints a range, because three things that the
+assignment cannot know yet multiply the time:
 
-* a design evaluates candidate geometries over a window of fixed length at its
-  target, at every forbidden frequency (across its guard band) and under every summed
-  drive it must sit out: its cost grows with the number of drive cycles in the window
-  (its frequency) times the number of those checks;
+* **numba compilation**: the simulation kernels compile on their first call unless
+  numba's on-disk cache holds them (:func:`numba_cache_state` reads the cache index of
+  each kernel a plan calls, where numba itself looks: next to the sources or in
+  ``NUMBA_CACHE_DIR``); a cold cache adds ``COMPILE_S`` once, scaled by the share of
+  kernels missing;
+* **designer retries**: a design that is infeasible or predicted slower than
+  ``SPEED_MARGIN`` x the minimum speed is retried with the next seed, up to
+  :data:`planner.planning.designs.DESIGN_RETRIES` times: 1 to 1 + DESIGN_RETRIES tries;
+* **repair rounds**: when a step fails verification, the separations are widened and
+  the plan re-assigned, re-designed and re-verified, up to ``verification.repair_rounds``
+  more rounds (the upper end assumes every design is redone in every round; in fact
+  designs whose inputs did not change come from the cache).
+
+Low end: compilation (if cold) + one round with every design kept at its first try +
+scenes and coupling.  High end: compilation + (1 + repair_rounds) rounds with every
+design at its last try + scenes and coupling.
+
+The terms:
+
+* one design try costs ``DESIGN_TRY_S + DESIGN_S_PER_FORBIDDEN x forbidden tones +
+  DESIGN_S_PER_DRIVE x forbidden summed drives`` of one core: the designer checks every
+  forbidden tone across its guard band and every summed drive it must sit out, from
+  every x0 of its grid.  Fitted (least squares) to 24 single tries of real design tasks
+  of six specs (4-97 forbidden tones, 0-2 drives, 4-53 kHz) timed in-process by CPU
+  time with BLAS and numba on one thread; single tries scatter 0.3-2.2x around the
+  fit (the search is stochastic), sums over many designs much less;
 * a verification step simulates every device's impacters from every initial position of
   the x0 grid over the step: cost ~ impacters x x0 points x duration x frequency;
 * the coupling matrix simulates every impacter under every tone alone over the
   single-impacter step (cheap: most of them are silent), and the scenes replay each
   scene's steps once, every device's slider and impacters together, carrying the state.
 
-The design constant comes from the 5 x 5 plan alone; the verification and scene
-constants also use the 10 x 10 row plan (``configs/array_10x10_rows.yaml``, 20 steps of
-100 devices: 170 s design, 212 s verification, 218 s scenes and coupling on the busy
-machine, scaled to the idle machine by its design stage's ratio), because the 5 x 5 plan
-spends too little in them (2 s) to fix their shape.
-
-The estimate is for the first round; repair rounds (after verification failures) come on
-top.  The constants are for an idle machine; when the load average exceeds the cores,
-the CLI says so (every stage then runs about load / cores times slower).  Reported as an
-estimate, never as a promise; benchmarks/results/scaling.md compares it with measured
-plans.
+The verification and scene constants were fitted on the default 5 x 5 plan and the
+10 x 10 row plan (``configs/array_10x10_rows.yaml``); docs/large_arrays.md compares the
+estimate with measured runs.  The constants are for an idle machine; when the load
+average exceeds the cores, the CLI says so (every stage then runs about load / cores
+times slower).  Reported as an estimate, never as a promise.
 """
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass
 
 from planner.nodes import Node
-from planner.planning.designs import forbidden_tones, idle_ensembles
+from planner.planning.designs import DESIGN_RETRIES, forbidden_tones, idle_ensembles
 
-#: Seconds of one design per (target / 10 kHz) x (1 + checks), serial, retries included
-#: on average: 47.4 s x 1.8 effective workers / 5778 units of the default 5 x 5 plan.
-DESIGN_S_PER_UNIT = 0.0148
-#: Weight of a forbidden summed drive relative to one forbidden frequency [-] (a summed
-#: drive is simulated over the design's long window as well; not separately calibrated).
-DRIVE_WEIGHT = 3.0
+#: Seconds of one core per design try, fixed part (Sobol seeding, annealing, SLSQP and
+#: the re-checks at the target).
+DESIGN_TRY_S = 0.33
+#: Seconds of one core per design try and forbidden frequency (checked across its
+#: guard band).
+DESIGN_S_PER_FORBIDDEN = 0.019
+#: Seconds of one core per design try and forbidden summed drive (simulated over the
+#: design window and the long re-check window).
+DESIGN_S_PER_DRIVE = 0.31
 #: Seconds per (impacter x x0 point x second of step x kHz of tone) of the verification:
 #: 6.2e-4 on the default 5 x 5 plan, 1.0e-3 on the 10 x 10 row plan.
 VERIFY_S_PER_UNIT = 8e-4
@@ -50,6 +68,16 @@ SCENE_S_PER_UNIT = 6e-3
 #: Seconds per (impacter x tone x x0 point x second x kHz) of the coupling matrix: the
 #: default plan's 0.3 s of scenes and coupling less its scenes.
 COUPLING_S_PER_UNIT = 4e-5
+#: Seconds to compile every cached kernel of model.kernels that a plan calls, on one
+#: core, with an empty numba cache (measured: a tiny plan cold less the same plan warm).
+COMPILE_S = 60.0
+#: The kernels a plan calls from Python (``module:name``); each compiles, and caches, the
+#: kernels it calls with it.  The assigner's colouring kernels are left out: they have
+#: compiled by the time the estimate is made.
+PLAN_KERNELS = ("model.kernels.impacter:run_impacter", "model.kernels.impacter:response_batch",
+                "model.kernels.impacter:sweep_batch", "model.kernels.slider:run_slider",
+                "model.kernels.closed_form:tone_coefficients",
+                "model.kernels.contact:two_body_impact", "model.kernels.contact:two_body_kick")
 #: Parallel efficiency of a second worker (processes for designs, threads for simulation).
 PARALLEL_EFFICIENCY = 0.8
 
@@ -71,9 +99,21 @@ class Estimate:
     coupling_runs : int
         Simulations of the coupling matrix: impacter x tone x x0 point.
     design_s, verify_s, coupling_s : float
-        Estimated wall time of each stage on ``jobs`` workers [s].
+        Estimated wall time on ``jobs`` workers [s] of one round of designs (every
+        design kept at its first try), of one round of verification, and of the scenes
+        and the coupling matrix (once).
     jobs : int
         Workers the estimate is for.
+    load : tuple or None
+        1-minute load average and cores when the estimate was made (None: not known).
+    tries : int
+        Most tries of one design: 1 + ``DESIGN_RETRIES``.
+    rounds : int
+        Most design and verification rounds: 1 + ``verification.repair_rounds``.
+    compile_s : float
+        Estimated numba compilation [s] (0 when the cache holds every kernel).
+    cold_kernels, kernels : int
+        Kernels of :data:`PLAN_KERNELS` missing from numba's cache, and all of them.
     """
 
     impacters: int
@@ -85,25 +125,45 @@ class Estimate:
     verify_s: float
     coupling_s: float
     jobs: int
-    #: 1-minute load average and cores when the estimate was made (None: not known).
     load: tuple | None = None
+    tries: int = 1
+    rounds: int = 1
+    compile_s: float = 0.0
+    cold_kernels: int = 0
+    kernels: int = 0
 
     @property
     def total_s(self) -> float:
-        """Estimated wall time of the first round [s]."""
-        return self.design_s + self.verify_s + self.coupling_s
+        """The low end [s]: compilation, one round at first tries, scenes and coupling."""
+        return self.compile_s + self.design_s + self.verify_s + self.coupling_s
+
+    @property
+    def high_s(self) -> float:
+        """The high end [s]: compilation, every round, every design at its last try."""
+        return (self.compile_s + self.rounds * (self.tries * self.design_s + self.verify_s)
+                + self.coupling_s)
 
     def lines(self) -> list[str]:
         """The estimate as the CLI prints it."""
+        if self.kernels == 0:
+            comp = "compilation not known (numba's cache could not be read)"
+        elif self.cold_kernels:
+            comp = (f"compilation ~{_fmt(self.compile_s)} (numba cache cold: "
+                    f"{self.cold_kernels} of {self.kernels} kernels)")
+        else:
+            comp = "no compilation (numba cache warm)"
         return [
             f"remaining: {self.designs} designs for {self.impacters} impacters, "
             f"{self.steps} steps to verify ({self.verification_runs} simulations), "
             f"coupling matrix ({self.coupling_runs} simulations)",
-            f"estimated time on {self.jobs} worker{'s' if self.jobs > 1 else ''}: "
-            f"{_fmt(self.total_s)} (designs {_fmt(self.design_s)}, verification "
-            f"{_fmt(self.verify_s)}, scenes and coupling {_fmt(self.coupling_s)}); an "
-            f"estimate from a cost model calibrated on the 5 x 5 and 10 x 10 plans on an "
-            f"idle machine, before any repair round",
+            f"estimated time on {self.jobs} worker{'s' if self.jobs > 1 else ''}: about "
+            f"{_fmt(self.total_s)} to {_fmt(self.high_s)}; an estimate from a cost model "
+            f"calibrated on an idle machine (docs/large_arrays.md)",
+            f"  per round: designs {_range(self.design_s, self.tries * self.design_s)} "
+            f"(1-{self.tries} tries each), verification {_fmt(self.verify_s)}; up to "
+            f"{self.rounds} rounds (1 if every step verifies; the high end redoes every "
+            f"design in every round at its last try); then scenes and coupling "
+            f"{_fmt(self.coupling_s)}; {comp}",
         ] + self._load_lines()
 
     def _load_lines(self):
@@ -115,9 +175,18 @@ class Estimate:
 
 
 def _fmt(seconds):
+    if seconds < 10:
+        return f"{seconds:.1f} s"
     if seconds < 120:
         return f"{seconds:.0f} s"
-    return f"{seconds:.0f} s (~{seconds / 60:.0f} min)"
+    return f"{seconds / 60:.1f} min"
+
+
+def _range(low, high):
+    """``low``-``high`` in the unit of ``high``."""
+    if high < 120:
+        return f"{low:.1f}-{high:.1f} s" if high < 10 else f"{low:.0f}-{high:.0f} s"
+    return f"{low / 60:.1f}-{high / 60:.1f} min"
 
 
 def _speedup(jobs, tasks):
@@ -126,9 +195,35 @@ def _speedup(jobs, tasks):
     return 1.0 + (used - 1) * PARALLEL_EFFICIENCY
 
 
-def design_units(frequency_hz, n_forbidden, n_drives):
-    """Cost units of one design: (f / 10 kHz) x (1 + forbidden + weight x drives)."""
-    return frequency_hz / 1e4 * (1.0 + n_forbidden + DRIVE_WEIGHT * n_drives)
+def design_try_s(n_forbidden, n_drives):
+    """Seconds of one core for one design try with ``n_forbidden`` forbidden tones and
+    ``n_drives`` forbidden summed drives."""
+    return DESIGN_TRY_S + DESIGN_S_PER_FORBIDDEN * n_forbidden + DESIGN_S_PER_DRIVE * n_drives
+
+
+def numba_cache_state(kernels=PLAN_KERNELS):
+    """How many of ``kernels`` (``module:name`` of cached numba kernels) must compile.
+
+    A kernel is warm when numba's own cache index for it (next to its source, or in
+    ``NUMBA_CACHE_DIR``) exists, was written by this numba version for this source
+    file, and holds at least one compiled signature.
+
+    Returns
+    -------
+    (cold, total) : tuple of int
+        Kernels without a usable cache entry, and all of them (0, 0 when numba's cache
+        cannot be read).
+    """
+    cold = 0
+    try:
+        for entry in kernels:
+            module, name = entry.split(":")
+            cache_file = getattr(importlib.import_module(module), name)._cache._cache_file
+            # numba's own reader: {} when missing, stale or of another numba version
+            cold += not cache_file._load_index()
+    except Exception:   # numba internals moved: say "not known" rather than fail
+        return 0, 0
+    return cold, len(kernels)
 
 
 def estimate(settings, steps, assignment, jobs=1) -> Estimate:
@@ -154,8 +249,8 @@ def estimate(settings, steps, assignment, jobs=1) -> Estimate:
     keys = {}
     for n in sorted(freqs):
         key = (round(freqs[n], 6), forbidden[n], ensembles[n], settings.impacters[n])
-        keys.setdefault(key, (freqs[n], len(forbidden[n]), len(ensembles[n])))
-    design_cpu = DESIGN_S_PER_UNIT * sum(design_units(*v) for v in keys.values())
+        keys.setdefault(key, (len(forbidden[n]), len(ensembles[n])))
+    design_cpu = sum(design_try_s(*v) for v in keys.values())
     # every device of the array is checked in every step (idle or moving)
     devices = len(settings.sliders)
     x0 = settings.x0_points
@@ -172,6 +267,7 @@ def estimate(settings, steps, assignment, jobs=1) -> Estimate:
     tones = sorted(set(freqs.values()))
     coup_units = len(freqs) * x0 * settings.single_step_s * sum(tones) / 1e3
     coup_runs = len(freqs) * len(tones) * x0
+    cold, total = numba_cache_state()
     return Estimate(
         impacters=len(freqs), designs=len(keys), steps=len(steps),
         verification_runs=ver_runs, coupling_runs=coup_runs,
@@ -179,7 +275,10 @@ def estimate(settings, steps, assignment, jobs=1) -> Estimate:
         verify_s=VERIFY_S_PER_UNIT * ver_units / _speedup(jobs, devices),
         coupling_s=(COUPLING_S_PER_UNIT * coup_units + SCENE_S_PER_UNIT * scene_units)
         / _speedup(jobs, len(freqs)),
-        jobs=jobs, load=_load())
+        jobs=jobs, load=_load(), tries=1 + DESIGN_RETRIES,
+        rounds=1 + settings.repair_rounds,
+        compile_s=COMPILE_S * cold / total if total else 0.0,
+        cold_kernels=cold, kernels=total)
 
 
 def _load():
