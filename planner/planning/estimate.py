@@ -70,7 +70,7 @@ SCENE_S_PER_UNIT = 6e-3
 COUPLING_S_PER_UNIT = 4e-5
 #: Seconds to compile every cached kernel of model.kernels that a plan calls, on one
 #: core, with an empty numba cache (measured: a tiny plan cold less the same plan warm).
-COMPILE_S = 60.0
+COMPILE_S = 65.0
 #: The kernels a plan calls from Python (``module:name``); each compiles, and caches, the
 #: kernels it calls with it.  The assigner's colouring kernels are left out: they have
 #: compiled by the time the estimate is made.
