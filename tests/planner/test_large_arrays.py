@@ -1,6 +1,7 @@
 """Large arrays (issue 18): one separation rule for assigner and designer, refusals in
 seconds, ``plan --dry-run`` with a time estimate, and the large-array configs."""
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -125,6 +126,65 @@ def test_estimate_counts_the_work_left():
     assert one.verification_runs == len(settings.steps) * 2 * 100 * settings.x0_points
     assert 0 < two.total_s < one.total_s
     assert "estimate" in one.lines()[1]
+
+
+def test_estimate_range_covers_retries_repair_rounds_and_compilation():
+    from planner.planning.designs import DESIGN_RETRIES
+
+    loaded = load_spec(CONFIGS / "row_assembly.yaml")
+    settings = resolve_settings(loaded)
+    a = assign(loaded, settings.steps, separation=settings.separation_channels)
+    e = estimate(settings, settings.steps, a, jobs=1)
+    assert e.tries == 1 + DESIGN_RETRIES
+    assert e.rounds == 1 + settings.repair_rounds
+    # low end: one round at first tries; high end: every round, every design at its
+    # last try; compilation (if the cache is cold) in both
+    assert e.total_s == pytest.approx(e.compile_s + e.design_s + e.verify_s + e.coupling_s)
+    assert e.high_s == pytest.approx(e.compile_s + e.rounds * (e.tries * e.design_s + e.verify_s)
+                                     + e.coupling_s)
+    assert e.high_s > e.total_s > e.compile_s >= 0
+    text = "\n".join(e.lines())
+    assert f"1-{e.tries} tries each" in text and f"up to {e.rounds} rounds" in text
+    # no repair rounds, no retries counted twice: the high end shrinks
+    fewer = estimate(dataclasses.replace(settings, repair_rounds=0),
+                     settings.steps, a, jobs=1)
+    assert fewer.rounds == 1 and fewer.high_s < e.high_s
+
+
+def test_cold_numba_cache_is_detected_and_adds_compilation(tmp_path):
+    """In a fresh NUMBA_CACHE_DIR no plan kernel is cached; once one kernel has run,
+    that one is found in numba's cache (and the rest still are not)."""
+    code = ("import numpy as np\n"
+            "from planner.planning.estimate import COMPILE_S, numba_cache_state\n"
+            "print(numba_cache_state())\n"
+            "from model.kernels.closed_form import tone_coefficients\n"
+            "tone_coefficients(1e5, 10.0, np.array([9e4]), np.array([1.0]), np.array([0.0]))\n"
+            "print(numba_cache_state())\n")
+    env = dict(os.environ, PYTHONPATH=str(ROOT), NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, timeout=600, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    before, after = out.stdout.split()[:2], out.stdout.split()[2:]
+    from planner.planning.estimate import PLAN_KERNELS
+
+    n = len(PLAN_KERNELS)
+    assert "".join(before) == f"({n},{n})"
+    assert "".join(after) == f"({n - 1},{n})"
+
+
+def test_dry_run_with_a_cold_numba_cache_counts_the_compilation(tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(ROOT), NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    out = subprocess.run([sys.executable, "-m", "planner.cli", "plan",
+                          str(_tiny_spec(tmp_path)), "--dry-run", "--jobs", "1"], env=env,
+                         capture_output=True, text=True, timeout=900, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    from planner.planning.estimate import COMPILE_S, PLAN_KERNELS
+
+    n = len(PLAN_KERNELS)
+    assert f"compilation ~{COMPILE_S:.0f} s (numba cache cold: {n} of {n} kernels)" in out.stdout
+    low = next(x for x in out.stdout.splitlines() if x.startswith("estimated time"))
+    # the low end includes the compilation
+    assert float(low.split("about ")[1].split(" s")[0]) >= COMPILE_S
 
 
 def test_dry_run_on_10x10_prints_an_estimate_and_writes_nothing(tmp_path):
