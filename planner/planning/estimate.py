@@ -171,7 +171,7 @@ class Estimate:
             return []
         avg, cores = self.load
         return [f"the machine is busy (load average {avg:.1f} on {cores} cores): expect "
-                f"at least ~{avg / cores:.0f}x that"]
+                f"about {avg / cores:.1f}x that"]
 
 
 def _fmt(seconds):
