@@ -15,8 +15,15 @@ from planner.nodes import Node
 from planner.planning.drives import drive_of
 from planner.planning.settings import Settings
 
-#: Extra seeds tried for a design that is infeasible or slower than the target speed.
-DESIGN_RETRIES = 3
+#: Extra seeds tried for a design that is feasible but slower than the target speed.
+#: The "fast" budget runs one annealing chain, so a try can settle in a light, slow
+#: local optimum (measured on A4.backward of the default plan: seeds 0-5 gave
+#: 0.006-0.34 mm/s); most designs stop at the first try, the slow ones are cheap to retry.
+DESIGN_RETRIES = 7
+#: Tries after which a design that was never feasible is given up: another seed rarely
+#: makes an infeasible target feasible, and the planner then reports the impacter,
+#: why and what to change instead of retrying for minutes.
+INFEASIBLE_TRIES = 2
 #: A design is retried while its predicted speed is below this multiple of the spec's
 #: minimum: the prediction comes from the designer's worst x0 over its short window,
 #: and the verification (every x0 of its grid, the whole step) measured 0.5-0.7 of it
@@ -81,9 +88,10 @@ def design_offenders(designs, steps, assignment):
 
 
 def _design_task(kwargs, min_speed):
-    """One impacter's design; retried with the next seeds while it is infeasible or
-    predicted slower than ``SPEED_MARGIN * min_speed`` [m/s] (the search is
-    stochastic; the best of the tries is kept: feasible first, then the fastest)."""
+    """One impacter's design; retried with the next seeds while it is predicted slower
+    than ``SPEED_MARGIN * min_speed`` [m/s] (the search is stochastic; the best of the
+    tries is kept: feasible first, then the fastest), or given up after
+    ``INFEASIBLE_TRIES`` tries that were all infeasible."""
     from planner._workers import single_thread_blas
     from planner.designer import design_impacter
 
@@ -98,6 +106,8 @@ def _design_task(kwargs, min_speed):
                 best = (rank, res)
             if res.feasible and res.predicted_slider_speed_m_s >= SPEED_MARGIN * min_speed:
                 break
+            if k + 1 >= INFEASIBLE_TRIES and not best[0][0]:
+                break
     return best[1]
 
 
@@ -107,7 +117,7 @@ def _design_on_engine(min_speed, kwargs):
 
 
 def design_all(settings: Settings, steps, assignment, cache, progress=None, waveforms=None,
-               jobs=1, scheduler=None):
+               jobs=1, scheduler=None, reseed=None):
     """Design every driven impacter; ``cache`` maps the design inputs -> result.
 
     With ``waveforms`` (step key -> Waveform), the summed drive of every multi-tone
@@ -119,6 +129,10 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
     is seeded by the spec alone and runs with BLAS on one thread
     (:func:`planner._workers.single_thread_blas`), so the results do not depend on where
     it ran: serial, the process pool and Dask give the same plan.json.
+    
+    ``reseed`` (node -> seed offset) re-designs the impacters a repair round found too
+    slow from further seeds (:func:`planner.planning.repair.reseed_slow`); the offset
+    is part of the design's key, so every other design comes from the cache.
     """
     from planner.designer import Ensemble
 
@@ -129,14 +143,16 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
     for n in sorted(assignment.frequencies):
         drives = tuple((k, tuple(np.round(waveforms[k].frequencies, 6)),
                         tuple(np.round(waveforms[k].phases, 9))) for k in ensembles[n])
+        offset = int((reseed or {}).get(n, 0))
         key = (round(assignment.frequencies[n], 6), forbidden[n], drives,
-               settings.impacters[n])
+               settings.impacters[n], offset)
         keys[n] = key
         if key not in cache and key not in tasks:
             tasks[key] = dict(
                 frequency=assignment.frequencies[n], forbidden=forbidden[n],
                 forbidden_drives=[Ensemble(drive_of(waveforms[k]), k) for k in ensembles[n]],
                 **settings.design_kwargs(n))
+            tasks[key]["seed"] = tasks[key]["seed"] + offset
     min_speed = settings.min_speed_m_s
     users = {}
     for n, key in keys.items():

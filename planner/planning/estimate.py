@@ -157,8 +157,9 @@ class Estimate:
             f"{self.steps} steps to verify ({self.verification_runs} simulations), "
             f"coupling matrix ({self.coupling_runs} simulations)",
             f"estimated time on {self.jobs} worker{'s' if self.jobs > 1 else ''}: about "
-            f"{_fmt(self.total_s)} to {_fmt(self.high_s)}; an estimate from a cost model "
-            f"calibrated on an idle machine (docs/large_arrays.md)",
+            f"{_fmt(self.total_s)} if every step verifies at once, at most "
+            f"{_fmt(self.high_s)}; an estimate from a cost model calibrated on an idle "
+            f"machine (docs/large_arrays.md)",
             f"  per round: designs {_range(self.design_s, self.tries * self.design_s)} "
             f"(1-{self.tries} tries each), verification {_fmt(self.verify_s)}; up to "
             f"{self.rounds} rounds (1 if every step verifies; the high end redoes every "

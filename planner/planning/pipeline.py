@@ -19,7 +19,7 @@ from planner.planning.designs import design_all
 from planner.planning.drives import drive_of, limit_acceleration, synthesize_steps
 from planner.planning.motion import size_bursts
 from planner.planning.record import build_record
-from planner.planning.repair import merge_carried, repair_motion, widen_separations
+from planner.planning.repair import merge_carried, repair_motion, reseed_slow, widen_separations
 from planner.planning.result import Plan
 from planner.planning.scenes import scene_failures, simulate_scenes
 from planner.planning.settings import Settings, resolve_settings
@@ -66,7 +66,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     timings = {}
     t0 = time.perf_counter()
     steps = settings.steps
-    pair_sep, cache, rounds = {}, {}, []
+    pair_sep, cache, rounds, reseed = {}, {}, [], {}
     sep = settings.separation_channels
 
     def timed(stage, fn, *args, **kwargs):
@@ -97,7 +97,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         tick("design", total=len(assignment.frequencies))
         designs = timed("design", design_all, settings, steps, assignment, cache,
                         progress=lambda n: tick("design", n), waveforms=waveforms, jobs=jobs,
-                        scheduler=scheduler)
+                        scheduler=scheduler, reseed=reseed)
         impacters = {n: d.impacter for n, d in designs.items()}
         devices = sorted({Node.parse(n).device for n in impacters}, key=device_key)
         sliders = {d: settings.sliders[d] for d in devices}
@@ -117,8 +117,13 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         rounds.append({"round": round_, "span": assignment.span, "failures": failed_rows})
         if not failed_rows or round_ == settings.repair_rounds:
             break
-        # repair: widen the separations the failures point at, re-colour, re-design
-        if not widen_separations(failures, designs, steps, assignment, pair_sep, sep):
+        # repair: widen the separations the failures point at, re-colour, re-design;
+        # impacters that were only too slow are re-designed alone from further seeds
+        widened = widen_separations(failures, designs, steps, assignment, pair_sep, sep)
+        reseeded = reseed_slow(failures, designs, steps, reseed)
+        if reseeded:
+            rounds[-1]["redesigned_slow"] = reseeded
+        if not (widened or reseeded):
             break
     ts = time.perf_counter()
     # the scenes carry every impacter's and slider's state from step to step, each step

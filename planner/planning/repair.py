@@ -9,8 +9,8 @@ from __future__ import annotations
 import math
 
 from planner.nodes import Node
-from planner.planning.designs import design_offenders
-from planner.planning.verify import IDLE_RESPONSE
+from planner.planning.designs import DESIGN_RETRIES, design_offenders
+from planner.planning.verify import IDLE_RESPONSE, TOO_SLOW
 
 
 def _widen(pair_sep, assignment, a, b, sep):
@@ -41,6 +41,28 @@ def widen_separations(failures, designs, steps, assignment, pair_sep, sep):
         _widen(pair_sep, assignment, fail.impacter, near, sep)
         changed = True
     return changed
+
+
+def reseed_slow(failures, designs, steps, reseed):
+    """Update ``reseed`` (node -> design seed offset) in place for the driven impacters
+    that were too slow in a step; returns the nodes re-seeded.
+
+    The designer's fast budget runs one annealing chain, so a design can settle in a
+    light, slow local optimum while the same target has fast designs; the separations
+    are not at fault, so the repair re-designs that impacter alone from the next
+    ``1 + DESIGN_RETRIES`` seeds (its tries then start where the last ones ended) and
+    leaves the assignment and every other design as they are.
+    """
+    out = []
+    for fail in failures:
+        if fail.kind != TOO_SLOW:
+            continue
+        for d, dr in sorted(steps[fail.step].active_nodes()):
+            node = Node(d, dr).text
+            if d == fail.device and node in designs and node not in out:
+                reseed[node] = reseed.get(node, 0) + 1 + DESIGN_RETRIES
+                out.append(node)
+    return out
 
 
 def repair_motion(settings, steps, failures, dwells, longer_dwells):
