@@ -152,7 +152,7 @@ def main(argv=None):
         f"({', '.join(f'{k} {v}' for k, v in res['nominal']['failures'].items()) or '-'}); "
         f"re-planned {'passes' if rp['nominal']['replan_passed'] else 'FAILS'}"
         f" ({', '.join(rp['nominal']['causes']) or '-'}).", "",
-        f"Target (issue 17): re-planned yield >= 0.95.  "
+        "Target (issue 17): re-planned yield >= 0.95.  "
         + ("Met." if rp["ci95"][0] >= 0.95 else
            ("Not shown: the point estimate is >= 0.95 but the interval of so few chips is "
             "wide." if rp["yield"] >= 0.95 else
