@@ -698,7 +698,7 @@ def _replan_lines(data: dict, timings: dict | None) -> list[str]:
              f"Rescued by the re-plan: {rp['rescued']} chips; passing with the nominal drive "
              f"but not re-planned: {rp['lost']}.  The re-plan verified on its own "
              f"(measured) models on {rp['measured_passed']} chips.  The nominal chip "
-             f"(no error) re-planned: {'passes' if rp['nominal']['replan_passed'] else 'FAILS'}"
+             f"(no fabrication error, measured like the others) re-planned: {'passes' if rp['nominal']['replan_passed'] else 'FAILS'}"
              + (f" ({', '.join(rp['nominal']['causes'])})" if rp["nominal"]["causes"] else "")
              + ".", ""]
     if timings and timings.get("replan_s"):
