@@ -37,7 +37,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -602,11 +602,18 @@ def replan(plan_data, measured, *, seed=None, progress=None, original=None, reco
     ts = time.perf_counter()
     grid = channel_grid(loaded.spec)
     tones = _Tones(settings, models, settings.window_s)
-    steps = settings.steps
+    # the plan's bursts as it sized and repaired them: a travel_um step's duration in
+    # the spec is only its cap (60 ms for the default 5 x 5's position step, where the
+    # plan runs 5.2 ms: with the cap every slider travels beyond max_travel_um)
+    recorded = {f"{r['scene']}/{r['name']}": float(r["duration_s"])
+                for r in plan_data["steps"]}
+    base_steps = tuple(replace(st, duration_s=recorded.get(st.key, st.duration_s))
+                       for st in settings.steps)
+    steps = base_steps
     cands, fallback, blockers = choose_tones(settings, steps, plan_imps, nu_new, tones, grid)
     pairs, conflicts = _resolve_conflicts(steps, blockers, nu_new)
     if pairs:
-        steps = _merge_independent(settings.steps, pairs)
+        steps = _merge_independent(base_steps, pairs)
         cands, fallback, blockers = choose_tones(settings, steps, plan_imps, nu_new, tones,
                                                  grid)
         _, more = _resolve_conflicts(steps, blockers, nu_new)
@@ -663,7 +670,7 @@ def replan(plan_data, measured, *, seed=None, progress=None, original=None, reco
         conflicts += keep
         if new_pairs:
             pairs += new_pairs
-            steps = _merge_independent(settings.steps, pairs)
+            steps = _merge_independent(base_steps, pairs)
             cands, fallback, _ = choose_tones(settings, steps, plan_imps, nu_new, tones, grid)
             for n in {x for pr in new_pairs for x in pr}:
                 chosen[n] = cands[n][0] if cands[n] else fallback[n]
