@@ -93,6 +93,7 @@ def main(argv=None):
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=str(HERE / "results" / "yield_replan.md"))
+    ap.add_argument("--json", default=None, help="also write the run's yield.json here")
     args = ap.parse_args(argv)
     if args.spec:
         fab = load_spec(Path(args.spec)).spec.fabrication
@@ -195,6 +196,10 @@ def main(argv=None):
                   for c in fails]
         lines.append("")
     Path(args.out).write_text("\n".join(lines) + "\n")
+    if args.json:
+        import json
+
+        Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
     print("\n".join(lines))
 
 
