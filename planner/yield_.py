@@ -66,14 +66,16 @@ CARRIED = "idle slider moves (carried state)"
 #: Every kind of the carried-state check.
 CARRIED_KINDS = (CARRIED, "travel over limit (carried state)", "still moving (carried state)")
 #: Why a re-plan failed, in the order reports list them (a chip may have several):
-#: its resonances collide (two impacters the spec must tell apart, unresolved); a
+#: two impacters the spec must tell apart can no longer be (the re-plan's unresolved
+#: conflict: the idle one responds at every candidate tone of the other -- close
+#: resonances, or response bands that overlap although the resonances do not); a
 #: scaled tone fell beyond ``drive.band_hz``; the re-plan does not verify even on the
 #: measured models it was made for; it verifies there but not on the chip's true
 #: models (measurement noise, or what the re-plan's model does not know: the as-built
 #: mass, damping, gap and sliders); its steps pass on the true models but the
 #: carried-state check fails (the re-plan does not simulate the scenes); the chip
 #: cannot be built.
-REPLAN_CAUSES = ("resonances collide", "outside band", "fails on the measured models",
+REPLAN_CAUSES = ("cannot be told apart", "outside band", "fails on the measured models",
                  "fails only on the true models", "carried state", "unbuildable")
 #: Scale index of the nominal chip's task (its draws are multiplied by 0).
 NOMINAL_INDEX = 2**31 - 1
@@ -417,7 +419,7 @@ def replan_chip_on(payload: Payload, settings, scale_index: int, chip_index: int
     causes = []
     if not got["passed"]:
         if collisions:
-            causes.append("resonances collide")
+            causes.append("cannot be told apart")
         if rp["outside_band"]:
             causes.append("outside band")
         if not ok and not collisions:
