@@ -3,15 +3,16 @@
 Every chip is a sample of the spec's ``fabrication:`` tolerance model
 (:mod:`planner.fabrication`) built from the plan's designs.  On each chip every step
 of the plan is re-verified with the plan's own checks
-(:func:`planner.pipeline.verify_step`, from the same initial-state grid, with the drive
-rebuilt exactly from ``plan.json``'s tones) and every scene is simulated with the state
-carried across steps (:func:`planner.pipeline.simulate_scenes`).  A chip passes when
-every step passes the plan's own checks -- the criterion ``vibroplan plan`` calls
-PASSED; the yield is the fraction of chips that pass, with a 95 % Wilson score
-interval.  The carried-state check is counted in ``failures`` and gives a second,
-stricter yield (``carried_state``: chips passing both), but is not part of the pass,
-as in ``vibroplan plan`` (which reports it without failing): the default 5 x 5 plan's
-nominal chip fails it.
+(:func:`planner.planning.verify.check_step`, from the same initial-state grid, with the
+drive rebuilt exactly from ``plan.json``'s tones) and every scene is simulated with the
+state carried across steps and the plan's settle dwells
+(:func:`planner.planning.scenes.simulate_scenes`,
+:func:`planner.planning.scenes.scene_failures`).  A chip passes when every step passes
+the plan's own checks AND the carried-state check passes -- the criterion
+``vibroplan plan`` calls PASSED since the carried-state check became part of
+``verification.passed`` (issue 15).  The yield is the fraction of chips that pass, with
+a 95 % Wilson score interval.  ``carried_state`` (chips passing the carried-state check
+too) is kept for compatibility: it now equals the yield.
 
 Check kinds counted in ``failures`` (chips on which that check failed at least once):
 
@@ -19,13 +20,24 @@ Check kinds counted in ``failures`` (chips on which that check failed at least o
 - ``too slow``: a driven slider is slower than ``verification.min_speed_mm_s`` from
   some initial state;
 - ``idle slider moves``: an idle slider moves more than ``verification.idle_tolerance_um``;
+- ``travel over limit``, ``still moving``: a step's travel beyond
+  ``verification.max_travel_um``, or motion left at the end of the longest dwell;
 - ``idle slider moves (carried state)``: the same when each scene runs in order with
-  the state the previous step left;
+  the state the previous step left (``travel over limit (carried state)`` and
+  ``still moving (carried state)`` likewise);
 - ``unbuildable``: the sampled errors closed a gap or removed a beam (no simulation).
 
+With ``replan=True`` (``vibroplan yield --replan``) every chip is also *measured* --
+its true natural frequencies (of the sampled impacters) times ``1 + noise z / 100``,
+z standard normal from the chip's own seed -- re-planned from the measurement with
+:func:`planner.planning.replan.replan_chip` (only the drive changes), and the re-planned
+drive is verified with the same checks on the chip's TRUE models (the sampled impacters
+and sliders, not the re-plan's as-built models built from the measurement).
+
 Chip ``i`` at sigma scale index ``j`` draws from
-``numpy.random.SeedSequence([seed, j, i])``: the numbers depend on the seed only,
-never on the number of workers or the order they finish in.
+``numpy.random.SeedSequence([seed, j, i])`` (its measurement noise from that
+sequence's first spawned child): the numbers depend on the seed only, never on the
+number of workers or the order they finish in.
 """
 
 from __future__ import annotations
@@ -45,10 +57,26 @@ from planner.spec import ArraySpec, FabricationSpec, LoadedSpec, Step
 Z95 = 1.959963984540054
 #: Check kinds, in the order reports list them.
 KINDS = ("idle responds", "too slow", "idle slider moves",
-         "idle slider moves (carried state)", "unbuildable")
-#: The carried-state check: counted and reported, but, as in ``vibroplan plan``, not
-#: part of a chip's pass (see the module docstring).
+         "idle slider moves (carried state)", "unbuildable", "travel over limit",
+         "still moving", "travel over limit (carried state)",
+         "still moving (carried state)")
+#: The carried-state check's idle-motion kind (part of a chip's pass, as in
+#: ``vibroplan plan``).
 CARRIED = "idle slider moves (carried state)"
+#: Every kind of the carried-state check.
+CARRIED_KINDS = (CARRIED, "travel over limit (carried state)", "still moving (carried state)")
+#: Why a re-plan failed, in the order reports list them (a chip may have several):
+#: two impacters the spec must tell apart can no longer be (the re-plan's unresolved
+#: conflict: the idle one responds at every candidate tone of the other -- close
+#: resonances, or response bands that overlap although the resonances do not); a
+#: scaled tone fell beyond ``drive.band_hz``; the re-plan does not verify even on the
+#: measured models it was made for; it verifies there but not on the chip's true
+#: models (measurement noise, or what the re-plan's model does not know: the as-built
+#: mass, damping, gap and sliders); its steps pass on the true models but the
+#: carried-state check fails (the re-plan does not simulate the scenes); the chip
+#: cannot be built.
+REPLAN_CAUSES = ("cannot be told apart", "outside band", "fails on the measured models",
+                 "fails only on the true models", "carried state", "unbuildable")
 #: Scale index of the nominal chip's task (its draws are multiplied by 0).
 NOMINAL_INDEX = 2**31 - 1
 
@@ -90,6 +118,15 @@ class Payload:
     seed: int
     #: Numba threads per chip (None: numba's default); :func:`run_yield` sets 1.
     threads: int | None = None
+    #: Settle dwell [s] of every step key (plan.json's ``settle_s``, the dwell the
+    #: plan's own carried-state check used).
+    dwells: dict = dataclasses.field(default_factory=dict)
+    #: Measure, re-plan and re-verify every chip (``--replan``).
+    replan: bool = False
+    #: One sigma of the relative measurement noise of a natural frequency [%].
+    measure_noise_pct: float = 0.0
+    #: The parsed plan.json the re-plan starts from (only with ``replan``).
+    plan_data: dict | None = None
 
 
 def read_plan(path: str | Path) -> tuple[dict, Path]:
@@ -117,20 +154,63 @@ def read_plan(path: str | Path) -> tuple[dict, Path]:
     return data, p
 
 
-def make_payload(data: dict, seed: int, fabrication: FabricationSpec | None = None) -> Payload:
-    """The worker payload of a parsed plan.json; ``fabrication`` overrides the plan's."""
-    spec = ArraySpec.model_validate(data["spec"])
+def _drive_of(data: dict):
+    """(steps, step key -> recorded tones, step key -> settle dwell [s]) of a plan.json.
+
+    The dwell of a step is its recorded ``settle_s`` (``vibroplan plan``); a re-plan
+    records none, and then it is the longest dwell its own verification found.
+    """
     steps = tuple(Step(s["scene"], s["name"], int(s["index"]), float(s["duration_s"]),
                        tuple(s["forward"]), tuple(s["backward"])) for s in data["steps"])
-    waveforms = {}
+    waveforms, dwells = {}, {}
+    checked = (data.get("verification") or {}).get("steps") or {}
     for s, st in zip(data["steps"], steps):
         t = s["tones"]
         waveforms[st.key] = _Tones(np.array([x["frequency_hz"] for x in t], float),
                                    np.array([x["amplitude_m"] for x in t], float),
                                    np.array([x["phase_rad"] for x in t], float))
+        if s.get("settle_s") is not None:
+            dwells[st.key] = float(s["settle_s"])
+        else:
+            dwells[st.key] = max((float(r.get("settle_s") or 0.0)
+                                  for r in (checked.get(st.key) or {}).values()), default=0.0)
+    return steps, waveforms, dwells
+
+
+def check_noise(pct) -> float:
+    """``pct`` as a measurement noise [%]: a finite number >= 0.
+
+    Raises
+    ------
+    ValueError
+        Naming ``--measure-noise``.
+    """
+    try:
+        x = float(pct)
+    except (TypeError, ValueError):
+        raise ValueError(f"--measure-noise: {pct!r} is not a number") from None
+    if not (math.isfinite(x) and x >= 0):
+        raise ValueError(f"--measure-noise: must be a finite number >= 0 [%], {pct} was given")
+    return x
+
+
+def make_payload(data: dict, seed: int, fabrication: FabricationSpec | None = None, *,
+                 replan: bool = False, measure_noise_pct: float = 0.0) -> Payload:
+    """The worker payload of a parsed plan.json; ``fabrication`` overrides the plan's.
+
+    ``replan``: measure, re-plan and re-verify every chip; ``measure_noise_pct``: one
+    sigma of the relative noise of each measured natural frequency [%] (>= 0).
+    """
+    noise = check_noise(measure_noise_pct)
+    if noise and not replan:
+        raise ValueError("--measure-noise needs --replan (only a re-plan measures the chip)")
+    spec = ArraySpec.model_validate(data["spec"])
+    steps, waveforms, dwells = _drive_of(data)
     loaded = LoadedSpec(spec, steps, "plan.json")
     fab = fabrication if fabrication is not None else spec.fabrication
-    return Payload(design_from_plan(data, spec), loaded, waveforms, fab, int(seed))
+    return Payload(design_from_plan(data, spec), loaded, waveforms, fab, int(seed),
+                   dwells=dwells, replan=bool(replan), measure_noise_pct=noise,
+                   plan_data=data if replan else None)
 
 
 def _kind(cause: str) -> str:
@@ -140,44 +220,57 @@ def _kind(cause: str) -> str:
         return "too slow"
     if cause.startswith("idle slider moves"):
         return "idle slider moves"
+    if cause.startswith("travel") and "over the limit" in cause:
+        return "travel over limit"
+    if cause.startswith("still moving"):
+        return "still moving"
     return cause.split(":")[0].strip() or "other"
 
 
-def verify_chip(payload: Payload, scale_index: int, chip_index: int, scale: float) -> dict:
-    """Sample chip ``chip_index`` at sigma scale ``scale`` and run every check on it.
+def _settings(loaded: LoadedSpec):
+    from planner.planning.settings import resolve_settings
+
+    return resolve_settings(loaded)
+
+
+def check_drive(settings, steps, waveforms, dwells, impacters, sliders) -> dict:
+    """Every check of a drive on one chip's models: the per-step checks and the
+    carried-state check, as ``vibroplan plan`` runs them.
+
+    Parameters
+    ----------
+    settings : planner.planning.settings.Settings
+        The plan's settings (checks, x0 grid, contact laws, dwell caps).
+    steps : sequence of Step
+        The drive's steps (plan.json's, or a re-plan's).
+    waveforms : dict
+        Step key -> the step's tones (``frequencies`` [Hz], ``amplitudes`` [m],
+        ``phases`` [rad]).
+    dwells : dict
+        Step key -> settle dwell [s] after the step in the scene simulation.
+    impacters, sliders : dict
+        The chip's models: node id -> :class:`model.Impacter`, device -> :class:`model.Slider`.
 
     Returns
     -------
     dict
-        ``passed``, ``failures`` (kind -> failing rows), ``nodes`` (ids of the impacter
-        pairs implicated in a failure), ``scale_index``, ``chip``.
+        ``passed`` (every check), ``steps_passed`` (the per-step checks only),
+        ``failures`` (kind -> failing rows), ``nodes`` (impacter pairs implicated),
+        ``rows`` (the per-step verification rows).
     """
-    from planner.assign import split_node
-    from planner.pipeline import simulate_scenes, verify_step
+    from planner.nodes import Node
+    from planner.planning.scenes import scene_failures, simulate_scenes
+    from planner.planning.verify import CARRIED_IDLE, TRAVEL_OVER, check_step
 
-    if payload.threads:
-        import numba
-
-        # per thread: every task sets it in the worker thread that runs it
-        numba.set_num_threads(min(payload.threads, numba.config.NUMBA_NUM_THREADS))
-    rng = np.random.default_rng(np.random.SeedSequence([payload.seed, scale_index,
-                                                        chip_index]))
-    chip = sample_chip(payload.design, payload.fabrication, rng, scale)
-    failures, nodes = {}, set()
-    if chip.unbuildable:
-        failures["unbuildable"] = len(chip.unbuildable)
-        for x in chip.unbuildable:
-            nodes |= {n for n in payload.design.node_ids if n == x or split_node(n)[0] == x}
-        return {"scale_index": scale_index, "chip": chip_index, "passed": False,
-                "failures": failures, "nodes": sorted(nodes)}
-    loaded = payload.loaded
     by_device = {}
-    for n in chip.impacters:
-        by_device.setdefault(split_node(n)[0], []).append(n)
-    for st in loaded.steps:
+    for n in impacters:
+        by_device.setdefault(Node.parse(n).device, []).append(n)
+    failures, nodes, rows = {}, set(), []
+    for st in steps:
         active = {f"{d}.{r}" for d, r in st.active_nodes()}
-        for row in verify_step(loaded, st, payload.waveforms[st.key], chip.impacters,
-                               chip.sliders):
+        step_rows = check_step(settings, st, waveforms[st.key], impacters, sliders)[0]
+        rows += step_rows
+        for row in step_rows:
             if row["passed"]:
                 continue
             for cause in row["cause"].split("; "):
@@ -190,18 +283,162 @@ def verify_chip(payload: Payload, scale_index: int, chip_index: int, scale: floa
                 elif not named:  # an idle slider moved: its idle impacters did it
                     named = [n for n in own if n not in active]
                 nodes |= set(named)
-    passed = not failures
-    carried = 0
-    if loaded.spec.scenes:
-        for r in simulate_scenes(loaded, loaded.steps, payload.waveforms, chip.impacters,
-                                 chip.sliders):
-            if r["driven"] and r["idle_moved_m"]:
-                carried += len(r["idle_moved_m"])
-    if carried:
-        failures[CARRIED] = carried
-    return {"scale_index": scale_index, "chip": chip_index, "passed": passed,
-            "carried_passed": passed and not carried, "failures": failures,
-            "nodes": sorted(nodes)}
+    steps_passed = not failures
+    if settings.scenes:
+        by_index = {st.index: st for st in steps}
+        scene_rows = simulate_scenes(settings, steps, waveforms, impacters, sliders, dwells)
+        for f in scene_failures(settings, steps, scene_rows):
+            kind = {CARRIED_IDLE: CARRIED,
+                    TRAVEL_OVER: "travel over limit (carried state)"}.get(
+                        f.kind, "still moving (carried state)")
+            failures[kind] = failures.get(kind, 0) + 1
+            st = by_index.get(f.step)
+            if f.kind == CARRIED_IDLE and st is not None:
+                active = {f"{d}.{r}" for d, r in st.active_nodes()}
+                nodes |= {n for n in by_device.get(f.device, []) if n not in active}
+    return {"passed": not failures, "steps_passed": steps_passed, "failures": failures,
+            "nodes": nodes, "rows": rows}
+
+
+def verify_chip(payload: Payload, scale_index: int, chip_index: int, scale: float) -> dict:
+    """Sample chip ``chip_index`` at sigma scale ``scale`` and run every check on it.
+
+    Returns
+    -------
+    dict
+        ``passed``, ``carried_passed`` (equal to ``passed``: the carried-state check is
+        part of the pass), ``failures`` (kind -> failing rows), ``nodes`` (ids of the
+        impacter pairs implicated in a failure), ``scale_index``, ``chip``; with
+        ``payload.replan`` also ``replan`` (see :func:`replan_chip_on`) and
+        ``seconds`` (wall time of the nominal checks and of the re-plan [s]).
+    """
+    import time
+
+    from planner.assign import split_node
+
+    if payload.threads:
+        import numba
+
+        # per thread: every task sets it in the worker thread that runs it
+        numba.set_num_threads(min(payload.threads, numba.config.NUMBA_NUM_THREADS))
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(np.random.SeedSequence([payload.seed, scale_index,
+                                                        chip_index]))
+    chip = sample_chip(payload.design, payload.fabrication, rng, scale)
+    out = {"scale_index": scale_index, "chip": chip_index}
+    if chip.unbuildable:
+        nodes = set()
+        for x in chip.unbuildable:
+            nodes |= {n for n in payload.design.node_ids if n == x or split_node(n)[0] == x}
+        out.update(passed=False, carried_passed=False,
+                   failures={"unbuildable": len(chip.unbuildable)}, nodes=sorted(nodes))
+        if payload.replan:
+            out["replan"] = {"passed": False, "measured_passed": False,
+                             "causes": ["unbuildable"], "failures": {"unbuildable": 1},
+                             "collisions": [], "outside_band": []}
+            out["seconds"] = {"nominal": time.perf_counter() - t0, "replan": 0.0}
+        return out
+    settings = _settings(payload.loaded)
+    got = check_drive(settings, payload.loaded.steps, payload.waveforms, payload.dwells,
+                      chip.impacters, chip.sliders)
+    out.update(passed=got["passed"], carried_passed=got["passed"],
+               failures=got["failures"], nodes=sorted(got["nodes"]))
+    if payload.replan:
+        t1 = time.perf_counter()
+        out["replan"] = replan_chip_on(payload, settings, scale_index, chip_index, chip, got)
+        out["seconds"] = {"nominal": t1 - t0, "replan": time.perf_counter() - t1}
+    return out
+
+
+def measured_frequencies(payload: Payload, scale_index: int, chip_index: int,
+                         chip) -> dict:
+    """Node id -> (true, measured) natural frequency [Hz] of a sampled chip.
+
+    measured = true (1 + pct z / 100), z standard normal from the first child of the
+    chip's SeedSequence (one draw per node in the design's order, whatever pct, so the
+    same chip gets the same normals at every noise level), floored at a tenth of the
+    true frequency (a measurement never finds a resonance at or below 0 Hz; only a
+    noise of tens of per cent reaches the floor).
+    """
+    seq = np.random.SeedSequence([payload.seed, scale_index, chip_index]).spawn(1)[0]
+    z = np.random.default_rng(seq).standard_normal(len(payload.design.nodes))
+    out = {}
+    for node, zi in zip(payload.design.nodes, z):
+        nu = float(chip.impacters[node.id].natural_frequency)
+        out[node.id] = (nu, nu * max(1.0 + payload.measure_noise_pct / 100.0 * float(zi), 0.1))
+    return out
+
+
+def replan_chip_on(payload: Payload, settings, scale_index: int, chip_index: int, chip,
+                   nominal: dict) -> dict:
+    """Measure a sampled chip, re-plan its drive, verify it on the chip's true models.
+
+    Parameters
+    ----------
+    payload : Payload
+        With ``plan_data`` and ``measure_noise_pct``.
+    settings : Settings
+        The plan's settings (the checks).
+    scale_index, chip_index : int
+        The chip's indices (its measurement noise is seeded from them).
+    chip : planner.fabrication.Chip
+        The sampled chip (its impacters and sliders are the truth).
+    nominal : dict
+        :func:`check_drive` of the original drive on this chip: passed on as the
+        re-plan's ``original`` so that it is not verified a second time.
+
+    Returns
+    -------
+    dict
+        ``passed`` (the re-planned drive passes every check on the true models),
+        ``measured_passed`` (the re-plan verified on the models it was made from),
+        ``causes`` (:data:`REPLAN_CAUSES` that apply when it fails), ``failures``
+        (kind -> rows on the true models), ``collisions`` (unresolved pairs:
+        ``driven``, ``idle``, their as-built and measured natural frequencies [Hz],
+        ``steps`` separating them), ``outside_band`` (impacters whose scaled tone fell
+        beyond the band), ``merged_steps``, ``tones_moved`` (impacters whose channel
+        changed).
+    """
+    from planner.planning.replan import replan_chip
+
+    freqs = measured_frequencies(payload, scale_index, chip_index, chip)
+    measured = {n: {"natural_frequency_hz": m} for n, (_, m) in freqs.items()}
+    ok, plan = replan_chip(payload.plan_data, measured,
+                           original=(nominal["steps_passed"], nominal["rows"]), record=False)
+    data = plan.data
+    steps, waveforms, dwells = _drive_of(data)
+    got = check_drive(settings, steps, waveforms, dwells, chip.impacters, chip.sliders)
+    rp = data["replan"]
+    collisions = [{"driven": c["driven"], "idle": c["idle"],
+                   "as_built_hz": [round(freqs[c["driven"]][0], 3),
+                                   round(freqs[c["idle"]][0], 3)],
+                   "measured_hz": [round(freqs[c["driven"]][1], 3),
+                                   round(freqs[c["idle"]][1], 3)],
+                   "steps": list(c["steps"])}
+                  for c in rp["inseparable"] if not c["resolved"]]
+    causes = []
+    if not got["passed"]:
+        if collisions:
+            causes.append("cannot be told apart")
+        if rp["outside_band"]:
+            causes.append("outside band")
+        if not ok and not collisions:
+            causes.append("fails on the measured models")
+        if ok and got["steps_passed"]:
+            # the re-plan itself never runs the scenes with carried state
+            causes.append("carried state")
+        elif ok:
+            causes.append("fails only on the true models")
+    return {"passed": got["passed"], "measured_passed": bool(ok), "causes": causes,
+            "failures": got["failures"], "collisions": collisions,
+            "outside_band": list(rp["outside_band"]), "merged_steps": list(rp["merged_steps"]),
+            "tones_moved": sum(1 for m in rp["moved"]
+                               if m["frequency_hz"] != m["original_frequency_hz"])}
+
+
+def _ordered(counts: dict, order) -> dict:
+    rank = {k: i for i, k in enumerate(order)}
+    return dict(sorted(counts.items(), key=lambda kv: (-kv[1], rank.get(kv[0], 99), kv[0])))
 
 
 def _summary(results, chips):
@@ -210,13 +447,42 @@ def _summary(results, chips):
     for r in results:
         for k in r["failures"]:
             kinds[k] = kinds.get(k, 0) + 1
-    order = {k: i for i, k in enumerate(KINDS)}
-    failures = dict(sorted(kinds.items(), key=lambda kv: (-kv[1], order.get(kv[0], 99))))
+    failures = _ordered(kinds, KINDS)
     both = sum(r.get("carried_passed", r["passed"]) for r in results)
-    return {"chips": chips, "passed": passed, "yield": passed / chips,
-            "ci95": wilson_interval(passed, chips), "failures": failures,
-            "carried_state": {"passed": both, "yield": both / chips,
-                              "ci95": wilson_interval(both, chips)}}
+    out = {"chips": chips, "passed": passed, "yield": passed / chips,
+           "ci95": wilson_interval(passed, chips), "failures": failures,
+           "carried_state": {"passed": both, "yield": both / chips,
+                             "ci95": wilson_interval(both, chips)}}
+    if results and "replan" in results[0]:
+        out["replan"] = _replan_summary(results, chips)
+    return out
+
+
+def _replan_summary(results, chips):
+    """The re-plan's yield, its failure causes and the chips it rescued or lost."""
+    ok = sum(r["replan"]["passed"] for r in results)
+    causes, kinds = {}, {}
+    for r in results:
+        for c in r["replan"]["causes"]:
+            causes[c] = causes.get(c, 0) + 1
+        for k in r["replan"]["failures"]:
+            kinds[k] = kinds.get(k, 0) + 1
+    return {"chips": chips, "passed": ok, "yield": ok / chips,
+            "ci95": wilson_interval(ok, chips),
+            "rescued": sum(1 for r in results if r["replan"]["passed"] and not r["passed"]),
+            "lost": sum(1 for r in results if r["passed"] and not r["replan"]["passed"]),
+            "measured_passed": sum(r["replan"]["measured_passed"] for r in results),
+            "causes": _ordered(causes, REPLAN_CAUSES), "failures": _ordered(kinds, KINDS)}
+
+
+def _chip_record(r) -> dict:
+    """One chip's line of yield.json's ``replan.per_chip``."""
+    rp = r["replan"]
+    return {"chip": r["chip"], "nominal_passed": r["passed"], "replan_passed": rp["passed"],
+            "measured_passed": rp["measured_passed"], "causes": rp["causes"],
+            "failures": _ordered(rp["failures"], KINDS), "collisions": rp["collisions"],
+            "outside_band": rp["outside_band"], "merged_steps": rp.get("merged_steps", []),
+            "tones_moved": rp.get("tones_moved", 0)}
 
 
 def parse_scales(text: str | None) -> list[float]:
@@ -244,14 +510,23 @@ def parse_scales(text: str | None) -> list[float]:
 
 
 def run_yield(payload: Payload, chips: int, *, scales=(1.0,), jobs: int = 1,
-              scheduler: str | None = None, progress=None) -> dict:
+              scheduler: str | None = None, progress=None, timings: dict | None = None
+              ) -> dict:
     """The Monte Carlo: ``chips`` chips at every sigma scale, plus the nominal chip.
+
+    ``timings``: when given a dict, it receives ``nominal_s`` and ``replan_s`` (lists of
+    the wall times [s] of each chip's nominal checks and re-plan, with
+    ``payload.replan``) and ``wall_s``; kept out of the returned dict so that
+    ``yield.json`` depends on the seed only.
 
     Returns
     -------
     dict
         The content of ``yield.json`` (see :func:`write_outputs` and docs/yield.md).
     """
+    import time
+
+    t_start = time.perf_counter()
     from planner.engine import run_tasks
 
     chips = int(chips)
@@ -272,6 +547,11 @@ def run_yield(payload: Payload, chips: int, *, scales=(1.0,), jobs: int = 1,
                             progress=progress)
     finally:
         numba.set_num_threads(before)
+    if timings is not None:
+        timings["wall_s"] = time.perf_counter() - t_start
+        timings["nominal_s"] = [r["seconds"]["nominal"] for r in results if "seconds" in r]
+        timings["replan_s"] = [r["seconds"]["replan"] for r in results
+                               if "seconds" in r and "unbuildable" not in r["failures"]]
     nominal, results = results[0], results[1:]
     main = scales.index(1.0) if 1.0 in scales else 0
     out_scale = {}
@@ -296,11 +576,29 @@ def run_yield(payload: Payload, chips: int, *, scales=(1.0,), jobs: int = 1,
                     "carried_passed": nominal["carried_passed"]},
         "failed_chips": [r["chip"] for r in mine if not r["passed"]],
     }
+    if payload.replan:
+        rp = summary["replan"]
+        data["replan"] = {
+            "measure_noise_pct": payload.measure_noise_pct,
+            "chips": chips, "passed": rp["passed"], "yield": rp["yield"], "ci95": rp["ci95"],
+            "nominal_drive": {"passed": summary["passed"], "yield": summary["yield"],
+                              "ci95": summary["ci95"]},
+            "rescued": rp["rescued"], "lost": rp["lost"],
+            "measured_passed": rp["measured_passed"],
+            "causes": rp["causes"], "failures": rp["failures"],
+            "nominal": _chip_record(nominal),
+            "failed_chips": [r["chip"] for r in mine if not r["replan"]["passed"]],
+            "per_chip": [_chip_record(r) for r in mine],
+        }
     if len(scales) > 1 or scales != [1.0]:
-        data["by_sigma_scale"] = {
-            f"{s:g}": {k: out_scale[j][0][k]
-                       for k in ("yield", "ci95", "passed", "failures", "carried_state")}
-            for j, s in enumerate(scales)}
+        keys = ("yield", "ci95", "passed", "failures", "carried_state")
+        data["by_sigma_scale"] = {}
+        for j, s in enumerate(scales):
+            entry = {k: out_scale[j][0][k] for k in keys}
+            if payload.replan:
+                entry["replan"] = {k: out_scale[j][0]["replan"][k]
+                                   for k in ("yield", "ci95", "passed", "rescued", "causes")}
+            data["by_sigma_scale"][f"{s:g}"] = entry
     return data
 
 
@@ -334,7 +632,16 @@ def _figures(data: dict, spec: ArraySpec, folder: Path) -> list[str]:
     lo = [v["yield"] - v["ci95"][0] for v in by.values()]
     hi = [v["ci95"][1] - v["yield"] for v in by.values()]
     fig, ax = plt.subplots(figsize=(5, 3.5))
-    ax.errorbar(xs, ys, yerr=[lo, hi], fmt="o-", capsize=4)
+    ax.errorbar(xs, ys, yerr=[lo, hi], fmt="o-", capsize=4,
+                label="nominal drive" if "replan" in data else None)
+    if "replan" in data:
+        rps = ([v["replan"] for v in data["by_sigma_scale"].values()]
+               if "by_sigma_scale" in data else [data["replan"]])
+        ax.errorbar(xs, [v["yield"] for v in rps],
+                    yerr=[[v["yield"] - v["ci95"][0] for v in rps],
+                          [v["ci95"][1] - v["yield"] for v in rps]],
+                    fmt="s--", capsize=4, label="re-planned per chip")
+        ax.legend(loc="best", fontsize=8)
     ax.set_xlabel("sigma scale [-]")
     ax.set_ylabel("yield (95 % Wilson CI)")
     ax.set_ylim(-0.03, 1.03)
@@ -374,18 +681,70 @@ def _figures(data: dict, spec: ArraySpec, folder: Path) -> list[str]:
     return names
 
 
-def _report(data: dict, spec: ArraySpec, plan_path: str, figures: list[str]) -> str:
+def _replan_lines(data: dict, timings: dict | None) -> list[str]:
+    rp = data["replan"]
+    lo, hi = rp["ci95"]
+    nd = rp["nominal_drive"]
+    lines = ["## Re-planned per chip (`--replan`)", "",
+             "Every chip was measured (its true natural frequencies"
+             + (f" with {rp['measure_noise_pct']:g} % Gaussian measurement noise"
+                if rp["measure_noise_pct"] else ", no measurement noise")
+             + "), its drive re-planned from the measurement (`replan_chip`: tones, "
+             "amplitudes and timing; the geometry is fixed), and the re-planned drive "
+             "verified with the same checks on the chip's TRUE models.", "",
+             "| drive | yield | 95 % Wilson CI | chips passing |", "|---|---|---|---|",
+             f"| nominal (plan.json's) | {nd['yield']:.3f} | [{nd['ci95'][0]:.3f}, "
+             f"{nd['ci95'][1]:.3f}] | {nd['passed']} / {rp['chips']} |",
+             f"| **re-planned per chip** | **{rp['yield']:.3f}** | [{lo:.3f}, {hi:.3f}] | "
+             f"{rp['passed']} / {rp['chips']} |", "",
+             f"Rescued by the re-plan: {rp['rescued']} chips; passing with the nominal drive "
+             f"but not re-planned: {rp['lost']}.  The re-plan verified on its own "
+             f"(measured) models on {rp['measured_passed']} chips.  The nominal chip "
+             f"(no fabrication error, measured like the others) re-planned: {'passes' if rp['nominal']['replan_passed'] else 'FAILS'}"
+             + (f" ({', '.join(rp['nominal']['causes'])})" if rp["nominal"]["causes"] else "")
+             + ".", ""]
+    if timings and timings.get("replan_s"):
+        t = np.array(timings["replan_s"])
+        tn = np.array(timings["nominal_s"])
+        lines += [f"Cost (this run, wall time per chip): re-plan {t.mean():.1f} s mean "
+                  f"({t.min():.1f}-{t.max():.1f} s), besides the nominal checks "
+                  f"{tn.mean():.1f} s; {60 * len(tn) / timings['wall_s']:.2f} chips/min "
+                  "overall.", ""]
+    if rp["causes"]:
+        lines += ["### Why re-plans fail", "", "| cause | chips |", "|---|---|"]
+        lines += [f"| {k} | {v} |" for k, v in rp["causes"].items()]
+        lines += ["", "Checks the re-planned drive fails on the true models: "
+                  + ", ".join(f"{k} ({v} chips)" for k, v in rp["failures"].items()), ""]
+    bad = [c for c in rp["per_chip"] if not c["replan_passed"]]
+    if bad:
+        lines += ["### Chips the re-plan does not rescue", "",
+                  "| chip | nominal drive | causes | colliding resonances (as built) |",
+                  "|---|---|---|---|"]
+        for c in bad[:50]:
+            pairs = "; ".join(f"{x['driven']} {x['as_built_hz'][0]:.0f} Hz / {x['idle']} "
+                              f"{x['as_built_hz'][1]:.0f} Hz" for x in c["collisions"][:4])
+            if len(c["collisions"]) > 4:
+                pairs += f"; ... {len(c['collisions']) - 4} more"
+            lines.append(f"| {c['chip']} | {'passes' if c['nominal_passed'] else 'fails'} | "
+                         f"{', '.join(c['causes']) or '-'} | {pairs or '-'} |")
+        if len(bad) > 50:
+            lines.append(f"| ... | | {len(bad) - 50} more in yield.json | |")
+        lines.append("")
+    return lines
+
+
+def _report(data: dict, spec: ArraySpec, plan_path: str, figures: list[str],
+            timings: dict | None = None) -> str:
     lo, hi = data["ci95"]
     lines = [f"# Yield of {spec.name}", "",
              f"Plan: `{plan_path}`; {data['chips']} chips, seed {data['seed']}, "
              f"sigma scale {data['sigma_scale']:g}.", "",
              f"**Yield {data['yield']:.3f}** ({data['passed']} of {data['chips']} chips pass "
-             f"every check); 95 % Wilson interval [{lo:.3f}, {hi:.3f}].", "",
-             f"With the carried-state check too (each scene in order, the state carried "
-             f"across steps): yield {data['carried_state']['yield']:.3f}, 95 % CI "
-             f"[{data['carried_state']['ci95'][0]:.3f}, {data['carried_state']['ci95'][1]:.3f}]"
-             + ("" if data["nominal"]["carried_passed"] else
-                " (the nominal chip already fails it)") + ".", "",
+             f"every check, the carried-state check included, with the plan's drive); "
+             f"95 % Wilson interval [{lo:.3f}, {hi:.3f}]."
+             + (f"  Re-planned per chip: **{data['replan']['yield']:.3f}** "
+                f"[{data['replan']['ci95'][0]:.3f}, {data['replan']['ci95'][1]:.3f}] "
+                "(below)." if "replan" in data else ""), "",
              "The nominal chip (no fabrication error) "
              + ("passes every check." if data["nominal"]["passed"] else
                 "FAILS: " + ", ".join(f"{k} ({v})" for k, v in data["nominal"]["failures"].items())
@@ -395,12 +754,21 @@ def _report(data: dict, spec: ArraySpec, plan_path: str, figures: list[str]) -> 
     for k, v in data["tolerance"].items():
         lines.append(f"| {k} | {v['die']:g} | {v['device']:g} |")
     lines += ["", "![yield](figures/yield.png)", ""]
+    if "replan" in data:
+        lines += _replan_lines(data, timings)
     if "by_sigma_scale" in data:
+        rp = "replan" in data
         lines += ["## Yield against the tolerance scale", "",
-                  "| sigma scale | yield | 95 % CI | chips passed |", "|---|---|---|---|"]
+                  "| sigma scale | yield | 95 % CI | chips passed |"
+                  + (" re-planned yield | 95 % CI |" if rp else ""),
+                  "|---|---|---|---|" + ("---|---|" if rp else "")]
         for s, v in data["by_sigma_scale"].items():
-            lines.append(f"| {s} | {v['yield']:.3f} | [{v['ci95'][0]:.3f}, {v['ci95'][1]:.3f}] "
-                         f"| {v['passed']} / {data['chips']} |")
+            row = (f"| {s} | {v['yield']:.3f} | [{v['ci95'][0]:.3f}, {v['ci95'][1]:.3f}] "
+                   f"| {v['passed']} / {data['chips']} |")
+            if rp:
+                r = v["replan"]
+                row += f" {r['yield']:.3f} | [{r['ci95'][0]:.3f}, {r['ci95'][1]:.3f}] |"
+            lines.append(row)
         lines.append("")
     lines += ["## Checks that fail", ""]
     if data["failures"]:
@@ -422,10 +790,12 @@ def _report(data: dict, spec: ArraySpec, plan_path: str, figures: list[str]) -> 
 
 
 def write_outputs(data: dict, spec: ArraySpec, folder: Path, plan_path: str,
-                  figures: bool = True) -> None:
+                  figures: bool = True, timings: dict | None = None) -> None:
     """``yield.json``, ``report.md`` and ``figures/`` into ``folder`` (a temporary one
-    from :func:`planner._io.output_folder`)."""
+    from :func:`planner._io.output_folder`); ``timings`` (:func:`run_yield`'s) adds the
+    re-plan's cost to the report only, never to yield.json."""
     folder = Path(folder)
     (folder / "yield.json").write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
     names = _figures(data, spec, folder / "figures") if figures else []
-    (folder / "report.md").write_text(_report(data, spec, plan_path, names), encoding="utf-8")
+    (folder / "report.md").write_text(_report(data, spec, plan_path, names, timings),
+                                      encoding="utf-8")

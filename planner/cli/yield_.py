@@ -31,12 +31,20 @@ from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_err
 @click.option("--sigma-scale", "sigma_scale", default=None, metavar="LIST",
               help="Comma-separated factors on every sigma, e.g. 0.5,1,2: the yield against "
                    "the tolerance scale (chips per scale: --chips).")
+@click.option("--replan", is_flag=True,
+              help="Also measure every chip (its true natural frequencies, plus "
+                   "--measure-noise), re-plan its drive from the measurement "
+                   "(vibroplan replan, in memory) and verify the re-planned drive on the "
+                   "chip's true models: the yield with re-planning beside the nominal one.")
+@click.option("--measure-noise", "measure_noise", default=None, metavar="PCT",
+              help="With --replan: one sigma of the Gaussian noise of each measured "
+                   "natural frequency [%], seeded per chip.  [default: 0]")
 @click.option("--force", is_flag=True,
               help="Replace --out even if it is a non-empty folder vibroplan did not write.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @handle_errors
-def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_scale, force,
-            quiet):
+def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_scale, replan,
+            measure_noise, force, quiet):
     """Yield of a plan under fabrication variation (Monte Carlo over sampled chips).
 
     PLAN is a plan folder written by ``vibroplan plan`` or its plan.json.  Each chip
@@ -46,10 +54,15 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
     a per-device part), then re-verifies every step of the plan with the plan's own
     checks, and every scene with the state carried across steps.
 
+    A chip passes when every step passes and the carried-state check passes, as
+    ``vibroplan plan``'s verification.  With --replan every chip is also measured,
+    re-planned and re-verified on its true models (docs/yield.md; about as costly per
+    chip as ``vibroplan replan``).
+
     Writes OUT/yield.json (chips, passed, yield, ci95 (Wilson), seed, tolerance,
-    failures, impacters, by_sigma_scale) and OUT/report.md with figures.  Exit status
-    0 when written; 1 when the nominal chip (no error) already fails (the plan does
-    not verify; the outputs are still written).
+    failures, impacters, by_sigma_scale; replan with --replan) and OUT/report.md with
+    figures.  Exit status 0 when written; 1 when the nominal chip (no error) already
+    fails (the plan does not verify; the outputs are still written).
 
     {EXIT}
     """
@@ -58,30 +71,55 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
     from planner.spec import load_spec
     from planner.yield_ import make_payload, parse_scales, read_plan, run_yield, write_outputs
 
+    from planner.yield_ import check_noise
+
     scales = parse_scales(sigma_scale)
+    if measure_noise is not None and not replan:
+        raise click.UsageError("--measure-noise needs --replan (only a re-plan measures "
+                               "the chip)")
+    try:
+        noise = check_noise(0.0 if measure_noise is None else measure_noise)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc).split(": ", 1)[-1],
+                                 param_hint="'--measure-noise'") from None
     data, plan_file = read_plan(plan_path)
     fab = load_spec(Path(spec_file)).spec.fabrication if spec_file else None
     inputs = [plan_file] + ([spec_file] if spec_file else [])
     check_output_folder(out_dir, inputs=inputs, force=force)
-    payload = make_payload(data, seed, fab)
+    payload = make_payload(data, seed, fab, replan=replan, measure_noise_pct=noise)
     total = 1 + chips * len(scales)
-    bar = tqdm(total=total, desc="  chips", unit="chip", disable=quiet, file=sys.stderr)
+    bar = tqdm(total=total, desc="  chips" + (" (re-planned)" if replan else ""),
+               unit="chip", disable=quiet, file=sys.stderr)
+    timings = {}
     try:
         result = run_yield(payload, chips, scales=scales, jobs=jobs, scheduler=scheduler,
-                           progress=lambda: bar.update(1))
+                           progress=lambda: bar.update(1), timings=timings)
     finally:
         bar.close()
     result = {"plan": str(plan_file), **result}
     with output_folder(out_dir, command="yield", inputs=inputs, force=force) as tmp:
-        write_outputs(result, payload.loaded.spec, tmp, str(plan_file))
+        write_outputs(result, payload.loaded.spec, tmp, str(plan_file), timings=timings)
     lo, hi = result["ci95"]
     click.echo(f"yield {result['yield']:.3f} ({result['passed']}/{result['chips']} chips, "
                f"95 % CI [{lo:.3f}, {hi:.3f}], sigma scale {result['sigma_scale']:g})")
     for s, v in result.get("by_sigma_scale", {}).items():
-        click.echo(f"  scale {s}: yield {v['yield']:.3f} [{v['ci95'][0]:.3f}, {v['ci95'][1]:.3f}]")
+        click.echo(f"  scale {s}: yield {v['yield']:.3f} [{v['ci95'][0]:.3f}, {v['ci95'][1]:.3f}]"
+                   + (f", re-planned {v['replan']['yield']:.3f}" if "replan" in v else ""))
     if result["failures"]:
         click.echo("failing checks: " + ", ".join(f"{k} ({v} chips)"
                                                  for k, v in result["failures"].items()))
+    if "replan" in result:
+        rp = result["replan"]
+        click.echo(f"re-planned yield {rp['yield']:.3f} ({rp['passed']}/{rp['chips']} chips, "
+                   f"95 % CI [{rp['ci95'][0]:.3f}, {rp['ci95'][1]:.3f}], measurement noise "
+                   f"{rp['measure_noise_pct']:g} %); rescued {rp['rescued']}, lost {rp['lost']}")
+        if rp["causes"]:
+            click.echo("re-plan failures: " + ", ".join(f"{k} ({v} chips)"
+                                                        for k, v in rp["causes"].items()))
+        if timings.get("replan_s"):
+            t = timings["replan_s"]
+            click.echo(f"re-plan cost: {sum(t) / len(t):.1f} s per chip (mean of {len(t)}), "
+                       f"{60 * (1 + chips * len(scales)) / timings['wall_s']:.2f} chips/min")
     click.echo(f"wrote {out_dir}/ (see {out_dir}/report.md)")
     if not result["nominal"]["passed"]:
         click.echo("the nominal chip fails: " + ", ".join(result["nominal"]["failures"]),

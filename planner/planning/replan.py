@@ -37,7 +37,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -544,7 +544,7 @@ def _design_like(rec, imp, tone, r_own):
                                    "measured resonance")
 
 
-def replan(plan_data, measured, *, seed=None, progress=None):
+def replan(plan_data, measured, *, seed=None, progress=None, original=None, record=True):
     """Re-plan the drive of a fabricated chip from its measured resonances.
 
     Parameters
@@ -559,6 +559,15 @@ def replan(plan_data, measured, *, seed=None, progress=None):
         Drive phases' seed (default: the plan's).
     progress : callable, optional
         ``progress(stage, item=None, total=None)`` as :func:`planner.planning.run_plan`.
+    original : tuple, optional
+        ``(passed, rows)`` of the original drive already verified on this chip (a yield
+        study has just verified it on the chip's true models): recorded as
+        ``replan.original_drive`` instead of verifying it again with
+        :func:`verify_drive` on the measured models.
+    record : bool
+        False: skip what only the outputs read (the scene simulation on the measured
+        models and the coupling matrix; ``scenes`` is then empty and ``coupling`` an
+        empty table).  The drive and its verification are the same.
 
     Returns
     -------
@@ -583,18 +592,28 @@ def replan(plan_data, measured, *, seed=None, progress=None):
     # the original drive on this chip
     ts = time.perf_counter()
     tick("original", total=1)
-    orig_passed, orig_rows = verify_drive(plan_data, measured, settings)
+    if original is None:
+        orig_passed, orig_rows = verify_drive(plan_data, measured, settings)
+    else:
+        orig_passed, orig_rows = bool(original[0]), list(original[1])
     timings["original_drive"] = time.perf_counter() - ts
 
     # tones: candidates per impacter; inseparable pairs fall back or fail
     ts = time.perf_counter()
     grid = channel_grid(loaded.spec)
     tones = _Tones(settings, models, settings.window_s)
-    steps = settings.steps
+    # the plan's bursts as it sized and repaired them: a travel_um step's duration in
+    # the spec is only its cap (60 ms for the default 5 x 5's position step, where the
+    # plan runs 5.2 ms: with the cap every slider travels beyond max_travel_um)
+    recorded = {f"{r['scene']}/{r['name']}": float(r["duration_s"])
+                for r in plan_data["steps"]}
+    base_steps = tuple(replace(st, duration_s=recorded.get(st.key, st.duration_s))
+                       for st in settings.steps)
+    steps = base_steps
     cands, fallback, blockers = choose_tones(settings, steps, plan_imps, nu_new, tones, grid)
     pairs, conflicts = _resolve_conflicts(steps, blockers, nu_new)
     if pairs:
-        steps = _merge_independent(settings.steps, pairs)
+        steps = _merge_independent(base_steps, pairs)
         cands, fallback, blockers = choose_tones(settings, steps, plan_imps, nu_new, tones,
                                                  grid)
         _, more = _resolve_conflicts(steps, blockers, nu_new)
@@ -651,7 +670,7 @@ def replan(plan_data, measured, *, seed=None, progress=None):
         conflicts += keep
         if new_pairs:
             pairs += new_pairs
-            steps = _merge_independent(settings.steps, pairs)
+            steps = _merge_independent(base_steps, pairs)
             cands, fallback, _ = choose_tones(settings, steps, plan_imps, nu_new, tones, grid)
             for n in {x for pr in new_pairs for x in pr}:
                 chosen[n] = cands[n][0] if cands[n] else fallback[n]
@@ -666,9 +685,12 @@ def replan(plan_data, measured, *, seed=None, progress=None):
     designs = {n: _design_like(plan_imps[n], models[n], chosen[n],
                                tones.r_own(n, chosen[n])) for n in plan_imps}
     impacters = {n: d.impacter for n, d in designs.items()}
-    scene_rows = simulate_scenes(settings, steps, waveforms, impacters, sliders)
-    coupling = coupling_matrix(impacters, sorted(set(assignment.frequencies.values())),
-                               settings, settings.single_step_s)
+    if record:
+        scene_rows = simulate_scenes(settings, steps, waveforms, impacters, sliders)
+        coupling = coupling_matrix(impacters, sorted(set(assignment.frequencies.values())),
+                                   settings, settings.single_step_s)
+    else:   # a yield study verifies the drive on the chip's true models itself
+        scene_rows, coupling = [], pd.DataFrame()
     timings["scenes_coupling"] = time.perf_counter() - ts
     ver = pd.DataFrame(ver_rows)
     passed = bool(ver["passed"].all()) and not any(not c.resolved for c in conflicts)
@@ -817,7 +839,7 @@ def _replan_record(plan_data, plan_imps, params, assignment, orig_passed, orig_r
     }
 
 
-def replan_chip(plan_data, as_built: dict, seed=None):
+def replan_chip(plan_data, as_built: dict, seed=None, *, original=None, record=True):
     """Re-plan one chip for a yield study: ``(passed, plan)``.
 
     Parameters
@@ -829,6 +851,10 @@ def replan_chip(plan_data, as_built: dict, seed=None):
         optionally ``quality_factor`` [-], ``damping_ns_per_m`` [N s/m], ``gap_m`` [m].
     seed : int, optional
         Drive phases' seed (default: the plan's).
+    original, record :
+        As :func:`replan`: the original drive's ``(passed, rows)`` when already known
+        (not verified again), and False to skip the scenes and the coupling matrix
+        (``vibroplan yield --replan`` passes both).
 
     Returns
     -------
@@ -839,7 +865,7 @@ def replan_chip(plan_data, as_built: dict, seed=None):
         models when ``as_built`` was a noisy measurement, pass ``plan.data`` and the
         true parameters to :func:`verify_drive`.
     """
-    result = replan(plan_data, as_built, seed=seed)
+    result = replan(plan_data, as_built, seed=seed, original=original, record=record)
     return result.passed, result
 
 

@@ -1,0 +1,148 @@
+"""vibroplan yield --replan: every chip measured, re-planned, and verified on its true models.
+
+The tiny 1 x 2 plan of the plan tests is planned once for the module (real designer,
+real verification); every test runs the real CLI on it and reads yield.json back.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from click.testing import CliRunner
+
+from planner.cli import main
+from tests.planner.test_pipeline import TINY
+
+#: Natural frequencies scattered by a few per cent: a die shift of sigma 4 % moves both
+#: resonances together, the device part apart; the plan's fixed tones then miss.
+SHIFT = """\
+name: a few per cent
+fabrication:
+  natural_frequency_pct: {die: 4, device: 2}
+"""
+
+
+@pytest.fixture(scope="module")
+def plan_dir(tmp_path_factory):
+    from planner.pipeline import plan
+
+    out = tmp_path_factory.mktemp("yield_replan") / "plan"
+    result = plan(TINY, out_dir=out, figures=False, jobs=1)
+    assert result.passed, "the tiny plan must verify for the yield tests to mean anything"
+    return out
+
+
+@pytest.fixture(scope="module")
+def shift_spec(tmp_path_factory):
+    path = tmp_path_factory.mktemp("spec") / "shift.yaml"
+    path.write_text(SHIFT)
+    return path
+
+
+def _yield(*args):
+    return CliRunner().invoke(main, ["yield", *[str(a) for a in args], "--quiet"])
+
+
+def _read(out):
+    return json.loads((out / "yield.json").read_text())
+
+
+def test_replan_rescues_chips_the_nominal_drive_fails(plan_dir, shift_spec, tmp_path):
+    out = tmp_path / "y"
+    res = _yield(plan_dir, "--chips", 6, "--seed", 0, "--out", out, "--spec", shift_spec,
+                 "--replan", "--sigma-scale", "0,1")
+    assert res.exit_code == 0, res.output
+    d = _read(out)
+    # the existing keys are all still there, the nominal numbers unchanged in meaning
+    assert {"chips", "passed", "yield", "ci95", "ci95_method", "seed", "tolerance",
+            "failures", "impacters", "carried_state", "nominal", "failed_chips",
+            "by_sigma_scale", "plan"} <= set(d)
+    rp = d["replan"]
+    assert rp["measure_noise_pct"] == 0.0
+    assert rp["nominal_drive"] == {"passed": d["passed"], "yield": d["yield"],
+                                   "ci95": d["ci95"]}
+    assert d["passed"] < d["chips"], "the shifted chips must defeat the plan's own drive"
+    assert rp["rescued"] >= 1 and rp["yield"] > d["yield"]
+    lo, hi = rp["ci95"]
+    assert lo <= rp["yield"] <= hi
+    # per chip: the nominal verdict is the nominal run's, the re-plan's is its own
+    per = {c["chip"]: c for c in rp["per_chip"]}
+    assert sorted(per) == list(range(6))
+    assert [c for c in per if not per[c]["nominal_passed"]] == d["failed_chips"]
+    assert [c for c in per if not per[c]["replan_passed"]] == rp["failed_chips"]
+    assert rp["rescued"] == sum(1 for c in per.values()
+                                if c["replan_passed"] and not c["nominal_passed"])
+    for c in per.values():
+        assert c["replan_passed"] == (c["causes"] == [] and c["failures"] == {})
+    # the design-exact chip re-plans to a passing drive; zero scale: nothing to rescue
+    assert rp["nominal"]["replan_passed"] is True
+    assert d["by_sigma_scale"]["0"]["replan"]["yield"] == 1.0
+    assert d["by_sigma_scale"]["1"]["replan"]["yield"] == rp["yield"]
+    report = (out / "report.md").read_text()
+    assert "Re-planned per chip" in report and f"{rp['yield']:.3f}" in report
+    assert "re-planned yield" in res.output and "re-plan cost" in res.output
+
+
+def test_replanned_drive_is_verified_on_the_true_models(plan_dir, shift_spec, tmp_path):
+    """The same chips measured with 10 % noise: the re-plans are made for the wrong
+    resonances, verify on the models they were made for, and fail on the chips."""
+    got = {}
+    for noise in (0, 10):
+        out = tmp_path / f"n{noise}"
+        res = _yield(plan_dir, "--chips", 6, "--seed", 0, "--out", out, "--spec", shift_spec,
+                     "--replan", "--measure-noise", noise)
+        assert res.exit_code == 0, res.output
+        got[noise] = _read(out)
+    clean, noisy = got[0]["replan"], got[10]["replan"]
+    # the chips and the plan's drive on them do not depend on the measurement
+    assert got[0]["failed_chips"] == got[10]["failed_chips"]
+    assert noisy["measure_noise_pct"] == 10.0
+    assert noisy["yield"] < clean["yield"]
+    # a re-plan that verifies on its (measured) models but fails on the chip's true ones
+    assert any(c["measured_passed"] and not c["replan_passed"] for c in noisy["per_chip"])
+    assert noisy["causes"].get("fails only on the true models", 0) >= 1
+
+
+def test_chip_results_with_replan_do_not_depend_on_order(plan_dir, shift_spec):
+    from planner.spec import load_spec
+    from planner.yield_ import make_payload, read_plan, verify_chip
+
+    data, _ = read_plan(plan_dir)
+    payload = make_payload(data, 2, load_spec(shift_spec).spec.fabrication, replan=True,
+                           measure_noise_pct=3.0)
+
+    def strip(r):   # wall times are the only thing allowed to differ
+        return {k: v for k, v in r.items() if k != "seconds"}
+
+    forward = [strip(verify_chip(payload, 0, i, 1.0)) for i in range(3)]
+    backward = [strip(verify_chip(payload, 0, i, 1.0)) for i in reversed(range(3))][::-1]
+    assert forward == backward
+    assert all("replan" in r for r in forward)
+
+
+def test_jobs_1_and_2_write_byte_identical_yield_json(plan_dir, shift_spec, tmp_path):
+    """~20 s, most of it the two-worker LocalCluster starting."""
+    outs = []
+    for jobs in (1, 2):
+        out = tmp_path / f"j{jobs}"
+        res = _yield(plan_dir, "--chips", 4, "--seed", 7, "--out", out, "--spec", shift_spec,
+                     "--replan", "--measure-noise", 1.5, "--jobs", jobs)
+        assert res.exit_code == 0, res.output
+        outs.append((out / "yield.json").read_bytes())
+    assert outs[0] == outs[1]
+    assert b'"per_chip"' in outs[0]
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--replan", "--measure-noise", "-1"], "--measure-noise"),
+    (["--replan", "--measure-noise", "nan"], "--measure-noise"),
+    (["--replan", "--measure-noise", "lots"], "--measure-noise"),
+    (["--measure-noise", "2"], "--replan"),
+])
+def test_bad_measure_noise_exits_2_naming_the_option(plan_dir, tmp_path, args, needle):
+    out = tmp_path / "y"
+    res = _yield(plan_dir, "--chips", 2, "--out", out, *args)
+    assert res.exit_code == 2, res.output
+    assert needle in res.output and "--measure-noise" in res.output
+    assert not out.exists()
