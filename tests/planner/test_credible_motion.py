@@ -319,3 +319,67 @@ def test_default_plan_is_credible(seed, tmp_path):
             tips = _tip_speeds(st, d["impacters"])
             for dev, v in tips.items():
                 assert abs(st["travel_m"][dev]) / st["duration_s"] < v
+
+
+def test_repair_redesigns_a_too_slow_impacter_alone():
+    """A too-slow failure re-seeds the design of the impacter driven in that step (and
+    only it); the offset enters the design's key, so the other designs are cached."""
+    from planner.planning.designs import DESIGN_RETRIES, design_all
+    from planner.planning.drives import synthesize_steps
+    from planner.planning.repair import reseed_slow
+    from planner.planning.settings import resolve_settings
+    from planner.planning.verify import TOO_SLOW, Failure
+    from planner.assign import assign
+    from planner.spec import load_spec
+
+    settings = resolve_settings(load_spec(TRAVEL), 0)
+    steps = settings.steps
+    a = assign(settings.loaded, steps, separation=settings.separation_channels)
+    waveforms = synthesize_steps(settings, steps, a)
+    cache = {}
+    first = design_all(settings, steps, a, cache, waveforms=waveforms)
+    push = next(st for st in steps if st.name == "push")
+    (dev, direction), = sorted(push.active_nodes())
+    node = f"{dev}.{direction}"
+    reseed = {}
+    fails = [Failure(push.index, dev, None, TOO_SLOW, 1e-6)]
+    assert reseed_slow(fails, first, steps, reseed) == [node]
+    assert reseed == {node: 1 + DESIGN_RETRIES}
+    n_cached = len(cache)
+    again = design_all(settings, steps, a, cache, waveforms=waveforms, reseed=reseed)
+    assert len(cache) == n_cached + 1          # one new design, the rest from the cache
+    # its tries start where the first round's could have ended
+    base = settings.design_kwargs(node)["seed"]
+    assert first[node].seed <= base + DESIGN_RETRIES < base + 1 + DESIGN_RETRIES <= again[node].seed
+    assert all(again[n] is first[n] for n in first if n != node)
+    # a failure of another kind re-seeds nothing
+    assert reseed_slow([Failure(push.index, dev, None, "travel_over_limit", 1e-3)],
+                       first, steps, {}) == []
+
+
+def test_an_infeasible_design_is_given_up_after_two_tries():
+    """Another seed rarely makes an infeasible target feasible: the planner stops after
+    INFEASIBLE_TRIES tries (and reports the impacter) instead of retrying for minutes;
+    a feasible but slow design is retried up to 1 + DESIGN_RETRIES times."""
+    from planner.planning.designs import INFEASIBLE_TRIES, _design_task
+
+    calls = []
+    import planner.designer as designer
+
+    real = designer.design_impacter
+
+    def counting(**kw):
+        calls.append(kw["seed"])
+        return real(**kw)
+
+    # a target 1.2 % from a forbidden tone with a 1 % guard: in air no design responds
+    # at one and not the other
+    kw = dict(frequency=6000.0, forbidden=(6075.0,), budget="fast", seed=5,
+              window=1e-3, guard=0.01)
+    designer.design_impacter = counting
+    try:
+        res = _design_task(kw, min_speed=1e-4)
+    finally:
+        designer.design_impacter = real
+    assert not res.feasible
+    assert calls == [5 + k for k in range(INFEASIBLE_TRIES)]
