@@ -67,7 +67,7 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
                     slider=None, progress=None, x0_points=None, guard=GUARD,
                     impact_angle=_d.IMPACT_ANGLE, restitution=_d.RESTITUTION,
                     forbidden_drives=(), max_mass_ratio=None, contact="paper",
-                    robust_shift=None):
+                    robust_shift=None, target_drives=()):
     """Design one impacter by the paper's max-min problem, eqs. (13)-(18).
 
     Maximise the worst response over initial positions at ``frequency`` subject to
@@ -138,6 +138,12 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         :class:`planner.fabrication.RobustShift`).  The design must meet the target and
         stay silent with its natural frequency scaled by 1 - s, 1 and 1 + s; it costs
         about three times the simulations.  None or 0: the nominal problem only.
+    target_drives : sequence of model.Drive or Ensemble
+        Multi-tone drives (the summed drives of the steps in which the impacter must
+        move its slider together with others) under which it must respond too: the
+        worst response counted by the objective is the least over its own tone and
+        these, from every x0.  An off-resonant sum can hold an impacter off its wall
+        from some initial states where its own tone alone would not.
 
     Returns
     -------
@@ -205,6 +211,8 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
     check_target(frequency, forbidden, guard)
     ensembles = tuple(e if isinstance(e, Ensemble) else Ensemble(e, f"drive {i}")
                       for i, e in enumerate(forbidden_drives))
+    targets = tuple(e if isinstance(e, Ensemble) else Ensemble(e, f"target drive {i}")
+                    for i, e in enumerate(target_drives))
     if contact not in CONTACTS:
         raise ValueError(f"contact must be one of {sorted(CONTACTS)}, {contact!r} was given")
     if max_mass_ratio is None:
@@ -224,7 +232,7 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         robust_shift = None if shift == 0.0 else (lambda geometry, s=shift: s)
     problem = _Problem(frequency, forbidden, factory, tones, bounds, window, budget, guard,
                        ensembles, mass_cap=mass_cap, q_per_kg=q_per_kg,
-                       robust_shift=robust_shift)
+                       robust_shift=robust_shift, target_ensembles=targets)
 
     report = _progress_hook(progress)
     expected = (budget.initial + budget.chains * budget.anneal_steps

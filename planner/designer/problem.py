@@ -79,8 +79,12 @@ class _Problem:
     """Geometry <-> search coordinates, cached simulations and the tiered energy."""
 
     def __init__(self, frequency, forbidden, factory, tones, bounds, window, budget, guard,
-                 ensembles=(), mass_cap=math.inf, q_per_kg=0.0, robust_shift=None):
+                 ensembles=(), mass_cap=math.inf, q_per_kg=0.0, robust_shift=None,
+                 target_ensembles=()):
         self.frequency = frequency
+        # summed drives of the multi-tone steps the design must move its slider in: the
+        # response counted at the target is the least over its own tone and these
+        self.target_ensembles = tuple(target_ensembles)
         # robust design: every check is made on the impacter with its natural frequency
         # scaled by 1, 1 - s and 1 + s, s = robust_shift(geometry) (k sigma of its own
         # fabrication scatter): the target must be met by all of them (the least
@@ -237,8 +241,9 @@ class _Problem:
             else:
                 # at the target the variant that responds least counts (all must be
                 # driven); anywhere else the one that responds most (all must be silent)
-                target = (not isinstance(frequency, Ensemble)
-                          and _freq_key(frequency) == _freq_key(self.frequency))
+                target = (any(frequency is e for e in self.target_ensembles)
+                          or (not isinstance(frequency, Ensemble)
+                              and _freq_key(frequency) == _freq_key(self.frequency)))
                 hit = ((np.min(rs, axis=0) if target else np.max(rs, axis=0)),
                        np.max(statuses, axis=0))
             self.runs[key] = hit
@@ -281,6 +286,9 @@ class _Problem:
             r = np.concatenate([r, r_new])
             order = np.argsort(u, kind="stable")
             u, r = u[order], r[order]
+        for ens in self.target_ensembles:
+            # the slider must move under the step's summed drive from every x0 too
+            r = np.minimum(r, self.runs_of(geometry, ens, u, window, False)[0])
         return u, r
 
     def violation(self, geometry, u, window, indices, count=1):

@@ -23,7 +23,7 @@ DESIGN_RETRIES = 7
 #: Tries after which a design that was never feasible is given up: another seed rarely
 #: makes an infeasible target feasible, and the planner then reports the impacter,
 #: why and what to change instead of retrying for minutes.
-INFEASIBLE_TRIES = 2
+INFEASIBLE_TRIES = 4
 #: A design is retried while its predicted speed is below this multiple of the spec's
 #: minimum: the prediction comes from the designer's worst x0 over its short window,
 #: and the verification (every x0 of its grid, the whole step) measured 0.5-0.7 of it
@@ -45,6 +45,19 @@ def forbidden_tones(steps, frequencies):
             if n not in active:
                 out[n] |= tones
     return {n: tuple(sorted(v)) for n, v in out.items()}
+
+
+def driven_ensembles(steps, frequencies):
+    """Node -> keys of the multi-tone steps in which it plays (its target drives)."""
+    out = {n: [] for n in frequencies}
+    for st in steps:
+        active = _active(st)
+        if len({frequencies[n] for n in active if n in frequencies}) < 2:
+            continue
+        for n in frequencies:
+            if n in active:
+                out[n].append(st.key)
+    return {n: tuple(v) for n, v in out.items()}
 
 
 def idle_ensembles(steps, frequencies):
@@ -137,20 +150,29 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
     from planner.designer import Ensemble
 
     forbidden = forbidden_tones(steps, assignment.frequencies)
+    none = {n: () for n in assignment.frequencies}
     ensembles = (idle_ensembles(steps, assignment.frequencies)
-                 if waveforms is not None else {n: () for n in assignment.frequencies})
+                 if waveforms is not None else none)
+    targets = (driven_ensembles(steps, assignment.frequencies)
+               if waveforms is not None else none)
+
+    def ident(k):
+        w = waveforms[k]
+        return (k, tuple(np.round(w.frequencies, 6)), tuple(np.round(w.phases, 9)),
+                tuple(np.round(w.amplitudes, 15)))
+
     keys, tasks = {}, {}
     for n in sorted(assignment.frequencies):
-        drives = tuple((k, tuple(np.round(waveforms[k].frequencies, 6)),
-                        tuple(np.round(waveforms[k].phases, 9))) for k in ensembles[n])
+        drives = tuple(ident(k) for k in ensembles[n])
         offset = int((reseed or {}).get(n, 0))
         key = (round(assignment.frequencies[n], 6), forbidden[n], drives,
-               settings.impacters[n], offset)
+               tuple(ident(k) for k in targets[n]), settings.impacters[n], offset)
         keys[n] = key
         if key not in cache and key not in tasks:
             tasks[key] = dict(
                 frequency=assignment.frequencies[n], forbidden=forbidden[n],
                 forbidden_drives=[Ensemble(drive_of(waveforms[k]), k) for k in ensembles[n]],
+                target_drives=[Ensemble(drive_of(waveforms[k]), k) for k in targets[n]],
                 **settings.design_kwargs(n))
             tasks[key]["seed"] = tasks[key]["seed"] + offset
     min_speed = settings.min_speed_m_s
@@ -163,7 +185,8 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
     # longest first, so that no worker is left with a long design at the end: a
     # design's cost grows with the summed drives it checks and with the drive
     # cycles in its window (its frequency).  Results do not depend on the order.
-    order = sorted(tasks, key=lambda k: (-len(tasks[k]["forbidden_drives"]),
+    order = sorted(tasks, key=lambda k: (-len(tasks[k]["forbidden_drives"])
+                                         - len(tasks[k]["target_drives"]),
                                          -tasks[k]["frequency"]))
     if tasks and scheduler:
         from planner.engine import run_tasks

@@ -48,7 +48,8 @@ import importlib
 from dataclasses import dataclass
 
 from planner.nodes import Node
-from planner.planning.designs import DESIGN_RETRIES, forbidden_tones, idle_ensembles
+from planner.planning.designs import (DESIGN_RETRIES, driven_ensembles, forbidden_tones,
+                                      idle_ensembles)
 
 #: Seconds of one core per design try, fixed part (Sobol seeding, annealing, SLSQP and
 #: the re-checks at the target).
@@ -246,11 +247,15 @@ def estimate(settings, steps, assignment, jobs=1) -> Estimate:
     freqs = assignment.frequencies
     forbidden = forbidden_tones(steps, freqs)
     ensembles = idle_ensembles(steps, freqs)
-    # the design cache's key without the drives' phases (they follow from the steps)
+    targets = driven_ensembles(steps, freqs)
+    # the design cache's key without the drives' phases (they follow from the steps);
+    # a summed drive the design must respond under costs about what one it must be
+    # silent under does
     keys = {}
     for n in sorted(freqs):
-        key = (round(freqs[n], 6), forbidden[n], ensembles[n], settings.impacters[n])
-        keys.setdefault(key, (len(forbidden[n]), len(ensembles[n])))
+        key = (round(freqs[n], 6), forbidden[n], ensembles[n], targets[n],
+               settings.impacters[n])
+        keys.setdefault(key, (len(forbidden[n]), len(ensembles[n]) + len(targets[n])))
     design_cpu = sum(design_try_s(*v) for v in keys.values())
     # every device of the array is checked in every step (idle or moving)
     devices = len(settings.sliders)

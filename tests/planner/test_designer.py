@@ -212,6 +212,21 @@ def test_same_seed_same_design():
     assert a.evaluations == b.evaluations
 
 
+def test_target_drives_count_in_the_worst_response():
+    """A design must also respond under the summed drives it plays in: its own tone
+    again as a target drive changes nothing (the least of two equal responses), and
+    a target drive nothing can respond to (1 nm at 100 Hz) leaves no feasible design."""
+    kw = dict(environment=AIR, budget="fast", seed=11)
+    plain = design_impacter(6000.0, (3000.0,), **kw)
+    own = Drive.tone(6000.0, 50.0)
+    again = design_impacter(6000.0, (3000.0,), target_drives=[own], **kw)
+    assert again.feasible and again.geometry == plain.geometry
+    assert again.r_min_n == plain.r_min_n
+    dead = design_impacter(6000.0, (3000.0,), target_drives=[Drive([100.0], [1e-9])], **kw)
+    assert not dead.feasible and dead.r_min_n == 0.0
+    assert "does not respond" in dead.message
+
+
 def test_design_restores_the_callers_numba_threads():
     # the search runs its many small batches on one thread; the caller's setting must
     # survive it
