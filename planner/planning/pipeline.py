@@ -23,7 +23,12 @@ from planner.planning.repair import merge_carried, repair_motion, reseed_slow, w
 from planner.planning.result import Plan
 from planner.planning.scenes import scene_failures, simulate_scenes
 from planner.planning.settings import Settings, resolve_settings
-from planner.planning.verify import check_steps, coupling_matrix
+from planner.planning.verify import TRAVEL_OVER, UNSETTLED, check_steps, coupling_matrix
+
+
+#: Failure kinds the motion repair (shorter bursts, longer dwells) acts on, after the
+#: design rounds: they do not count against a design round.
+MOTION_KINDS = (TRAVEL_OVER, UNSETTLED)
 
 
 def design_problems(designs, settings):
@@ -66,7 +71,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     timings = {}
     t0 = time.perf_counter()
     steps = settings.steps
-    pair_sep, cache, rounds, reseed = {}, {}, [], {}
+    pair_sep, cache, rounds, reseed, best = {}, {}, [], {}, None
     sep = settings.separation_channels
 
     def timed(stage, fn, *args, **kwargs):
@@ -115,6 +120,14 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         timings["verify"] = timings.get("verify", 0.0) + time.perf_counter() - ts
         failed_rows = sum(1 for r in ver_rows if not r["passed"])
         rounds.append({"round": round_, "span": assignment.span, "failures": failed_rows})
+        # a repair round can make things worse (a widened separation moves other tones
+        # into trouble): the plan kept is the round with the fewest infeasible designs
+        # and failures the motion repair cannot mend, the later one on a tie
+        score = (sum(1 for d in designs.values() if not d.feasible),
+                 sum(1 for f in failures if f.kind not in MOTION_KINDS))
+        if best is None or score <= best[0]:
+            best = (score, round_, (assignment, waveforms, drive_notes, designs, impacters,
+                                    devices, sliders, run_steps, sizing, ver_rows, failures))
         if not failed_rows or round_ == settings.repair_rounds:
             break
         # repair: widen the separations the failures point at, re-colour, re-design;
@@ -125,6 +138,11 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
             rounds[-1]["redesigned_slow"] = reseeded
         if not (widened or reseeded):
             break
+    if best[1] != rounds[-1]["round"]:
+        (assignment, waveforms, drive_notes, designs, impacters, devices, sliders, run_steps,
+         sizing, ver_rows, failures) = best[2]
+        rounds.append({"round": None, "kept_round": best[1],
+                       "why": "fewer infeasible designs and failures than the last round"})
     ts = time.perf_counter()
     # the scenes carry every impacter's and slider's state from step to step, each step
     # followed by its settle dwell; what they find counts in the verification, and the
