@@ -89,7 +89,7 @@ def main(argv=None):
     ap.add_argument("--sigma-device", type=float, default=0.02, help="line width [um]")
     ap.add_argument("--spec", default=None,
                     help="take the fabrication: block of this spec instead of the sigmas")
-    ap.add_argument("--measure-noise", type=float, default=0.0, help="[%]")
+    ap.add_argument("--measure-noise", type=float, default=0.0, help="measurement noise of the resonances [%%]")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=str(HERE / "results" / "yield_replan.md"))
