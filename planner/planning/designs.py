@@ -47,30 +47,27 @@ def forbidden_tones(steps, frequencies):
     return {n: tuple(sorted(v)) for n, v in out.items()}
 
 
-def driven_ensembles(steps, frequencies):
-    """Node -> keys of the multi-tone steps in which it plays (its target drives)."""
+def _multi_tone_steps(steps, frequencies, playing):
+    """Node -> keys of the multi-tone steps in which it plays (``playing``) or is idle."""
     out = {n: [] for n in frequencies}
     for st in steps:
         active = _active(st)
         if len({frequencies[n] for n in active if n in frequencies}) < 2:
             continue
         for n in frequencies:
-            if n in active:
+            if (n in active) == playing:
                 out[n].append(st.key)
     return {n: tuple(v) for n, v in out.items()}
+
+
+def driven_ensembles(steps, frequencies):
+    """Node -> keys of the multi-tone steps in which it plays (its target drives)."""
+    return _multi_tone_steps(steps, frequencies, True)
 
 
 def idle_ensembles(steps, frequencies):
     """Node -> keys of the multi-tone steps in which it is idle (their summed drives)."""
-    out = {n: [] for n in frequencies}
-    for st in steps:
-        active = _active(st)
-        if len({frequencies[n] for n in active if n in frequencies}) < 2:
-            continue
-        for n in frequencies:
-            if n not in active:
-                out[n].append(st.key)
-    return {n: tuple(v) for n, v in out.items()}
+    return _multi_tone_steps(steps, frequencies, False)
 
 
 def design_offenders(designs, steps, assignment):
