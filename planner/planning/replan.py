@@ -49,7 +49,7 @@ from model import Drive
 from planner.assign import Assignment, conflict_graph, guard_violations
 from planner.errors import SpecError
 from planner.nodes import Node, device_key, node_key
-from planner.planning.drives import synthesize_steps
+from planner.planning.drives import limit_acceleration, synthesize_steps
 from planner.planning.record import build_record, round_floats
 from planner.planning.result import Plan
 from planner.planning.scenes import simulate_scenes
@@ -628,7 +628,9 @@ def replan(plan_data, measured, *, seed=None, progress=None, original=None, reco
     ts = time.perf_counter()
     for round_ in range(REPAIR_ROUNDS + 1):
         assignment = _assignment(loaded, steps, settings, chosen, grid, plan_data)
-        waveforms = synthesize_steps(settings, steps, assignment)
+        # drive.max_acceleration_g holds for the re-planned drive as for the plan's
+        waveforms, _ = limit_acceleration(settings, synthesize_steps(settings, steps,
+                                                                     assignment))
         ver_rows, failures = [], []
         tick("verify", total=len(steps))
         for st in steps:
@@ -801,7 +803,9 @@ def _worst_speed(settings, step, chosen, node, tone, models, sliders):
     from planner.planning.verify import device_motion
 
     freqs = {**chosen, node: tone}
-    wave = synthesize_steps(settings, [step], SimpleNamespace(frequencies=freqs))[step.key]
+    waves, _ = limit_acceleration(
+        settings, synthesize_steps(settings, [step], SimpleNamespace(frequencies=freqs)))
+    wave = waves[step.key]
     drive = Drive(wave.frequencies, wave.amplitudes, wave.phases)
     dev = Node.parse(node).device
     own = {n: imp for n, imp in models.items() if Node.parse(n).device == dev}
