@@ -629,8 +629,8 @@ def replan(plan_data, measured, *, seed=None, progress=None, original=None, reco
     for round_ in range(REPAIR_ROUNDS + 1):
         assignment = _assignment(loaded, steps, settings, chosen, grid, plan_data)
         # drive.max_acceleration_g holds for the re-planned drive as for the plan's
-        waveforms, _ = limit_acceleration(settings, synthesize_steps(settings, steps,
-                                                                     assignment))
+        waveforms, drive_notes = limit_acceleration(settings, synthesize_steps(settings, steps,
+                                                                               assignment))
         ver_rows, failures = [], []
         tick("verify", total=len(steps))
         for st in steps:
@@ -696,9 +696,17 @@ def replan(plan_data, measured, *, seed=None, progress=None, original=None, reco
     timings["scenes_coupling"] = time.perf_counter() - ts
     ver = pd.DataFrame(ver_rows)
     passed = bool(ver["passed"].all()) and not any(not c.resolved for c in conflicts)
+    # the plan.json contract's per-step motion keys: drive peaks (after the
+    # acceleration limit), settle dwells and travels as verified on the as-built models
+    settle = {}
+    for r in ver_rows:
+        key = f"{r['scene']}/{r['step']}"
+        settle[key] = max(settle.get(key, 0.0), float(r.get("settle_s", 0.0)))
+    motion = {"sizing": {}, "drive": drive_notes, "settle_s": settle, "repairs": [],
+              "design_problems": []}
     data, impacter_recs, device_recs, step_recs = build_record(
         settings, steps, assignment, designs, sliders, waveforms, ver_rows, passed, rounds,
-        scene_rows)
+        scene_rows, motion)
     data["as_built"] = round_floats(params)
     data["replan"] = round_floats(_replan_record(plan_data, plan_imps, params, assignment,
                                                  orig_passed, orig_rows, conflicts, steps))

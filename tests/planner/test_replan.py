@@ -210,3 +210,23 @@ def test_calibrate_output_is_accepted(plan_data, tmp_path):
     got = read_measured(csv, [r["id"] for r in plan_data["impacters"]])
     assert got == {"A1.forward": {"natural_frequency_hz": 2600.5, "quality_factor": 11.2,
                                   "gap_m": None}}
+
+
+def test_replanned_drive_meets_the_acceleration_limit(plan_data):
+    """drive.max_acceleration_g holds for the re-planned drive as for the plan's: with a
+    limit at half the plan's largest peak, every re-planned step's true peak base
+    acceleration is at most the limit (before the fix the re-plan played full power)."""
+    import copy
+
+    from planner.planning.replan import replan_chip
+
+    peak = max(st["peak_acceleration_m_s2"] for st in plan_data["steps"])
+    limit_g = 0.5 * peak / 9.80665
+    data = copy.deepcopy(plan_data)
+    data["spec"]["drive"]["max_acceleration_g"] = limit_g
+    chip = {r["id"]: {"natural_frequency_hz": r["natural_frequency_hz"]}
+            for r in data["impacters"]}
+    _, result = replan_chip(data, chip)
+    peaks = [st["peak_acceleration_m_s2"] for st in result.data["steps"]]
+    assert peaks and max(peaks) <= limit_g * 9.80665 * (1 + 1e-6)
+    assert max(peaks) > 0.9 * limit_g * 9.80665     # lowered to the limit, not below
