@@ -14,7 +14,6 @@ Writes benchmarks/results/yield.md.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -28,17 +27,10 @@ sys.path.insert(0, str(HERE.parent))
 from planner.spec import FabricationSpec, Tolerance  # noqa: E402
 from planner.yield_ import make_payload, read_plan, run_yield  # noqa: E402
 
+sys.path.insert(0, str(HERE))
+from _timing import machine  # noqa: E402
+
 TOLERANCE = FabricationSpec(line_width_um=Tolerance(die=0.05, device=0.02))
-
-
-def _cpu():
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def main(argv=None):
@@ -86,7 +78,7 @@ def main(argv=None):
         "# Yield Monte Carlo benchmark", "",
         f"`python benchmarks/yield_mc.py --chips {args.chips} --jobs {args.jobs} "
         + (f"--chips-per-run {args.chips_per_run} " if args.chips_per_run else "")
-        + f"--seed {args.seed}` on {_cpu()} ({os.cpu_count()} CPUs), Python "
+        + f"--seed {args.seed}` on {machine()['cpu']} ({os.cpu_count()} CPUs), Python "
         f"{platform.python_version()}; plan: the default 5 x 5 "
         f"(`{data['spec']['name']}`, {len(data['impacters'])} impacters, "
         f"{len(data['steps'])} steps). Wall-clock; the machine was shared (load averages "

@@ -35,20 +35,13 @@ from planner.fabrication import sample_chip  # noqa: E402
 from planner.spec import FabricationSpec, Tolerance, load_spec  # noqa: E402
 from planner.yield_ import make_payload, read_plan, run_yield  # noqa: E402
 
+sys.path.insert(0, str(HERE))
+from _timing import machine  # noqa: E402
+
 #: Spacing [Hz] below which two as-built resonances count as "close" in the report:
 #: about the width over which a design of the default plan responds from every x0
 #: (100-200 Hz at 26-34 kHz in air, docs/replan.md).
 CLOSE_HZ = 200.0
-
-
-def _cpu():
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def _must_differ(data):
@@ -135,7 +128,7 @@ def main(argv=None):
            + f"--measure-noise {args.measure_noise:g} --jobs {args.jobs} --seed {args.seed}")
     lines = [
         "# Yield with per-chip re-planning (`vibroplan yield --replan`)", "",
-        f"`{cmd}` on {_cpu()} ({os.cpu_count()} CPUs), Python {platform.python_version()}.",
+        f"`{cmd}` on {machine()['cpu']} ({os.cpu_count()} CPUs), Python {platform.python_version()}.",
         "",
         f"Plan: `{data['spec']['name']}` ({len(data['impacters'])} impacters, "
         f"{len(data['steps'])} steps); its own verification: "
