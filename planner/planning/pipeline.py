@@ -19,7 +19,8 @@ from planner.planning.designs import design_all
 from planner.planning.drives import drive_of, limit_acceleration, synthesize_steps
 from planner.planning.motion import size_bursts
 from planner.planning.record import build_record
-from planner.planning.repair import merge_carried, repair_motion, reseed_slow, widen_separations
+from planner.planning.repair import (merge_carried, repair_motion, reseed_slow,
+                                     settle_by_step, widen_separations)
 from planner.planning.result import Plan
 from planner.planning.scenes import scene_failures, simulate_scenes
 from planner.planning.settings import Settings, resolve_settings
@@ -149,10 +150,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     # motion repair acts on it (shorter bursts, longer dwells)
     motion_repairs, longer_dwells = [], {}
     for mround in range(settings.repair_rounds + 1):
-        dwells = dict(longer_dwells)
-        for r in ver_rows:
-            key = f"{r['scene']}/{r['step']}"
-            dwells[key] = max(dwells.get(key, 0.0), r["settle_s"])
+        dwells = settle_by_step(ver_rows, longer_dwells)
         scene_rows = simulate_scenes(settings, run_steps, waveforms, impacters, sliders, dwells)
         carried = scene_failures(settings, run_steps, scene_rows)
         if mround == settings.repair_rounds:
@@ -168,7 +166,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
             ver_rows = [r for r in ver_rows if r["index"] != st.index] + rows
             failures = [f for f in failures if f.step != st.index] + fails
         ver_rows.sort(key=lambda r: r["index"])
-    ver_rows, settle_by_step = merge_carried(ver_rows, carried, run_steps, scene_rows, dwells)
+    ver_rows, step_settle = merge_carried(ver_rows, carried, run_steps, scene_rows, dwells)
     failures = failures + carried
     tones = sorted(set(assignment.frequencies.values()))
     coupling = coupling_matrix(impacters, tones, settings, settings.single_step_s)
@@ -178,7 +176,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     # an infeasible design fails the plan even if the steps happen to verify: it was
     # not shown silent at its forbidden tones on the designer's fine grid
     passed = bool(ver["passed"].all()) and not problems
-    motion = {"sizing": sizing, "drive": drive_notes, "settle_s": settle_by_step,
+    motion = {"sizing": sizing, "drive": drive_notes, "settle_s": step_settle,
               "repairs": motion_repairs, "design_problems": problems}
     data, impacter_recs, device_recs, step_recs = build_record(
         settings, run_steps, assignment, designs, sliders, waveforms, ver_rows, passed, rounds,

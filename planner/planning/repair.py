@@ -126,6 +126,17 @@ def repair_motion(settings, steps, failures, dwells, longer_dwells):
     return tuple(new.get(s.index, s) for s in steps), actions, redo
 
 
+def settle_by_step(rows, start=()):
+    """Step key -> the longest settle dwell [s] (``settle_s``) of verification or scene
+    ``rows`` for that step, starting from the dict ``start``."""
+    out = dict(start)
+    for r in rows:
+        if "settle_s" in r:
+            key = f"{r['scene']}/{r['step']}"
+            out[key] = max(out.get(key, 0.0), float(r["settle_s"]))
+    return out
+
+
 def merge_carried(ver_rows, carried, steps, scene_rows, dwells):
     """Fold the scene simulation's failures into the verification rows.
 
@@ -161,9 +172,6 @@ def merge_carried(ver_rows, carried, steps, scene_rows, dwells):
                 continue
             r["passed"] = False
             r["cause"] = "; ".join(c for c in (r["cause"], text) if c)
-    settle = {st.key: float(dwells.get(st.key, 0.0)) for st in steps}
-    for r in scene_rows:
-        if r["driven"] and "settle_s" in r:
-            key = f"{r['scene']}/{r['step']}"
-            settle[key] = max(settle.get(key, 0.0), float(r["settle_s"]))
+    settle = settle_by_step([r for r in scene_rows if r["driven"]],
+                            {st.key: float(dwells.get(st.key, 0.0)) for st in steps})
     return rows, settle

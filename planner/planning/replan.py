@@ -51,6 +51,7 @@ from planner.errors import SpecError
 from planner.nodes import Node, device_key, node_key
 from planner.planning.drives import limit_acceleration, synthesize_steps
 from planner.planning.record import build_record, round_floats
+from planner.planning.repair import settle_by_step
 from planner.planning.result import Plan
 from planner.planning.scenes import simulate_scenes
 from planner.planning.settings import DESIGNED_FIELDS, resolve_settings, tone_amplitudes
@@ -698,12 +699,8 @@ def replan(plan_data, measured, *, seed=None, progress=None, original=None, reco
     passed = bool(ver["passed"].all()) and not any(not c.resolved for c in conflicts)
     # the plan.json contract's per-step motion keys: drive peaks (after the
     # acceleration limit), settle dwells and travels as verified on the as-built models
-    settle = {}
-    for r in ver_rows:
-        key = f"{r['scene']}/{r['step']}"
-        settle[key] = max(settle.get(key, 0.0), float(r.get("settle_s", 0.0)))
-    motion = {"sizing": {}, "drive": drive_notes, "settle_s": settle, "repairs": [],
-              "design_problems": []}
+    motion = {"sizing": {}, "drive": drive_notes, "settle_s": settle_by_step(ver_rows),
+              "repairs": [], "design_problems": []}
     data, impacter_recs, device_recs, step_recs = build_record(
         settings, steps, assignment, designs, sliders, waveforms, ver_rows, passed, rounds,
         scene_rows, motion)
