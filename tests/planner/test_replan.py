@@ -70,12 +70,7 @@ def test_as_built_parameters_follow_the_measurement(plan_data):
 
 def test_replan_of_the_design_verifies(plan_data, tmp_path):
     freqs = {r["id"]: r["natural_frequency_hz"] for r in plan_data["impacters"]}
-    csv = _measured_csv(tmp_path / "measured.csv", freqs)
-    out = tmp_path / "out"
-    res = _run(plan_data_path(plan_data, tmp_path), "--measured", csv, "--out", out)
-    assert res.exit_code == 0, res.output
-    d = json.loads((out / "plan.json").read_text())
-    assert d["verification"]["passed"] is True
+    res, d, out = _replan_verified(plan_data, tmp_path, freqs)
     assert d["replan"]["original_drive"]["passed"] is True
     # the as-built record of the pinned contract, equal to the design here
     for r in plan_data["impacters"]:
@@ -98,17 +93,24 @@ def plan_data_path(plan_data, tmp_path):
     return path
 
 
-def test_shifted_chip_is_rescued(plan_data, tmp_path):
-    # every impacter a few percent off its design, in opposite directions
-    shifts = [1.04, 0.96]
-    freqs = {r["id"]: s * r["natural_frequency_hz"]
-             for r, s in zip(plan_data["impacters"], shifts)}
+def _replan_verified(plan_data, tmp_path, freqs):
+    """`vibroplan replan` of the plan for a chip measured at ``freqs``: exit 0 and a
+    verifying plan.json; returns (result, plan.json data, out folder)."""
     csv = _measured_csv(tmp_path / "measured.csv", freqs)
     out = tmp_path / "out"
     res = _run(plan_data_path(plan_data, tmp_path), "--measured", csv, "--out", out)
     assert res.exit_code == 0, res.output
     d = json.loads((out / "plan.json").read_text())
     assert d["verification"]["passed"] is True
+    return res, d, out
+
+
+def test_shifted_chip_is_rescued(plan_data, tmp_path):
+    # every impacter a few percent off its design, in opposite directions
+    shifts = [1.04, 0.96]
+    freqs = {r["id"]: s * r["natural_frequency_hz"]
+             for r, s in zip(plan_data["impacters"], shifts)}
+    res, d, _ = _replan_verified(plan_data, tmp_path, freqs)
     assert d["replan"]["original_drive"]["passed"] is False
     assert "original drive on this chip: FAILS" in res.output
     # the tones moved with the resonances
