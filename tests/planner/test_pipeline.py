@@ -1,7 +1,6 @@
 """The end-to-end plan: contract keys, determinism, atomic output, real verification."""
 
 import json
-import os
 import signal
 import subprocess
 import sys

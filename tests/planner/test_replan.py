@@ -10,18 +10,6 @@ import math
 import pytest
 from click.testing import CliRunner
 
-from tests.planner.test_pipeline import TINY
-
-
-@pytest.fixture(scope="module")
-def tiny_plan_dir(tmp_path_factory):
-    from planner.planning import plan
-    from planner.spec import load_spec
-
-    out = tmp_path_factory.mktemp("replan") / "plan"
-    result = plan(load_spec(TINY), out_dir=out, figures=False)
-    assert result.passed, "the tiny plan itself must verify"
-    return out
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,6 @@ import pytest
 from click.testing import CliRunner
 
 from planner.cli import main
-from tests.planner.test_pipeline import TINY  # the 1 x 2 spec every plan test uses
 
 
 HUGE = """\
@@ -23,16 +22,6 @@ fabrication:
   natural_frequency_pct: {die: 0, device: 15}
   line_width_um: {die: 0.2, device: 0.1}
 """
-
-
-@pytest.fixture(scope="module")
-def plan_dir(tmp_path_factory):
-    from planner.pipeline import plan
-
-    out = tmp_path_factory.mktemp("yield") / "plan"
-    result = plan(TINY, out_dir=out, figures=False, jobs=1)
-    assert result.passed, "the tiny plan must verify for the yield tests to mean anything"
-    return out
 
 
 def _yield(args, tmp_path=None):
@@ -44,9 +33,9 @@ def _read(out):
     return json.loads((out / "yield.json").read_text())
 
 
-def test_zero_tolerance_gives_full_yield(plan_dir, tmp_path):
+def test_zero_tolerance_gives_full_yield(tiny_plan_dir, tmp_path):
     out = tmp_path / "y"
-    res = _yield([plan_dir, "--chips", 4, "--seed", 3, "--out", out])
+    res = _yield([tiny_plan_dir, "--chips", 4, "--seed", 3, "--out", out])
     assert res.exit_code == 0, res.output
     d = _read(out)
     assert {"chips", "passed", "yield", "ci95", "seed", "tolerance", "failures",
@@ -62,11 +51,11 @@ def test_zero_tolerance_gives_full_yield(plan_dir, tmp_path):
     assert (out / "report.md").is_file() and (out / "figures" / "impacters.png").is_file()
 
 
-def test_huge_tolerance_fails_chips_and_names_checks(plan_dir, tmp_path):
+def test_huge_tolerance_fails_chips_and_names_checks(tiny_plan_dir, tmp_path):
     spec = tmp_path / "huge.yaml"
     spec.write_text(HUGE)
     out = tmp_path / "y"
-    res = _yield([plan_dir / "plan.json", "--chips", 8, "--seed", 1, "--out", out,
+    res = _yield([tiny_plan_dir / "plan.json", "--chips", 8, "--seed", 1, "--out", out,
                   "--spec", spec, "--sigma-scale", "0,1"])
     assert res.exit_code == 0, res.output
     d = _read(out)
@@ -83,13 +72,13 @@ def test_huge_tolerance_fails_chips_and_names_checks(plan_dir, tmp_path):
     assert next(iter(d["failures"])) in report and (out / "figures" / "failures.png").is_file()
 
 
-def test_chip_results_depend_on_seed_and_index_only(plan_dir):
+def test_chip_results_depend_on_seed_and_index_only(tiny_plan_dir):
     """A chip's outcome is a function of (seed, scale index, chip index): verifying
     chips in another order, or fewer of them, gives each the same result."""
     from planner.spec import load_spec
     from planner.yield_ import make_payload, read_plan, verify_chip
 
-    data, _ = read_plan(plan_dir)
+    data, _ = read_plan(tiny_plan_dir)
     fab = load_spec(HUGE).spec.fabrication
     payload = make_payload(data, 5, fab)
     forward = [verify_chip(payload, 0, i, 1.0) for i in range(4)]
@@ -97,12 +86,12 @@ def test_chip_results_depend_on_seed_and_index_only(plan_dir):
     assert forward == backward
 
 
-def test_as_built_geometry_follows_the_documented_mapping(plan_dir):
+def test_as_built_geometry_follows_the_documented_mapping(tiny_plan_dir):
     from planner.fabrication import ERRORS, _impacter, sample_chip
     from planner.spec import FabricationSpec
     from planner.yield_ import make_payload, read_plan
 
-    data, _ = read_plan(plan_dir)
+    data, _ = read_plan(tiny_plan_dir)
     payload = make_payload(data, 0)
     # the nominal chip is the plan's impacters exactly
     chip = sample_chip(payload.design, FabricationSpec(), np.random.default_rng(0))
@@ -128,18 +117,18 @@ def test_as_built_geometry_follows_the_documented_mapping(plan_dir):
     assert f3.mass == nominal.mass
 
 
-def test_local_cluster_reproduces_the_local_run(plan_dir, tmp_path):
+def test_local_cluster_reproduces_the_local_run(tiny_plan_dir, tmp_path):
     from distributed import LocalCluster
 
     spec = tmp_path / "huge.yaml"
     spec.write_text(HUGE)
     local = tmp_path / "local"
-    res = _yield([plan_dir, "--chips", 6, "--seed", 11, "--out", local, "--spec", spec])
+    res = _yield([tiny_plan_dir, "--chips", 6, "--seed", 11, "--out", local, "--spec", spec])
     assert res.exit_code == 0, res.output
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                       dashboard_address=None) as cluster:
         remote = tmp_path / "remote"
-        res = _yield([plan_dir, "--chips", 6, "--seed", 11, "--out", remote, "--spec", spec,
+        res = _yield([tiny_plan_dir, "--chips", 6, "--seed", 11, "--out", remote, "--spec", spec,
                       "--scheduler", cluster.scheduler_address])
         assert res.exit_code == 0, res.output
     a, b = _read(local), _read(remote)
@@ -155,28 +144,28 @@ def test_local_cluster_reproduces_the_local_run(plan_dir, tmp_path):
     ("fabrication:\n  line_width_um: {die: 0.1}\n  stress_pct: {die: 1}\n",
      "fabrication.stress_pct", 3),
 ])
-def test_bad_tolerance_spec_exits_2_with_field_and_line(plan_dir, tmp_path, text, field, line):
+def test_bad_tolerance_spec_exits_2_with_field_and_line(tiny_plan_dir, tmp_path, text, field, line):
     spec = tmp_path / "bad.yaml"
     spec.write_text(text)
     out = tmp_path / "y"
-    res = _yield([plan_dir, "--chips", 2, "--out", out, "--spec", spec])
+    res = _yield([tiny_plan_dir, "--chips", 2, "--out", out, "--spec", spec])
     assert res.exit_code == 2, res.output
     assert field in res.output and f"line {line}" in res.output
     assert not out.exists()
 
 
-def test_output_folder_refused_when_it_is_the_cwd(plan_dir, tmp_path, monkeypatch):
+def test_output_folder_refused_when_it_is_the_cwd(tiny_plan_dir, tmp_path, monkeypatch):
     here = tmp_path / "here"
     here.mkdir()
     monkeypatch.chdir(here)
-    res = _yield([plan_dir, "--chips", 2, "--out", "."])
+    res = _yield([tiny_plan_dir, "--chips", 2, "--out", "."])
     assert res.exit_code == 2
     assert "current directory" in res.output
     assert list(here.iterdir()) == []
 
 
-def test_bad_arguments_exit_2(plan_dir, tmp_path):
-    res = _yield([plan_dir, "--chips", 2, "--out", tmp_path / "y", "--sigma-scale", "1,-2"])
+def test_bad_arguments_exit_2(tiny_plan_dir, tmp_path):
+    res = _yield([tiny_plan_dir, "--chips", 2, "--out", tmp_path / "y", "--sigma-scale", "1,-2"])
     assert res.exit_code == 2 and "--sigma-scale" in res.output
     res = _yield([tmp_path / "nowhere", "--chips", 2, "--out", tmp_path / "y"])
     assert res.exit_code == 2 and "no such file" in res.output
@@ -197,14 +186,14 @@ def test_wilson_interval_matches_its_definition():
 
 
 @pytest.mark.slow
-def test_jobs_2_local_cluster_reproduces_the_local_run(plan_dir, tmp_path):
+def test_jobs_2_local_cluster_reproduces_the_local_run(tiny_plan_dir, tmp_path):
     """--jobs 2 (the engine's own LocalCluster) gives the in-process numbers."""
     spec = tmp_path / "huge.yaml"
     spec.write_text(HUGE)
     outs = []
     for jobs in (1, 2):
         out = tmp_path / f"j{jobs}"
-        res = _yield([plan_dir, "--chips", 6, "--seed", 4, "--out", out, "--spec", spec,
+        res = _yield([tiny_plan_dir, "--chips", 6, "--seed", 4, "--out", out, "--spec", spec,
                       "--sigma-scale", "0.5,1", "--jobs", jobs])
         assert res.exit_code == 0, res.output
         outs.append(_read(out))
@@ -212,7 +201,7 @@ def test_jobs_2_local_cluster_reproduces_the_local_run(plan_dir, tmp_path):
 
 
 @pytest.mark.slow
-def test_sigint_with_local_cluster_leaves_nothing(plan_dir, tmp_path):
+def test_sigint_with_local_cluster_leaves_nothing(tiny_plan_dir, tmp_path):
     """Ctrl-C while the Dask workers run: exit 130, no output folder, no temporaries."""
     import os
     import signal
@@ -222,7 +211,7 @@ def test_sigint_with_local_cluster_leaves_nothing(plan_dir, tmp_path):
 
     out = tmp_path / "y"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
-    proc = subprocess.Popen([sys.executable, "-m", "planner.cli", "yield", str(plan_dir),
+    proc = subprocess.Popen([sys.executable, "-m", "planner.cli", "yield", str(tiny_plan_dir),
                              "--chips", "5000", "--jobs", "2", "--out", str(out), "--quiet"],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(12)

@@ -12,7 +12,6 @@ import pytest
 from click.testing import CliRunner
 
 from planner.cli import main
-from tests.planner.test_pipeline import TINY
 
 #: Natural frequencies scattered by a few per cent: a die shift of sigma 4 % moves both
 #: resonances together, the device part apart; the plan's fixed tones then miss.
@@ -21,16 +20,6 @@ name: a few per cent
 fabrication:
   natural_frequency_pct: {die: 4, device: 2}
 """
-
-
-@pytest.fixture(scope="module")
-def plan_dir(tmp_path_factory):
-    from planner.pipeline import plan
-
-    out = tmp_path_factory.mktemp("yield_replan") / "plan"
-    result = plan(TINY, out_dir=out, figures=False, jobs=1)
-    assert result.passed, "the tiny plan must verify for the yield tests to mean anything"
-    return out
 
 
 @pytest.fixture(scope="module")
@@ -48,9 +37,9 @@ def _read(out):
     return json.loads((out / "yield.json").read_text())
 
 
-def test_replan_rescues_chips_the_nominal_drive_fails(plan_dir, shift_spec, tmp_path):
+def test_replan_rescues_chips_the_nominal_drive_fails(tiny_plan_dir, shift_spec, tmp_path):
     out = tmp_path / "y"
-    res = _yield(plan_dir, "--chips", 6, "--seed", 0, "--out", out, "--spec", shift_spec,
+    res = _yield(tiny_plan_dir, "--chips", 6, "--seed", 0, "--out", out, "--spec", shift_spec,
                  "--replan", "--sigma-scale", "0,1")
     assert res.exit_code == 0, res.output
     d = _read(out)
@@ -84,13 +73,13 @@ def test_replan_rescues_chips_the_nominal_drive_fails(plan_dir, shift_spec, tmp_
     assert "re-planned yield" in res.output and "re-plan cost" in res.output
 
 
-def test_replanned_drive_is_verified_on_the_true_models(plan_dir, shift_spec, tmp_path):
+def test_replanned_drive_is_verified_on_the_true_models(tiny_plan_dir, shift_spec, tmp_path):
     """The same chips measured with 10 % noise: the re-plans are made for the wrong
     resonances, verify on the models they were made for, and fail on the chips."""
     got = {}
     for noise in (0, 10):
         out = tmp_path / f"n{noise}"
-        res = _yield(plan_dir, "--chips", 6, "--seed", 0, "--out", out, "--spec", shift_spec,
+        res = _yield(tiny_plan_dir, "--chips", 6, "--seed", 0, "--out", out, "--spec", shift_spec,
                      "--replan", "--measure-noise", noise)
         assert res.exit_code == 0, res.output
         got[noise] = _read(out)
@@ -104,11 +93,11 @@ def test_replanned_drive_is_verified_on_the_true_models(plan_dir, shift_spec, tm
     assert noisy["causes"].get("fails only on the true models", 0) >= 1
 
 
-def test_chip_results_with_replan_do_not_depend_on_order(plan_dir, shift_spec):
+def test_chip_results_with_replan_do_not_depend_on_order(tiny_plan_dir, shift_spec):
     from planner.spec import load_spec
     from planner.yield_ import make_payload, read_plan, verify_chip
 
-    data, _ = read_plan(plan_dir)
+    data, _ = read_plan(tiny_plan_dir)
     payload = make_payload(data, 2, load_spec(shift_spec).spec.fabrication, replan=True,
                            measure_noise_pct=3.0)
 
@@ -121,12 +110,12 @@ def test_chip_results_with_replan_do_not_depend_on_order(plan_dir, shift_spec):
     assert all("replan" in r for r in forward)
 
 
-def test_jobs_1_and_2_write_byte_identical_yield_json(plan_dir, shift_spec, tmp_path):
+def test_jobs_1_and_2_write_byte_identical_yield_json(tiny_plan_dir, shift_spec, tmp_path):
     """~20 s, most of it the two-worker LocalCluster starting."""
     outs = []
     for jobs in (1, 2):
         out = tmp_path / f"j{jobs}"
-        res = _yield(plan_dir, "--chips", 4, "--seed", 7, "--out", out, "--spec", shift_spec,
+        res = _yield(tiny_plan_dir, "--chips", 4, "--seed", 7, "--out", out, "--spec", shift_spec,
                      "--replan", "--measure-noise", 1.5, "--jobs", jobs)
         assert res.exit_code == 0, res.output
         outs.append((out / "yield.json").read_bytes())
@@ -140,9 +129,9 @@ def test_jobs_1_and_2_write_byte_identical_yield_json(plan_dir, shift_spec, tmp_
     (["--replan", "--measure-noise", "lots"], "--measure-noise"),
     (["--measure-noise", "2"], "--replan"),
 ])
-def test_bad_measure_noise_exits_2_naming_the_option(plan_dir, tmp_path, args, needle):
+def test_bad_measure_noise_exits_2_naming_the_option(tiny_plan_dir, tmp_path, args, needle):
     out = tmp_path / "y"
-    res = _yield(plan_dir, "--chips", 2, "--out", out, *args)
+    res = _yield(tiny_plan_dir, "--chips", 2, "--out", out, *args)
     assert res.exit_code == 2, res.output
     assert needle in res.output and "--measure-noise" in res.output
     assert not out.exists()

@@ -1,0 +1,16 @@
+"""Fixtures shared by the planner tests."""
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def tiny_plan_dir(tmp_path_factory):
+    """The tiny 1 x 2 plan (``test_pipeline.TINY``), planned once for the re-plan and
+    yield tests, which only read it."""
+    from planner.pipeline import plan
+    from tests.planner.test_pipeline import TINY
+
+    out = tmp_path_factory.mktemp("tiny") / "plan"
+    result = plan(TINY, out_dir=out, figures=False, jobs=1)
+    assert result.passed, "the tiny plan must verify for the tests that use it to mean anything"
+    return out
