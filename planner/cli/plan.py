@@ -71,9 +71,10 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
     and report.md.  Exit status 0 when every step passes re-simulation, 1 when some
     step fails (the report says which and why; the plan is still written).
 
-    Each scene is also simulated in order with every state carried across steps and
-    the drive switched off at the end; the summary and report give the overshoot and
-    any idle slider moved by the state a previous step left.
+    Each scene is also simulated in order with every state carried across steps,
+    each step followed by its settle dwell with the drive off; an idle slider moved
+    by the state a previous step left, a travel over verification.max_travel_um or
+    a step that does not settle fails the verification like any other check.
 
     {EXIT}
     """
