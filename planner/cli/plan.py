@@ -58,8 +58,16 @@ class _Bars:
               help="Run the designs and the verification steps on an existing "
                    "dask.distributed cluster at ADDRESS (tcp://host:8786; its workers "
                    "need vibroplan installed) instead of --jobs local worker processes.")
+@click.option("--cache-dir", type=click.Path(file_okay=False), default=None,
+              help="Folder of the design cache: a design already computed for the same "
+                   "inputs and code is read from it, not recomputed (the plan is "
+                   "byte-identical either way). Default: $VIBROPLAN_CACHE_DIR, else "
+                   "~/.cache/vibroplan.")
+@click.option("--no-cache", is_flag=True,
+              help="Compute every design; neither read nor write the design cache.")
 @handle_errors
-def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, scheduler):
+def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, scheduler,
+            cache_dir, no_cache):
     """Plan an array from a YAML SPEC: channels, designs, drives, verification.
 
     Without SPEC, plans the embedded default: a 5 x 5 array (configs/array_5x5.yaml)
@@ -81,7 +89,12 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
     import numba
 
     from planner.planning import plan
+    from planner.planning.design_store import default_cache_dir
     from planner.spec import default_spec_path, load_spec
+
+    if no_cache and cache_dir is not None:
+        raise click.UsageError("--cache-dir and --no-cache exclude each other")
+    cache = None if no_cache else Path(cache_dir) if cache_dir else default_cache_dir()
 
     if jobs is not None:
         if not 1 <= jobs <= numba.config.NUMBA_NUM_THREADS:
@@ -109,7 +122,7 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
     try:
         result = plan(loaded, out_dir=out_dir, seed=seed, progress=bars,
                       figures=not no_figures, jobs=jobs, force=force,
-                      on_assignment=announce, scheduler=scheduler)
+                      on_assignment=announce, scheduler=scheduler, cache_dir=cache)
     finally:
         bars.close()
     d = result.data
@@ -131,6 +144,10 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
         click.echo(line)
     t = result.timings
     click.echo("time: " + ", ".join(f"{k} {v:.1f} s" for k, v in t.items()))
+    dc = result.design_cache
+    if dc is not None:
+        click.echo(f"designs: {dc['designed']} distinct, {dc['read']} read from the design "
+                   f"cache ({dc['path']}), {dc['written']} computed and stored")
     click.echo(f"verification: {'PASSED' if result.passed else 'FAILED'} "
                f"({int(ver['passed'].sum())}/{len(ver)} checks); wrote {out_dir}/ "
                f"(see {out_dir}/report.md)")

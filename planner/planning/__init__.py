@@ -31,7 +31,7 @@ __all__ = ["Plan", "Settings", "plan", "resolve_settings", "run_plan", "step_ton
 
 
 def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, jobs=None,
-         force=False, on_assignment=None, scheduler=None):
+         force=False, on_assignment=None, scheduler=None, cache_dir=None):
     """Plan an array: the whole pipeline, optionally writing every output.
 
     Parameters
@@ -62,6 +62,12 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, job
     scheduler : str, optional
         Address of an existing ``dask.distributed`` scheduler (``tcp://host:8786``) to
         run the designs on; default: a local cluster of ``jobs`` workers (none for 1).
+    cache_dir : str or Path, optional
+        Folder of the on-disk design cache
+        (:mod:`planner.planning.design_store`): designs it holds for the same inputs
+        and code are read instead of computed, new ones are written to it.  Default
+        None: no disk cache (the CLI uses one, see ``vibroplan plan --help``).  The
+        plan is byte-identical either way.
 
     Returns
     -------
@@ -76,12 +82,12 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, job
     settings = resolve_settings(loaded, seed)
     if out_dir is None:
         return run_plan(loaded, seed=seed, progress=progress, jobs=jobs, settings=settings,
-                        on_assignment=on_assignment, scheduler=scheduler)
+                        on_assignment=on_assignment, scheduler=scheduler, cache_dir=cache_dir)
     source = Path(loaded.source) if getattr(loaded, "source", None) else None
     inputs = [source] if source is not None and source.exists() else []
     with output_folder(out_dir, command="plan", inputs=inputs, force=force) as tmp:
         result = run_plan(loaded, seed=seed, progress=progress, jobs=jobs, settings=settings,
-                          on_assignment=on_assignment, scheduler=scheduler)
+                          on_assignment=on_assignment, scheduler=scheduler, cache_dir=cache_dir)
         write_outputs(result, tmp, figures=figures)
     result.out_dir = Path(out_dir)
     return result

@@ -101,16 +101,25 @@ def _design_task(kwargs, min_speed):
     """One impacter's design; retried with the next seeds while it is predicted slower
     than ``SPEED_MARGIN * min_speed`` [m/s] (the search is stochastic; the best of the
     tries is kept: feasible first, then the fastest), or given up after
-    ``INFEASIBLE_TRIES`` tries that were all infeasible."""
+    ``INFEASIBLE_TRIES`` tries that were all infeasible.  While no try has been
+    feasible the next one searches wider (:func:`planner.designer.budget.widened`, one
+    level per infeasible try)."""
     from planner._workers import single_thread_blas
     from planner.designer import design_impacter
 
-    best = None
+    from planner.designer.budget import widened
+
+    best, infeasible = None, 0
     # BLAS on one thread wherever this runs (main process, pool or Dask worker): the SQP's
     # last digits depend on its thread count, the plan must not
     with single_thread_blas():
         for k in range(DESIGN_RETRIES + 1):
-            res = design_impacter(**{**kwargs, "seed": kwargs["seed"] + k})
+            kw = {**kwargs, "seed": kwargs["seed"] + k}
+            if not (best is not None and best[0][0]) and infeasible:
+                # never feasible yet: search wider, not only elsewhere
+                kw["budget"] = widened(kwargs.get("budget", "fast"), infeasible)
+            res = design_impacter(**kw)
+            infeasible += not res.feasible
             rank = (bool(res.feasible), float(res.predicted_slider_speed_m_s))
             if best is None or rank > best[0]:
                 best = (rank, res)
@@ -127,7 +136,7 @@ def _design_on_engine(min_speed, kwargs):
 
 
 def design_all(settings: Settings, steps, assignment, cache, progress=None, waveforms=None,
-               jobs=1, scheduler=None, reseed=None):
+               jobs=1, scheduler=None, reseed=None, store=None):
     """Design every driven impacter; ``cache`` maps the design inputs -> result.
 
     With ``waveforms`` (step key -> Waveform), the summed drive of every multi-tone
@@ -143,6 +152,10 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
     ``reseed`` (node -> seed offset) re-designs the impacters a repair round found too
     slow from further seeds (:func:`planner.planning.repair.reseed_slow`); the offset
     is part of the design's key, so every other design comes from the cache.
+
+    ``store`` (a :class:`planner.planning.design_store.DesignStore`, optional) is the
+    on-disk cache: a design it holds is read instead of computed, and every design
+    computed is written to it.
     """
     from planner.designer import Ensemble
 
@@ -173,6 +186,23 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
                 **settings.design_kwargs(n))
             tasks[key]["seed"] = tasks[key]["seed"] + offset
     min_speed = settings.min_speed_m_s
+    digests = {}
+    if store is not None and tasks:
+        from planner.planning.design_store import task_digest
+
+        for key in list(tasks):
+            digests[key] = task_digest(tasks[key], min_speed, DESIGN_RETRIES,
+                                       INFEASIBLE_TRIES, SPEED_MARGIN)
+            res = store.get(digests[key])
+            if res is not None:
+                cache[key] = res
+                del tasks[key]
+
+    def keep(key, res):
+        cache[key] = res
+        if store is not None:
+            store.put(digests[key], res)
+
     users = {}
     for n, key in keys.items():
         users.setdefault(key, []).append(n)
@@ -200,7 +230,7 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
                             jobs=jobs, scheduler=scheduler,
                             progress=tick if progress is not None else None)
         for key, res in zip(order, results):
-            cache[key] = res
+            keep(key, res)
     elif jobs > 1 and len(tasks) > 1:
         import concurrent.futures as cf
 
@@ -210,13 +240,13 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
             futures = {pool.submit(_design_task, tasks[key], min_speed): key for key in order}
             for fut in cf.as_completed(futures):
                 key = futures[fut]
-                cache[key] = fut.result()
+                keep(key, fut.result())
                 for n in users[key]:
                     if progress is not None:
                         progress(n)
     else:
-        for key, kw in tasks.items():
-            cache[key] = _design_task(kw, min_speed)
+        for key in order:
+            keep(key, _design_task(tasks[key], min_speed))
             for n in users[key]:
                 if progress is not None:
                     progress(n)

@@ -15,6 +15,7 @@ import pandas as pd
 from planner.assign import assign
 from planner.errors import PlanningError
 from planner.nodes import Node, device_key
+from planner.planning.design_store import DesignStore
 from planner.planning.designs import design_all
 from planner.planning.drives import drive_of, limit_acceleration, synthesize_steps
 from planner.planning.motion import size_bursts
@@ -54,7 +55,7 @@ def design_problems(designs, settings):
 
 
 def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings | None = None,
-             on_assignment=None, scheduler=None):
+             on_assignment=None, scheduler=None, cache_dir=None):
     """Run every stage; returns a :class:`Plan` (files are written by :func:`plan`).
 
     ``loaded``: a :class:`~planner.spec.LoadedSpec`; ``settings`` (optional) its
@@ -63,7 +64,9 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     the first assignment and before any design (the CLI prints the work left and a
     time estimate there).  ``scheduler``: address of a ``dask.distributed`` scheduler
     to run the designs and the verification steps on (without it, the designs run in
-    ``jobs`` local worker processes and the steps in this process).
+    ``jobs`` local worker processes and the steps in this process).  ``cache_dir``: the
+    on-disk design cache's folder (:class:`~planner.planning.design_store.DesignStore`;
+    None: designs are cached for this run only).
     """
     jobs = max(1, int(jobs or 1))
     if settings is None:
@@ -73,6 +76,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     t0 = time.perf_counter()
     steps = settings.steps
     pair_sep, cache, rounds, reseed, best = {}, {}, [], {}, None
+    store = DesignStore(cache_dir) if cache_dir is not None else None
     sep = settings.separation_channels
 
     def timed(stage, fn, *args, **kwargs):
@@ -103,7 +107,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         tick("design", total=len(assignment.frequencies))
         designs = timed("design", design_all, settings, steps, assignment, cache,
                         progress=lambda n: tick("design", n), waveforms=waveforms, jobs=jobs,
-                        scheduler=scheduler, reseed=reseed)
+                        scheduler=scheduler, reseed=reseed, store=store)
         impacters = {n: d.impacter for n, d in designs.items()}
         devices = sorted({Node.parse(n).device for n in impacters}, key=device_key)
         sliders = {d: settings.sliders[d] for d in devices}
@@ -187,4 +191,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         steps=pd.DataFrame(step_recs), verification=ver, coupling=coupling,
         scenes=pd.DataFrame(scene_rows), passed=passed, data=data, timings=timings,
         settings=settings, waveforms=waveforms, designs=designs, assignment=assignment,
-        failures=tuple(failures))
+        failures=tuple(failures),
+        design_cache=(None if store is None else
+                      {"path": str(store.path), "read": store.hits, "written": store.writes,
+                       "designed": len(cache)}))

@@ -51,6 +51,10 @@ class Plan:
     failures : tuple
         :class:`planner.planning.verify.Failure` of the last verification round
         (keyword only).
+    design_cache : dict or None
+        With an on-disk design cache: its ``path``, the designs ``read`` from it and
+        ``written`` to it, and the distinct designs of the plan (``designed``, every
+        repair round's); None without one (keyword only; not in plan.json).
     """
 
     impacters: pd.DataFrame
@@ -68,3 +72,4 @@ class Plan:
     designs: dict = field(default_factory=dict, kw_only=True, repr=False)
     assignment: object = field(default=None, kw_only=True, repr=False)
     failures: tuple = field(default=(), kw_only=True, repr=False)
+    design_cache: dict | None = field(default=None, kw_only=True, repr=False)

@@ -14,3 +14,10 @@ def tiny_plan_dir(tmp_path_factory):
     result = plan(TINY, out_dir=out, figures=False, jobs=1)
     assert result.passed, "the tiny plan must verify for the tests that use it to mean anything"
     return out
+
+
+@pytest.fixture(autouse=True)
+def _own_design_cache(tmp_path, monkeypatch):
+    """Every test gets an empty design cache of its own (``vibroplan plan`` reads and
+    writes one by default): no test sees another's designs, none writes to ~/.cache."""
+    monkeypatch.setenv("VIBROPLAN_CACHE_DIR", str(tmp_path / "design-cache"))
