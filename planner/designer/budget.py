@@ -142,6 +142,13 @@ def widened(budget, level):
                    anneal_steps=round(2.5 * b.anneal_steps), archive=2 * b.archive)
 
 
+def search_cost(budget) -> int:
+    """Candidate evaluations of one search round: initial samples plus annealing moves
+    (the cost unit that :func:`widened` multiplies; the re-checks are extra)."""
+    b = _as_budget(budget)
+    return b.initial + b.chains * b.anneal_steps
+
+
 def _as_budget(budget, x0_points=None):
     b = BUDGETS.get(budget, budget) if isinstance(budget, str) else budget
     if not isinstance(b, Budget):

@@ -11,6 +11,10 @@ assignment cannot know yet multiply the time:
 * **designer retries**: a design that is infeasible or predicted slower than
   ``SPEED_MARGIN`` x the minimum speed is retried with the next seed, up to
   :data:`planner.planning.designs.DESIGN_RETRIES` times: 1 to 1 + DESIGN_RETRIES tries;
+  while every try has been infeasible the next searches wider
+  (:func:`planner.designer.budget.widened`), so the slowest design is either
+  1 + DESIGN_RETRIES tries or INFEASIBLE_TRIES ever wider ones, counted in first-try
+  units by their candidate evaluations (:func:`planner.designer.budget.search_cost`);
 * **repair rounds**: when a step fails verification, the separations are widened and
   the plan re-assigned, re-designed and re-verified, up to ``verification.repair_rounds``
   more rounds (the upper end assumes every design is redone in every round; in fact
@@ -48,7 +52,7 @@ import importlib
 from dataclasses import dataclass
 
 from planner.nodes import Node
-from planner.planning.designs import (DESIGN_RETRIES, driven_ensembles, forbidden_tones,
+from planner.planning.designs import (DESIGN_RETRIES, INFEASIBLE_TRIES, driven_ensembles, forbidden_tones,
                                       idle_ensembles)
 
 #: Seconds of one core per design try, fixed part (Sobol seeding, annealing, SLSQP and
@@ -109,6 +113,9 @@ class Estimate:
         1-minute load average and cores when the estimate was made (None: not known).
     tries : int
         Most tries of one design: 1 + ``DESIGN_RETRIES``.
+    worst_tries : float
+        The slowest design in first-try units (:func:`worst_design_tries`); the high
+        end's multiplier.
     rounds : int
         Most design and verification rounds: 1 + ``verification.repair_rounds``.
     compile_s : float
@@ -128,6 +135,7 @@ class Estimate:
     jobs: int
     load: tuple | None = None
     tries: int = 1
+    worst_tries: float = 1.0
     rounds: int = 1
     compile_s: float = 0.0
     cold_kernels: int = 0
@@ -141,7 +149,8 @@ class Estimate:
     @property
     def high_s(self) -> float:
         """The high end [s]: compilation, every round, every design at its last try."""
-        return (self.compile_s + self.rounds * (self.tries * self.design_s + self.verify_s)
+        return (self.compile_s + self.rounds * (self.worst_tries * self.design_s
+                                                + self.verify_s)
                 + self.coupling_s)
 
     def lines(self) -> list[str]:
@@ -161,8 +170,9 @@ class Estimate:
             f"{_fmt(self.total_s)} if every step verifies at once, at most "
             f"{_fmt(self.high_s)}; an estimate from a cost model calibrated on an idle "
             f"machine (docs/large_arrays.md)",
-            f"  per round: designs {_range(self.design_s, self.tries * self.design_s)} "
-            f"(1-{self.tries} tries each), verification {_fmt(self.verify_s)}; up to "
+            f"  per round: designs {_range(self.design_s, self.worst_tries * self.design_s)} "
+            f"(1-{self.tries} tries each, infeasible ones searching wider: up to "
+            f"{self.worst_tries:.0f} x a first try), verification {_fmt(self.verify_s)}; up to "
             f"{self.rounds} rounds (1 if every step verifies; the high end redoes every "
             f"design in every round at its last try); then scenes and coupling "
             f"{_fmt(self.coupling_s)}; {comp}",
@@ -282,9 +292,21 @@ def estimate(settings, steps, assignment, jobs=1) -> Estimate:
         coupling_s=(COUPLING_S_PER_UNIT * coup_units + SCENE_S_PER_UNIT * scene_units)
         / _speedup(jobs, len(freqs)),
         jobs=jobs, load=_load(), tries=1 + DESIGN_RETRIES,
+        worst_tries=worst_design_tries(settings.budget),
         rounds=1 + settings.repair_rounds,
         compile_s=COMPILE_S * cold / total if total else 0.0,
         cold_kernels=cold, kernels=total)
+
+
+def worst_design_tries(budget="fast") -> float:
+    """The slowest design in units of a first try: 1 + ``DESIGN_RETRIES`` tries, or
+    ``INFEASIBLE_TRIES`` infeasible ones, each searching wider than the last
+    (their candidate evaluations relative to a first try's)."""
+    from planner.designer.budget import search_cost, widened
+
+    base = search_cost(budget)
+    wider = sum(search_cost(widened(budget, k)) / base for k in range(INFEASIBLE_TRIES))
+    return max(1.0 + DESIGN_RETRIES, wider)
 
 
 def _load():

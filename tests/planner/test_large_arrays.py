@@ -141,8 +141,12 @@ def test_estimate_range_covers_retries_repair_rounds_and_compilation():
     # low end: one round at first tries; high end: every round, every design at its
     # last try; compilation (if the cache is cold) in both
     assert e.total_s == pytest.approx(e.compile_s + e.design_s + e.verify_s + e.coupling_s)
-    assert e.high_s == pytest.approx(e.compile_s + e.rounds * (e.tries * e.design_s + e.verify_s)
-                                     + e.coupling_s)
+    # the slowest design: 8 tries, or 4 infeasible ones each searching wider
+    # (1 + 5.8 + 9.8 + 9.8 first-try units of the fast budget)
+    assert e.worst_tries == pytest.approx(1 + (64 + 960) / 176 + 2 * (128 + 1600) / 176)
+    assert e.worst_tries > e.tries
+    assert e.high_s == pytest.approx(e.compile_s + e.rounds * (e.worst_tries * e.design_s
+                                                               + e.verify_s) + e.coupling_s)
     assert e.high_s > e.total_s > e.compile_s >= 0
     text = "\n".join(e.lines())
     assert f"1-{e.tries} tries each" in text and f"up to {e.rounds} rounds" in text
