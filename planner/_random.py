@@ -41,3 +41,21 @@ def as_generator(seed) -> np.random.Generator:
     if seed < 0:
         raise ValueError(f"seed must be a non-negative integer, {seed} was given")
     return np.random.default_rng(int(seed))
+
+
+def try_seed(seed: int, index: int) -> int:
+    """The seed of a search's ``index``-th retry: ``seed`` itself for index 0, else an
+    int drawn from ``SeedSequence([seed, index])``.
+
+    ``seed + index`` would make plan seeds overlap: the second try of seed 2 would be
+    the first try of seed 3, so consecutive plan seeds shared most of their designs
+    (29 of the default plan's 50 for seeds 2 and 3).  Spawned this way, no two
+    (seed, index) pairs share a stream.
+    """
+    seed, index = int(seed), int(index)
+    if seed < 0 or index < 0:
+        raise ValueError(f"seed and index must be >= 0, {seed!r} and {index!r} were given")
+    if index == 0:
+        return seed
+    return int(np.random.SeedSequence([seed, index]).generate_state(1, dtype=np.uint64)[0]
+               >> np.uint64(1))

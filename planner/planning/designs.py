@@ -101,20 +101,26 @@ def _design_task(kwargs, min_speed):
     """One impacter's design; retried with the next seeds while it is predicted slower
     than ``SPEED_MARGIN * min_speed`` [m/s] (the search is stochastic; the best of the
     tries is kept: feasible first, then the fastest), or given up after
-    ``INFEASIBLE_TRIES`` tries that were all infeasible.  While no try has been
+    ``INFEASIBLE_TRIES`` tries that were all infeasible.  Try k of ``kwargs["seed"]``
+    is seeded by :func:`planner._random.try_seed` with index ``_stream + k``
+    (``_stream``: the re-design offset of a repair round, popped from ``kwargs``), so
+    no two plan seeds share a try.  While no try has been
     feasible the next one searches wider (:func:`planner.designer.budget.widened`, one
     level per infeasible try)."""
     from planner._workers import single_thread_blas
     from planner.designer import design_impacter
 
+    from planner._random import try_seed
     from planner.designer.budget import widened
 
+    kwargs = dict(kwargs)
+    stream = int(kwargs.pop("_stream", 0))
     best, infeasible = None, 0
     # BLAS on one thread wherever this runs (main process, pool or Dask worker): the SQP's
     # last digits depend on its thread count, the plan must not
     with single_thread_blas():
         for k in range(DESIGN_RETRIES + 1):
-            kw = {**kwargs, "seed": kwargs["seed"] + k}
+            kw = {**kwargs, "seed": try_seed(kwargs["seed"], stream + k)}
             if not (best is not None and best[0][0]) and infeasible:
                 # never feasible yet: search wider, not only elsewhere
                 kw["budget"] = widened(kwargs.get("budget", "fast"), infeasible)
@@ -184,7 +190,7 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
                 forbidden_drives=[Ensemble(drive_of(waveforms[k]), k) for k in ensembles[n]],
                 target_drives=[Ensemble(drive_of(waveforms[k]), k) for k in targets[n]],
                 **settings.design_kwargs(n))
-            tasks[key]["seed"] = tasks[key]["seed"] + offset
+            tasks[key]["_stream"] = offset
     min_speed = settings.min_speed_m_s
     digests = {}
     if store is not None and tasks:

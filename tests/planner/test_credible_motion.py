@@ -348,9 +348,13 @@ def test_repair_redesigns_a_too_slow_impacter_alone():
     n_cached = len(cache)
     again = design_all(settings, steps, a, cache, waveforms=waveforms, reseed=reseed)
     assert len(cache) == n_cached + 1          # one new design, the rest from the cache
-    # its tries start where the first round's could have ended
+    # its tries continue the first round's stream where it could have ended
+    from planner._random import try_seed
+
     base = settings.design_kwargs(node)["seed"]
-    assert first[node].seed <= base + DESIGN_RETRIES < base + 1 + DESIGN_RETRIES <= again[node].seed
+    assert first[node].seed in [try_seed(base, k) for k in range(1 + DESIGN_RETRIES)]
+    assert again[node].seed in [try_seed(base, 1 + DESIGN_RETRIES + k)
+                                for k in range(1 + DESIGN_RETRIES)]
     assert all(again[n] is first[n] for n in first if n != node)
     # a failure of another kind re-seeds nothing
     assert reseed_slow([Failure(push.index, dev, None, "travel_over_limit", 1e-3)],
@@ -361,6 +365,7 @@ def test_an_infeasible_design_is_given_up_after_a_few_tries():
     """Another seed rarely makes an infeasible target feasible: the planner stops after
     INFEASIBLE_TRIES tries (and reports the impacter) instead of retrying for minutes;
     a feasible but slow design is retried up to 1 + DESIGN_RETRIES times."""
+    from planner._random import try_seed
     from planner.planning.designs import INFEASIBLE_TRIES, _design_task
 
     calls = []
@@ -385,7 +390,8 @@ def test_an_infeasible_design_is_given_up_after_a_few_tries():
     finally:
         designer.design_impacter = real
     assert not res.feasible
-    assert calls == [5 + k for k in range(INFEASIBLE_TRIES)]
+    assert calls == [try_seed(5, k) for k in range(INFEASIBLE_TRIES)]
+    assert calls[0] == 5 and len(set(calls)) == INFEASIBLE_TRIES
     # after each infeasible try the next searches wider, not only from another seed
     from planner.designer.budget import BUDGETS, widened
 
