@@ -9,8 +9,8 @@ every design from this cache.  An entry is keyed by a SHA-256 digest of
   amplitudes and phases, process, environment, bounds, slider, budget, seed ...),
 - the retry policy (:data:`~planner.planning.designs.DESIGN_RETRIES` and the others),
 - the source code that computes a design (``model/``, ``planner/designer/`` and
-  ``planner/planning/designs.py``), so that a changed solver or designer never
-  reads an old result,
+  ``planner/planning/designs.py``) and the versions of numpy, scipy and numba, so
+  that a changed solver, designer or library never reads an old result,
 
 and holds the pickled :class:`~planner.designer.DesignResult`.  A result from the
 cache is the object the computation returned, so the plan is byte-identical either
@@ -104,8 +104,14 @@ def _canon(obj, out):
 
 def task_digest(kwargs: dict, *extra) -> str:
     """SHA-256 digest of a design task's keyword arguments, ``extra`` values (the
-    retry policy) and :func:`code_fingerprint`."""
-    out = [f"format:{FORMAT}", code_fingerprint()]
+    retry policy), :func:`code_fingerprint` and the numerical libraries' versions."""
+    import numba
+    import scipy
+
+    # the designer's last digits also depend on the numerical libraries (SLSQP, BLAS
+    # calls, numba's code generation): a new version recomputes
+    out = [f"format:{FORMAT}", code_fingerprint(), f"numpy:{np.__version__}",
+           f"scipy:{scipy.__version__}", f"numba:{numba.__version__}"]
     _canon(kwargs, out)
     _canon(list(extra), out)
     return hashlib.sha256("\n".join(out).encode()).hexdigest()
