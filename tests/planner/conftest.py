@@ -17,7 +17,8 @@ def tiny_plan_dir(tmp_path_factory):
 
 
 @pytest.fixture(autouse=True)
-def _own_design_cache(tmp_path, monkeypatch):
+def _own_design_cache(tmp_path_factory, monkeypatch):
     """Every test gets an empty design cache of its own (``vibroplan plan`` reads and
-    writes one by default): no test sees another's designs, none writes to ~/.cache."""
-    monkeypatch.setenv("VIBROPLAN_CACHE_DIR", str(tmp_path / "design-cache"))
+    writes one by default): no test sees another's designs, none writes to ~/.cache.
+    It lives outside the test's tmp_path, whose contents some tests check."""
+    monkeypatch.setenv("VIBROPLAN_CACHE_DIR", str(tmp_path_factory.mktemp("design-cache")))
