@@ -145,9 +145,7 @@ class DesignStore:
         try:
             with open(self._file(digest), "rb") as fh:
                 res = pickle.load(fh)
-        except FileNotFoundError:
-            return None
-        except Exception:       # a truncated or foreign file: recompute and overwrite
+        except Exception:   # absent, truncated or foreign: recompute (and overwrite)
             return None
         self.hits += 1
         return res

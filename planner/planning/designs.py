@@ -107,10 +107,9 @@ def _design_task(kwargs, min_speed):
     no two plan seeds share a try.  While no try has been
     feasible the next one searches wider (:func:`planner.designer.budget.widened`, one
     level per infeasible try)."""
+    from planner._random import try_seed
     from planner._workers import single_thread_blas
     from planner.designer import design_impacter
-
-    from planner._random import try_seed
     from planner.designer.budget import widened
 
     kwargs = dict(kwargs)
@@ -121,9 +120,10 @@ def _design_task(kwargs, min_speed):
     with single_thread_blas():
         for k in range(DESIGN_RETRIES + 1):
             kw = {**kwargs, "seed": try_seed(kwargs["seed"], stream + k)}
-            if not (best is not None and best[0][0]) and infeasible:
+            if infeasible and not best[0][0]:
                 # never feasible yet: search wider, not only elsewhere
-                kw["budget"] = widened(kwargs.get("budget", "fast"), infeasible)
+                # (of the budget the first try used: design_impacter's default is "full")
+                kw["budget"] = widened(kwargs.get("budget", "full"), infeasible)
             res = design_impacter(**kw)
             infeasible += not res.feasible
             rank = (bool(res.feasible), float(res.predicted_slider_speed_m_s))

@@ -52,8 +52,8 @@ import importlib
 from dataclasses import dataclass
 
 from planner.nodes import Node
-from planner.planning.designs import (DESIGN_RETRIES, INFEASIBLE_TRIES, driven_ensembles, forbidden_tones,
-                                      idle_ensembles)
+from planner.planning.designs import (DESIGN_RETRIES, INFEASIBLE_TRIES, driven_ensembles,
+                                      forbidden_tones, idle_ensembles)
 
 #: Seconds of one core per design try, fixed part (Sobol seeding, annealing, SLSQP and
 #: the re-checks at the target).
