@@ -471,12 +471,7 @@ def read_sweep(path) -> pd.DataFrame:
             if column == "impacter":
                 continue
             text = values[column]
-            try:
-                x = float(text)
-            except ValueError:
-                x = math.nan
-            if not math.isfinite(x):
-                raise fail(line, column, f"{text!r} is not a finite number")
+            x = csv_number(text, line, column, fail)
             if column == "frequency_hz" and x <= 0:
                 raise fail(line, column, f"frequency must be > 0 Hz, {text} was given")
             if column == "amplitude_um" and x < 0:
@@ -503,6 +498,18 @@ def read_sweep(path) -> pd.DataFrame:
         out["drive_amplitude_m"] = frame["drive_amplitude_um"] * UM
     out["line"] = frame["line"]
     return out
+
+
+def csv_number(text, line, column, fail):
+    """A cell of a lab CSV file (:func:`read_csv_rows`) as a finite float [its column's
+    unit]; else the ``fail(line, column, message)`` error is raised."""
+    try:
+        x = float(text)
+    except ValueError:
+        x = math.nan
+    if not math.isfinite(x):
+        raise fail(line, column, f"{text!r} is not a finite number")
+    return x
 
 
 def read_csv_rows(path, required, optional=(), *, what="the file", ignore=None):

@@ -148,7 +148,7 @@ def read_measured(path, impacter_ids) -> dict:
         column, an unknown or repeated impacter, a value that is not a finite number, or
         a frequency, quality factor or gap <= 0.
     """
-    from planner.calibrate import read_csv_rows
+    from planner.calibrate import csv_number, read_csv_rows
 
     known = set(impacter_ids)
     # calibrate writes uncertainties beside the values: accepted and left alone
@@ -177,12 +177,7 @@ def read_measured(path, impacter_ids) -> dict:
             text = values[column]
             if text == "" and column in MEASURED_OPTIONAL:
                 continue        # an optional value left blank: the design's
-            try:
-                x = float(text)
-            except ValueError:
-                x = math.nan
-            if not math.isfinite(x):
-                raise fail(line, column, f"{text!r} is not a finite number")
+            x = csv_number(text, line, column, fail)
             if x <= 0:
                 raise fail(line, column, f"must be > 0, {text} was given")
             if column == "natural_frequency_hz":
