@@ -47,6 +47,26 @@ def forbidden_tones(steps, frequencies):
     return {n: tuple(sorted(v)) for n, v in out.items()}
 
 
+def played_tones(steps, frequencies, waveforms):
+    """Node -> :func:`forbidden_tones`, each tone of a single-tone step it sits out as
+    that step's drive plays it.
+
+    Synthesis snaps a tone to its loop's grid (up to 0.1 %; the default plan's 13.4 kHz
+    channel plays at 13407.8 Hz), and the designer checks a forbidden tone at a few
+    points of its guard band only: a design silent at 13400 Hz and 13453 Hz answered
+    13407.8 Hz (seed 1 of the default plan).  So the designer is given the frequency that
+    plays.  A tone that plays only in multi-tone steps keeps its channel frequency: those
+    steps' summed drives, tones as played, are checked as forbidden drives.
+    """
+    played = {}
+    for st in steps:
+        w = waveforms[st.key]
+        if len(w.frequencies) == 1:
+            played[round(float(w.requested_frequencies[0]), 6)] = float(w.frequencies[0])
+    return {n: tuple(sorted(played.get(round(f, 6), f) for f in tones))
+            for n, tones in forbidden_tones(steps, frequencies).items()}
+
+
 def _multi_tone_steps(steps, frequencies, playing):
     """Node -> keys of the multi-tone steps in which it plays (``playing``) or is idle."""
     out = {n: [] for n in frequencies}
@@ -77,6 +97,12 @@ def design_offenders(designs, steps, assignment):
     by_freq = {}
     for m, f in assignment.frequencies.items():
         by_freq.setdefault(round(f, 6), []).append(m)
+    channels = np.array(sorted(by_freq))
+
+    def playing(hz):
+        # a forbidden tone is a channel frequency or that tone as played (snapped by
+        # at most 0.1 %, less than half the channel grid): its nearest channel
+        return by_freq[float(channels[np.argmin(np.abs(np.log(channels / hz)))])]
     by_key = {st.key: st for st in steps}
     out = []
     for n in sorted(designs):
@@ -86,7 +112,7 @@ def design_offenders(designs, steps, assignment):
         f = assignment.frequencies[n]
         for hz, r in zip(d.forbidden_hz, d.r_max_forbidden_n):
             if r > 0:
-                out += [(n, (n, m)) for m in by_freq.get(round(float(hz), 6), []) if m != n]
+                out += [(n, (n, m)) for m in playing(float(hz)) if m != n]
         for label in d.checks.get("violated_drives", ()):
             st = by_key.get(label)
             if st is None:
@@ -165,7 +191,8 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
     """
     from planner.designer import Ensemble
 
-    forbidden = forbidden_tones(steps, assignment.frequencies)
+    forbidden = (forbidden_tones(steps, assignment.frequencies) if waveforms is None else
+                 played_tones(steps, assignment.frequencies, waveforms))
     none = {n: () for n in assignment.frequencies}
     ensembles = (idle_ensembles(steps, assignment.frequencies)
                  if waveforms is not None else none)

@@ -407,3 +407,35 @@ def test_an_infeasible_design_is_given_up_after_a_few_tries():
     assert widened("fast", 1).chains == 3 * fast.chains
     assert widened("fast", 2).initial == 8 * fast.initial == widened("fast", 3).initial
     assert widened(fast, 0) is fast
+
+
+def test_designs_are_silent_at_the_tones_as_played():
+    """A single tone plays snapped to its loop's grid (up to 0.1 % off its channel); the
+    designer is given that frequency, so the centre of each guard band it checks is the
+    tone that plays (seed 1 of the default plan answered 13407.8 Hz, its channel 13400 Hz
+    silent).  An infeasible design's offender is found from the played tone too."""
+    import dataclasses
+
+    from planner.assign import assign
+    from planner.planning.designs import (design_all, design_offenders, forbidden_tones,
+                                          played_tones)
+    from planner.planning.drives import synthesize_steps
+    from planner.planning.settings import resolve_settings
+    from planner.spec import load_spec
+
+    settings = resolve_settings(load_spec(TRAVEL), 0)
+    steps = settings.steps
+    a = assign(settings.loaded, steps, separation=settings.separation_channels)
+    waveforms = synthesize_steps(settings, steps, a)
+    push, pull = (next(st for st in steps if st.name == k) for k in ("push", "pull"))
+    (pusher,), (puller,) = ([f"{d}.{dr}" for d, dr in st.active_nodes()] for st in (push, pull))
+    played = float(waveforms[pull.key].frequencies[0])
+    channel = a.frequencies[puller]
+    assert played != channel and abs(played / channel - 1) <= 1e-3
+    assert forbidden_tones(steps, a.frequencies)[pusher] == (channel,)
+    assert played_tones(steps, a.frequencies, waveforms)[pusher] == (played,)
+    designs = design_all(settings, steps, a, {}, waveforms=waveforms)
+    assert designs[pusher].forbidden_hz == (played,)
+    # an infeasible design that answers the played tone points at the impacter playing it
+    bad = dataclasses.replace(designs[pusher], feasible=False, r_max_forbidden_n=(1e-9,))
+    assert design_offenders({pusher: bad}, steps, a) == [(pusher, (pusher, puller))]
