@@ -20,7 +20,7 @@ from planner.planning.designs import design_all
 from planner.planning.drives import drive_of, limit_acceleration, synthesize_steps
 from planner.planning.motion import size_bursts
 from planner.planning.record import build_record
-from planner.planning.repair import (merge_carried, repair_motion, reseed_slow,
+from planner.planning.repair import (merge_carried, repair_motion, reseed_idle, reseed_slow,
                                      settle_by_step, widen_separations)
 from planner.planning.result import Plan
 from planner.planning.scenes import scene_failures, simulate_scenes
@@ -76,6 +76,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     t0 = time.perf_counter()
     steps = settings.steps
     pair_sep, cache, rounds, reseed, best = {}, {}, [], {}, None
+    idle_redesigned = set()
     store = DesignStore(cache_dir) if cache_dir is not None else None
     sep = settings.separation_channels
 
@@ -136,12 +137,17 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         if not failed_rows or round_ == settings.repair_rounds:
             break
         # repair: widen the separations the failures point at, re-colour, re-design;
-        # impacters that were only too slow are re-designed alone from further seeds
-        widened = widen_separations(failures, designs, steps, assignment, pair_sep, sep)
+        # impacters that were only too slow, or idle ones that answered once although
+        # their designs were feasible, are re-designed alone from further seeds
+        answered = reseed_idle(failures, designs, reseed, idle_redesigned)
+        widened = widen_separations(failures, designs, steps, assignment, pair_sep, sep,
+                                    skip=answered)
         reseeded = reseed_slow(failures, designs, steps, reseed)
         if reseeded:
             rounds[-1]["redesigned_slow"] = reseeded
-        if not (widened or reseeded):
+        if answered:
+            rounds[-1]["redesigned_idle"] = answered
+        if not (widened or reseeded or answered):
             break
     if best[1] != rounds[-1]["round"]:
         (assignment, waveforms, drive_notes, designs, impacters, devices, sliders, run_steps,

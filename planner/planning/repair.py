@@ -21,19 +21,20 @@ def _widen(pair_sep, assignment, a, b, sep):
     pair_sep[key] = max(pair_sep.get(key, sep), now + max(1, sep // 2))
 
 
-def widen_separations(failures, designs, steps, assignment, pair_sep, sep):
+def widen_separations(failures, designs, steps, assignment, pair_sep, sep, skip=()):
     """Update ``pair_sep`` (frozenset of two nodes -> separation [channels]) in place.
 
     Each impacter whose design is infeasible moves away from the tones it could not be
     made silent under; each idle impacter that responds in a step moves away from the
-    nearest tone of that step.  Returns whether anything changed.
+    nearest tone of that step, unless it is in ``skip`` (re-designed in place instead,
+    :func:`reseed_idle`).  Returns whether anything changed.
     """
     changed = False
     for _, (a, b) in design_offenders(designs, steps, assignment):
         _widen(pair_sep, assignment, a, b, sep)
         changed = True
     for fail in failures:
-        if fail.kind != IDLE_RESPONSE or fail.impacter not in designs:
+        if fail.kind != IDLE_RESPONSE or fail.impacter not in designs or fail.impacter in skip:
             continue
         active = sorted(Node(d, dr).text for d, dr in steps[fail.step].active_nodes())
         f = assignment.frequencies[fail.impacter]
@@ -62,6 +63,32 @@ def reseed_slow(failures, designs, steps, reseed):
             if d == fail.device and node in designs and node not in out:
                 reseed[node] = reseed.get(node, 0) + 1 + DESIGN_RETRIES
                 out.append(node)
+    return out
+
+
+def reseed_idle(failures, designs, reseed, tried):
+    """Update ``reseed`` (node -> design seed offset) in place for the idle impacters
+    that responded in a step although their designs were feasible; returns the nodes
+    re-seeded.
+
+    The designer checks each forbidden tone at a few points of its guard band, from a
+    grid of x0 and over its own windows; the verification runs the step's drive from
+    its own x0 grid for the whole step, so a design can pass the one and answer in the
+    other.  The tone is not at fault then: the impacter is re-designed alone from the
+    next ``1 + DESIGN_RETRIES`` seeds, which costs one design instead of a re-colouring
+    and the re-design of every impacter whose tones move.  Each node is re-designed so
+    once (``tried``, a set updated in place); if it answers again, the separations are
+    widened (:func:`widen_separations`).
+    """
+    out = []
+    for fail in failures:
+        node = fail.impacter
+        if (fail.kind != IDLE_RESPONSE or node not in designs or node in tried
+                or not designs[node].feasible):
+            continue
+        reseed[node] = reseed.get(node, 0) + 1 + DESIGN_RETRIES
+        tried.add(node)
+        out.append(node)
     return out
 
 

@@ -439,3 +439,38 @@ def test_designs_are_silent_at_the_tones_as_played():
     # an infeasible design that answers the played tone points at the impacter playing it
     bad = dataclasses.replace(designs[pusher], feasible=False, r_max_forbidden_n=(1e-9,))
     assert design_offenders({pusher: bad}, steps, a) == [(pusher, (pusher, puller))]
+
+
+def test_repair_redesigns_an_idle_responder_once_then_widens():
+    """An idle impacter that answers a step although its design was feasible is
+    re-designed alone from further seeds (no re-colouring); if it answers again, its
+    separation from the step's nearest tone is widened instead."""
+    from planner.assign import assign
+    from planner.planning.designs import DESIGN_RETRIES, design_all
+    from planner.planning.drives import synthesize_steps
+    from planner.planning.repair import reseed_idle, widen_separations
+    from planner.planning.settings import resolve_settings
+    from planner.planning.verify import IDLE_RESPONSE, TOO_SLOW, Failure
+    from planner.spec import load_spec
+
+    settings = resolve_settings(load_spec(TRAVEL), 0)
+    steps = settings.steps
+    a = assign(settings.loaded, steps, separation=settings.separation_channels)
+    waveforms = synthesize_steps(settings, steps, a)
+    designs = design_all(settings, steps, a, {}, waveforms=waveforms)
+    pull = next(st for st in steps if st.name == "pull")
+    idle = next(n for n in designs if n.endswith(".forward"))
+    assert designs[idle].feasible
+    fails = [Failure(pull.index, idle.split(".")[0], idle, IDLE_RESPONSE, 1e-10),
+             Failure(pull.index, "A2", None, TOO_SLOW, 1e-6)]
+    reseed, tried, pair_sep = {}, set(), {}
+    answered = reseed_idle(fails, designs, reseed, tried)
+    assert answered == [idle] and reseed == {idle: 1 + DESIGN_RETRIES} and tried == {idle}
+    assert not widen_separations(fails, designs, steps, a, pair_sep, 1, skip=answered)
+    assert pair_sep == {}
+    # the second time it answers: no second re-seed, the separation widens
+    assert reseed_idle(fails, designs, reseed, tried) == []
+    assert reseed == {idle: 1 + DESIGN_RETRIES}
+    assert widen_separations(fails, designs, steps, a, pair_sep, 1, skip=())
+    (pair,) = pair_sep
+    assert idle in pair
