@@ -16,7 +16,7 @@ import time
 
 from planner.assign import assign
 from planner.designer import Ensemble, design_impacter
-from planner.planning.designs import driven_ensembles, forbidden_tones, idle_ensembles
+from planner.planning.designs import driven_ensembles, idle_ensembles, played_tones
 from planner.planning.drives import drive_of, limit_acceleration, synthesize_steps
 from planner.planning.settings import resolve_settings
 from planner.spec import load_spec
@@ -34,7 +34,8 @@ def main():
     s = resolve_settings(load_spec(args.spec), args.plan_seed)
     a = assign(s.loaded, s.steps, separation=s.separation_channels)
     wf, _ = limit_acceleration(s, synthesize_steps(s, s.steps, a))
-    forb = forbidden_tones(s.steps, a.frequencies)
+    # the single tones as they play, as the planner gives them to the designer
+    forb = played_tones(s.steps, a.frequencies, wf)
     idle = idle_ensembles(s.steps, a.frequencies)
     driven = driven_ensembles(s.steps, a.frequencies)
     for n in args.impacters.split(","):
