@@ -83,6 +83,13 @@ PLAN_KERNELS = ("model.kernels.impacter:run_impacter", "model.kernels.impacter:r
                 "model.kernels.impacter:sweep_batch", "model.kernels.slider:run_slider",
                 "model.kernels.closed_form:tone_coefficients",
                 "model.kernels.contact:two_body_impact", "model.kernels.contact:two_body_kick")
+#: Design time of a typical first round relative to every design kept at its first try:
+#: slow designs are retried (up to 8 tries) and single tries scatter.  Measured on seeds
+#: 0-4 of the default 5 x 5 plan: 134-160 s of designs on 2 workers against 54 s at
+#: first tries (2.5-3.0x; 16 first tries of 8 of its designs took 0.75-6.6 s of CPU,
+#: mean 1.2x the fitted try cost).  Small plans retry less (the tests' 1 x 2 spec: 6
+#: tries for 4 designs), so for them the typical figure is high.
+TYPICAL_DESIGN_FACTOR = 2.6
 #: Parallel efficiency of a second worker (processes for designs, threads for simulation).
 PARALLEL_EFFICIENCY = 0.8
 
@@ -147,6 +154,13 @@ class Estimate:
         return self.compile_s + self.design_s + self.verify_s + self.coupling_s
 
     @property
+    def typical_s(self) -> float:
+        """The typical time [s]: one round with the designs' retries as measured on the
+        default plan (:data:`TYPICAL_DESIGN_FACTOR` x the first-try designs)."""
+        return (self.compile_s + TYPICAL_DESIGN_FACTOR * self.design_s + self.verify_s
+                + self.coupling_s)
+
+    @property
     def high_s(self) -> float:
         """The high end [s]: compilation, every round, every design at its last try."""
         return (self.compile_s + self.rounds * (self.worst_tries * self.design_s
@@ -166,10 +180,11 @@ class Estimate:
             f"remaining: {self.designs} designs for {self.impacters} impacters, "
             f"{self.steps} steps to verify ({self.verification_runs} simulations), "
             f"coupling matrix ({self.coupling_runs} simulations)",
-            f"estimated time on {self.jobs} worker{'s' if self.jobs > 1 else ''}: about "
-            f"{_fmt(self.total_s)} if every step verifies at once, at most "
-            f"{_fmt(self.high_s)}; an estimate from a cost model calibrated on an idle "
-            f"machine (docs/large_arrays.md)",
+            f"estimated time on {self.jobs} worker{'s' if self.jobs > 1 else ''}: "
+            f"{_fmt(self.total_s)} if every design is kept at its first try and every step "
+            f"verifies at once, typically about {_fmt(self.typical_s)} (with retries, as "
+            f"measured on the default plan), at most {_fmt(self.high_s)}; an estimate from a "
+            f"cost model calibrated on an idle machine (docs/large_arrays.md)",
             f"  per round: designs {_range(self.design_s, self.worst_tries * self.design_s)} "
             f"(1-{self.tries} tries each, infeasible ones searching wider: up to "
             f"{self.worst_tries:.0f} x a first try), verification {_fmt(self.verify_s)}; up to "

@@ -148,7 +148,13 @@ def test_estimate_range_covers_retries_repair_rounds_and_compilation():
     assert e.high_s == pytest.approx(e.compile_s + e.rounds * (e.worst_tries * e.design_s
                                                                + e.verify_s) + e.coupling_s)
     assert e.high_s > e.total_s > e.compile_s >= 0
+    # typical: the first round's designs with their retries, as measured on the default
+    from planner.planning.estimate import TYPICAL_DESIGN_FACTOR
+
+    assert e.typical_s == pytest.approx(e.total_s + (TYPICAL_DESIGN_FACTOR - 1) * e.design_s)
+    assert e.total_s < e.typical_s < e.high_s
     text = "\n".join(e.lines())
+    assert "typically about" in text
     assert f"1-{e.tries} tries each" in text and f"up to {e.rounds} rounds" in text
     # no repair rounds, no retries counted twice: the high end shrinks
     fewer = estimate(dataclasses.replace(settings, repair_rounds=0),
