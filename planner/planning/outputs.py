@@ -275,6 +275,15 @@ def _motion_notes(d):
             lines.append(f"- {key}: burst {sized * 1e3:g} ms sized for "
                          f"{rec['requested_travel_m'] / UM:g} um at the slowest predicted "
                          f"speed {_fmt(v * 1e3 if v is not None else None, '.3g')} mm/s")
+    for rnd in d["verification"].get("repair_rounds", []):
+        # a design round that failed checks and what the next round changed
+        for field, why in (("redesigned_slow", "too slow in a step"),
+                           ("redesigned_idle", "answered a step it sits out")):
+            if rnd.get(field):
+                lines.append(f"- design round {rnd['round']}: re-designed from further seeds "
+                             f"({why}): {', '.join(rnd[field])}")
+        if rnd.get("kept_round") is not None:
+            lines.append(f"- design round {rnd['kept_round']} kept: {rnd['why']}")
     for rnd in d["verification"].get("motion_repairs", []):
         lines += [f"- repair round {rnd['round']}: {a}" for a in rnd["actions"]]
     return (["## What the planner changed", ""] + lines + [""]) if lines else []

@@ -468,3 +468,21 @@ def test_repair_redesigns_an_idle_responder_once_then_widens():
     assert widen_separations(fails, designs, steps, a, pair_sep, 1, skip=())
     (pair,) = pair_sep
     assert idle in pair
+
+
+def test_report_says_which_impacters_a_design_round_redesigned(travel_plan):
+    """The report's "What the planner changed" names the impacters each design round
+    re-designed, and why, besides the motion repairs."""
+    import copy
+
+    from planner.planning.outputs import _motion_notes
+
+    d = copy.deepcopy(travel_plan.data)
+    assert not any("design round" in line for line in _motion_notes(d))
+    d["verification"]["repair_rounds"] = [
+        {"round": 0, "span": 10, "failures": 2, "redesigned_slow": ["A1.forward"],
+         "redesigned_idle": ["A2.forward"]},
+        {"round": 1, "span": 10, "failures": 0}]
+    text = "\n".join(_motion_notes(d))
+    assert "design round 0: re-designed from further seeds (too slow in a step): A1.forward" in text
+    assert "(answered a step it sits out): A2.forward" in text
