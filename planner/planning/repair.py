@@ -44,6 +44,11 @@ def widen_separations(failures, designs, steps, assignment, pair_sep, sep, skip=
     return changed
 
 
+def _next_seeds(reseed, node):
+    # the node's tries continue where its last ones could have ended
+    reseed[node] = reseed.get(node, 0) + 1 + DESIGN_RETRIES
+
+
 def reseed_slow(failures, designs, steps, reseed):
     """Update ``reseed`` (node -> design seed offset) in place for the driven impacters
     that were too slow in a step; returns the nodes re-seeded.
@@ -61,7 +66,7 @@ def reseed_slow(failures, designs, steps, reseed):
         for d, dr in sorted(steps[fail.step].active_nodes()):
             node = Node(d, dr).text
             if d == fail.device and node in designs and node not in out:
-                reseed[node] = reseed.get(node, 0) + 1 + DESIGN_RETRIES
+                _next_seeds(reseed, node)
                 out.append(node)
     return out
 
@@ -86,7 +91,7 @@ def reseed_idle(failures, designs, reseed, tried):
         if (fail.kind != IDLE_RESPONSE or node not in designs or node in tried
                 or not designs[node].feasible):
             continue
-        reseed[node] = reseed.get(node, 0) + 1 + DESIGN_RETRIES
+        _next_seeds(reseed, node)
         tried.add(node)
         out.append(node)
     return out
