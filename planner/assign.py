@@ -241,6 +241,31 @@ def _guard_note(spec, grid, sep, positions):
             f"the {grid.size} channels hold only {positions} positions {sep} apart)")
 
 
+def _tolerance_note(spec, n, fit, grid, sep):
+    """Why a tolerance grid cannot hold ``n`` independent impacters, and what would."""
+    from planner.manufacturability import pair_sigma_rel, z_for
+
+    lo, hi = spec.drive.band_hz
+    fab = spec.fabrication
+    sigma = pair_sigma_rel(spec)
+    z = z_for(fab.target_yield, n - 1)
+    top = grid[-1] if len(grid) else lo
+    return (f"{n} impacters must each be independently addressable (independent: true), "
+            f"but the band {lo:g}-{hi:g} Hz, spaced for the fabrication scatter "
+            f"(drive.channels.spacing: tolerance: {spec.drive.channels.separation_hz:g} Hz "
+            f"plus {z:.2f} sigma between neighbours, sigma {100 * sigma:.2f} % of the "
+            f"frequency for the difference of two as-built resonances, for a "
+            f"collision-free yield of {fab.target_yield:g}), holds only {fit}: neighbours "
+            f"({sep} channels) are {grid[min(sep, len(grid) - 1)] - grid[0]:.0f} Hz apart at "
+            f"{lo:g} Hz and "
+            f"{(spec.drive.channels.separation_hz + z * sigma * top):.0f} Hz at {top:.0f} Hz. "
+            f"Fixes: a wider band (drive.band_hz), a lower fabrication.target_yield, "
+            f"smaller tolerances (fabrication), a smaller line-width sensitivity (wider "
+            f"beams: design.sensitivity_per_um or design.beam_width_um), a narrower "
+            f"drive.channels.separation_hz, fewer devices, or independent: false with "
+            f"scenes in which devices move together and share channels.")
+
+
 def _check_capacity(spec, steps, sep, grid=None, positions=None):
     """Refuse, in well under a second, a spec whose independently addressable impacters
     cannot fit the band whatever the colouring.
@@ -265,6 +290,8 @@ def _check_capacity(spec, steps, sep, grid=None, positions=None):
     if need > count:
         lo, hi = spec.drive.band_hz
         fit = (count - 1) // sep + 1
+        if spec.drive.channels.spacing == "tolerance":
+            raise PlanningError(_tolerance_note(spec, len(nodes), fit, grid, sep))
         what = (f"{count} channels" if count == grid.size else
                 f"{count} positions{_guard_note(spec, grid, sep, count)}")
         raise PlanningError(

@@ -72,10 +72,33 @@ class DeviceDefaults(_Strict):
 
 
 class ChannelGrid(_Strict):
-    """The channel grid inside the band: ``count`` channels, log- or linearly spaced."""
+    """The channel grid inside the band: ``count`` channels, log- or linearly spaced, or
+    spaced by the fabrication tolerance.
 
-    spacing: Literal["log", "linear"] = "log"
+    spacing : ``log`` or ``linear`` (``count`` channels), or ``tolerance``: channels
+        placed bottom-up so that tones ``drive.guard.separation_channels`` channels
+        apart are ``separation_hz`` plus z sigma apart, sigma the scatter of the
+        difference of two as-built resonances under the ``fabrication:`` section at
+        ``fabrication.target_yield`` (:func:`planner.manufacturability.tolerance_grid`):
+        wider where the scatter in Hz is larger.  The count then follows from the band.
+    count : the number of channels of a ``log`` or ``linear`` grid.
+    separation_hz : how close two as-built resonances may be and still be told apart by
+        a drive re-planned for the chip [Hz]: the width of an impacter's response band,
+        about 300-450 Hz in air at every frequency (used by ``spacing: tolerance``).
+    """
+
+    spacing: Literal["log", "linear", "tolerance"] = "log"
     count: Annotated[int, Field(ge=2, le=100000)] = 240
+    separation_hz: PositiveFloat = 400.0
+
+    @model_validator(mode="after")
+    def _count_or_tolerance(self):
+        if self.spacing == "tolerance" and "count" in self.model_fields_set:
+            raise ValueError("count cannot be given with spacing: tolerance (the band and "
+                             "the tolerance set how many channels there are)")
+        if self.spacing != "tolerance" and "separation_hz" in self.model_fields_set:
+            raise ValueError("separation_hz applies to spacing: tolerance only")
+        return self
 
 
 class GuardRules(_Strict):
@@ -161,6 +184,26 @@ class DesignSpec(_Strict):
     #: Upper bound on m/M, one impacter's mass over its slider's [-]: eq. (10) is the
     #: small-m/M limit of an impact, and the paper's measured devices had 0.23 and 0.38.
     max_mass_ratio: PositiveFloat = 0.4
+    #: Every impacter of the array gets the same line-width sensitivity d ln nu_n / dw
+    #: (within ``sensitivity_tolerance``), so that a die-level line-width error moves
+    #: every resonance by one factor, which a re-plan absorbs (planner.manufacturability).
+    match_sensitivity: bool = True
+    #: Relative half-width of the matched sensitivity band [-].
+    sensitivity_tolerance: Annotated[float, Field(gt=0, lt=0.5, allow_inf_nan=False)] = 0.05
+    #: One beam width for every impacter [um] (None: the designer chooses it).
+    beam_width_um: PositiveFloat | None = None
+    #: The array's common line-width sensitivity [1/um] (None: that of a beam of
+    #: ``beam_width_um``, else 5 um, carrying a plate of 80 % of the mass: 1.4 / w).
+    sensitivity_per_um: PositiveFloat | None = None
+
+    @model_validator(mode="after")
+    def _width_rules(self):
+        if self.beam_width_um is not None and self.bounds.width_um is not None:
+            raise ValueError("beam_width_um fixes the width: it cannot be given with "
+                             "bounds.width_um")
+        if self.sensitivity_per_um is not None and not self.match_sensitivity:
+            raise ValueError("sensitivity_per_um needs match_sensitivity: true")
+        return self
 
 
 class VerificationSpec(_Strict):
@@ -218,10 +261,14 @@ class FabricationSpec(_Strict):
     gap_um: Tolerance = Tolerance()
     youngs_modulus_pct: Tolerance = Tolerance()
     natural_frequency_pct: Tolerance = Tolerance()
+    #: The collision-free yield the channel grid is sized for (``drive.channels.spacing:
+    #: tolerance``) and the plan's predicted yield is held against [-].
+    target_yield: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 0.95
 
     @property
     def zero(self) -> bool:
-        return all(getattr(self, k).zero for k in type(self).model_fields)
+        return all(getattr(self, k).zero for k in type(self).model_fields
+                   if isinstance(getattr(self, k), Tolerance))
 
 
 class StepSpec(_Strict):
@@ -460,6 +507,10 @@ def channel_grid(spec: ArraySpec):
     """Channel centre frequencies [Hz] inside the band, ndarray shape (count,)."""
     import numpy as np
 
+    if spec.drive.channels.spacing == "tolerance":
+        from planner.manufacturability import spec_tolerance_grid
+
+        return spec_tolerance_grid(spec)
     lo, hi = spec.drive.band_hz
     n = spec.drive.channels.count
     if spec.drive.channels.spacing == "log":

@@ -182,6 +182,11 @@ def _dry_run(loaded, seed, jobs):
                f"{seconds:.1f} s")
     for line in estimate(settings, steps, a, jobs).lines():
         click.echo(line)
+    from planner.manufacturability import prediction_lines, predict_from_channels
+
+    for line in prediction_lines(predict_from_channels(spec, a, seed=settings.seed),
+                                 spec.fabrication.target_yield, before_designs=True):
+        click.echo(line)
     click.echo("dry run: nothing written")
 
 

@@ -18,8 +18,9 @@ def _pair(name, value):
         lo, hi = (float(v) for v in value)
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be a (lo, hi) pair, {value!r} was given") from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 < lo < hi):
-        raise ValueError(f"{name} must satisfy 0 < lo < hi (finite), {value!r} was given")
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0.0 < lo <= hi):
+        raise ValueError(f"{name} must satisfy 0 < lo <= hi (finite; lo = hi fixes it), "
+                         f"{value!r} was given")
     return lo, hi
 
 

@@ -67,7 +67,7 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
                     slider=None, progress=None, x0_points=None, guard=GUARD,
                     impact_angle=_d.IMPACT_ANGLE, restitution=_d.RESTITUTION,
                     forbidden_drives=(), max_mass_ratio=None, contact="paper",
-                    robust_shift=None, target_drives=()):
+                    robust_shift=None, target_drives=(), sensitivity=None):
     """Design one impacter by the paper's max-min problem, eqs. (13)-(18).
 
     Maximise the worst response over initial positions at ``frequency`` subject to
@@ -144,6 +144,13 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         worst response counted by the objective is the least over its own tone and
         these, from every x0.  An off-resonant sum can hold an impacter off its wall
         from some initial states where its own tone alone would not.
+    sensitivity : (float, float), optional
+        Band (lo, hi) of the line-width sensitivity S = d ln nu_n / d(line width)
+        [1/m] the design must lie in (:mod:`planner.designer.sensitivity`): the array
+        planner's ``design.match_sensitivity``, so that a die-level line-width error
+        moves every impacter of an array by one factor.  The search then solves the
+        beam width (the area, when ``bounds.width`` fixes the width) for a target in
+        the band instead of searching it.  None: no constraint.
 
     Returns
     -------
@@ -230,9 +237,20 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         if not (math.isfinite(shift) and 0.0 <= shift < 0.5):
             raise ValueError(f"robust_shift must be in [0, 0.5), {robust_shift!r} was given")
         robust_shift = None if shift == 0.0 else (lambda geometry, s=shift: s)
+    if sensitivity is not None:
+        try:
+            s_lo, s_hi = (float(v) for v in sensitivity)
+        except (TypeError, ValueError):
+            raise ValueError(f"sensitivity must be a (lo, hi) pair [1/m], {sensitivity!r} "
+                             "was given") from None
+        if not (math.isfinite(s_lo) and math.isfinite(s_hi) and 0.0 < s_lo <= s_hi):
+            raise ValueError(f"sensitivity must satisfy 0 < lo <= hi (finite) [1/m], "
+                             f"{sensitivity!r} was given")
+        sensitivity = (s_lo, s_hi)
     problem = _Problem(frequency, forbidden, factory, tones, bounds, window, budget, guard,
                        ensembles, mass_cap=mass_cap, q_per_kg=q_per_kg,
-                       robust_shift=robust_shift, target_ensembles=targets)
+                       robust_shift=robust_shift, target_ensembles=targets,
+                       sensitivity=sensitivity)
 
     report = _progress_hook(progress)
     expected = (budget.initial + budget.chains * budget.anneal_steps
@@ -297,6 +315,10 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         "violated_drives": sorted({problem.check_hz[j].label for j in chk["violated"]
                                    if isinstance(problem.check_hz[j], Ensemble)}),
     }
+    if sensitivity is not None:
+        checks["line_width_sensitivity_per_um"] = (
+            problem.line_width.sensitivity(*ev.geometry[:3]) * UM)
+        checks["sensitivity_band_per_um"] = [sensitivity[0] * UM, sensitivity[1] * UM]
     if robust_shift is not None:
         checks["robust_natural_frequency_scales"] = list(problem.nu_scales(ev.geometry))
     if status == "ok":

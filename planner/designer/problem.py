@@ -10,7 +10,6 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from scipy import optimize
 
 from model import SolverWarning, responses
 from planner.designer.runs import (
@@ -20,6 +19,7 @@ from planner.designer.runs import (
     _guard_offsets,
     _u_grid,
 )
+from planner.designer.sensitivity import LineWidthModel
 
 #: Tier offset of the annealing energy; far above any difference of ln r [-].
 PENALTY = 1.0e3
@@ -80,8 +80,15 @@ class _Problem:
 
     def __init__(self, frequency, forbidden, factory, tones, bounds, window, budget, guard,
                  ensembles=(), mass_cap=math.inf, q_per_kg=0.0, robust_shift=None,
-                 target_ensembles=()):
+                 target_ensembles=(), sensitivity=None):
         self.frequency = frequency
+        # eqs. (2), (4) in closed form: the beam length for a natural frequency and the
+        # line-width sensitivity (planner.designer.sensitivity)
+        self.line_width = LineWidthModel(factory)
+        # (lo, hi) band of d ln nu_n / d(line width) [1/m] every design must lie in
+        # (design.match_sensitivity), or None
+        self.sensitivity = None if sensitivity is None else (float(sensitivity[0]),
+                                                             float(sensitivity[1]))
         # summed drives of the multi-tone steps the design must move its slider in: the
         # response counted at the target is the least over its own tone and these
         self.target_ensembles = tuple(target_ensembles)
@@ -135,6 +142,7 @@ class _Problem:
                     f"max_mass_ratio allows an impacter of at most {self.mass_cap * 1e12:.4g} "
                     f"ng, below the mass of the smallest area allowed ({bounds.area[0] * 1e12:g}"
                     " um^2): raise max_mass_ratio, lower the area bound or use a heavier slider")
+        self.area_hi = area_hi
         self.lo = np.log([bounds.area[0], bounds.width[0], ratio[0] * frequency,
                           bounds.gap[0]])
         self.hi = np.log([area_hi, bounds.width[1], ratio[1] * frequency,
@@ -153,41 +161,51 @@ class _Problem:
     # coordinates -------------------------------------------------------------------
     def length_for(self, area, width, nu_n):
         """l [m] with sqrt(k/m)/(2 pi) = nu_n by eqs. (2), (4), clipped to its bounds."""
-        l_lo, l_hi = self.bounds.length
-        # m = m0 + m1 l (eq. 2) and k = K l^-3 (eq. 4 at fixed w), read off the model
-        a = self.factory(area, width, l_lo, 1e-6)  # any gap: m and k do not depend on it
-        b = self.factory(area, width, l_hi, 1e-6)
-        m1 = (b.mass - a.mass) / (l_hi - l_lo)
-        m0 = a.mass - m1 * l_lo
-        kk = a.stiffness * l_lo**3
-        w2 = (2.0 * math.pi * nu_n) ** 2
-
-        def f(log_l):
-            ll = math.exp(log_l)
-            return math.log(kk / ll**3) - math.log((m0 + m1 * ll) * w2)
-
-        f_lo, f_hi = f(math.log(l_lo)), f(math.log(l_hi))
-        if f_lo <= 0.0:
-            return l_lo
-        if f_hi >= 0.0:
-            return l_hi
-        return math.exp(optimize.brentq(f, math.log(l_lo), math.log(l_hi), xtol=1e-13))
+        return self.line_width.length_for(area, width, nu_n, self.bounds.length)
 
     def geometry(self, z):
-        """(A, w, l, c) and the z of the projected design."""
+        """(A, w, l, c) and the z of the projected design.
+
+        Without a sensitivity band z = (ln A, ln w, ln nu_n, ln c) scaled to [0, 1] and l
+        follows from nu_n.  With one, z[1] is the target line-width sensitivity's place
+        in the band (log scale) instead of the width: the width (or, when the width is
+        fixed, the area) is solved for it at the candidate's A (or w) and nu_n.
+        """
         z = np.clip(np.asarray(z, dtype=float), 0.0, 1.0)
         area, width, nu_n, gap = np.exp(self.lo + z * (self.hi - self.lo))
-        length = self.length_for(area, width, nu_n)
+        if self.sensitivity is None:
+            length = self.length_for(area, width, nu_n)
+        else:
+            s_lo, s_hi = self.sensitivity
+            target = s_lo * (s_hi / s_lo) ** z[1] if s_hi > s_lo else s_lo
+            if self.bounds.width[0] < self.bounds.width[1]:
+                width, length = self.line_width.width_for(area, nu_n, target,
+                                                          self.bounds.width, self.bounds.length)
+            else:
+                area, length = self.line_width.area_for(width, nu_n, target,
+                                                        (self.bounds.area[0], self.area_hi),
+                                                        self.bounds.length)
         imp = self.factory(area, width, length, gap)
         zz = z.copy()
         zz[2] = (math.log(imp.natural_frequency) - self.lo[2]) / (self.hi[2] - self.lo[2])
+        if self.sensitivity is not None and self.sensitivity[1] > self.sensitivity[0]:
+            s = self.line_width.sensitivity(area, width, length)
+            zz[1] = min(1.0, max(0.0, math.log(s / self.sensitivity[0])
+                                 / math.log(self.sensitivity[1] / self.sensitivity[0])))
         return (float(area), float(width), float(length), float(gap)), zz
 
-    def z_of(self, geometry):
-        area, width, length, gap = geometry
-        nu_n = self.factory(area, width, length, gap).natural_frequency
-        v = np.log([area, width, nu_n, gap])
-        return (v - self.lo) / (self.hi - self.lo)
+    def sensitivity_miss(self, geometry):
+        """|ln(S / band)| of ``geometry``'s line-width sensitivity outside the band, 0 inside."""
+        if self.sensitivity is None:
+            return 0.0
+        s = self.line_width.sensitivity(*geometry[:3])
+        s_lo, s_hi = self.sensitivity
+        # the roots are exact to ~1e-12: a design on the edge is inside
+        if s < s_lo * (1.0 - 1e-9):
+            return math.log(s_lo / s)
+        if s > s_hi * (1.0 + 1e-9):
+            return math.log(s / s_hi)
+        return 0.0
 
     # simulations -------------------------------------------------------------------
     def impacter(self, geometry):
@@ -333,6 +351,14 @@ class _Problem:
             return ev
         self.evaluations += 1
         mass = self.impacter(geometry).mass
+        miss = self.sensitivity_miss(geometry)
+        if miss > 0.0:
+            # no width (area) within the bounds reaches the sensitivity band here: worse
+            # than any violation of (14), graded so the search walks back into the band
+            ev = _Eval(zz, geometry, 3 * PENALTY + miss, 1.0, None, 0.0, 0.0, math.nan)
+            self.evals[geometry] = ev
+            self._remember(ev)
+            return ev
         if mass > self.mass_cap:
             # over the mass cap (the beams' mass pushed it there): worse than any
             # violation of (14), graded so that the search walks back under the cap

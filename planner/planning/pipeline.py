@@ -2,7 +2,7 @@
 
 settings -> steps -> assign -> drives (acceleration limit) -> designs -> burst sizing
 -> verify (-> repair, re-assign ...) -> scenes with carried state (-> motion repair:
-shorter bursts, longer dwells) -> coupling -> record.  Data flows one way; every stage reads the
+shorter bursts, longer dwells) -> coupling -> manufacturability -> record.  Data flows one way; every stage reads the
 :class:`~planner.planning.settings.Settings` and the earlier stages' results only.
 """
 
@@ -18,6 +18,7 @@ from planner.nodes import Node, device_key
 from planner.planning.design_store import DesignStore
 from planner.planning.designs import design_all
 from planner.planning.drives import drive_of, limit_acceleration, synthesize_steps
+from planner.planning.manufacture import assess
 from planner.planning.motion import size_bursts
 from planner.planning.record import build_record
 from planner.planning.repair import (merge_carried, repair_motion, reseed_idle, reseed_slow,
@@ -181,6 +182,10 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     tones = sorted(set(assignment.frequencies.values()))
     coupling = coupling_matrix(impacters, tones, settings, settings.single_step_s)
     timings["scenes_coupling"] = time.perf_counter() - ts
+    # what a fabricated chip does to these designs: sensitivities, separations and the
+    # predicted collision-free yield under the spec's tolerances
+    manufacturability = timed("manufacturability", assess, settings, run_steps, assignment,
+                              designs, waveforms)
     ver = pd.DataFrame(ver_rows)
     problems = design_problems(designs, settings)
     # an infeasible design fails the plan even if the steps happen to verify: it was
@@ -190,7 +195,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
               "repairs": motion_repairs, "design_problems": problems}
     data, impacter_recs, device_recs, step_recs = build_record(
         settings, run_steps, assignment, designs, sliders, waveforms, ver_rows, passed, rounds,
-        scene_rows, motion)
+        scene_rows, motion, manufacturability)
     timings["total"] = time.perf_counter() - t0
     return Plan(
         impacters=pd.DataFrame(impacter_recs), devices=pd.DataFrame(device_recs),

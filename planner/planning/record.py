@@ -96,8 +96,10 @@ def step_travels(ver_rows):
 
 
 def build_record(settings, steps, assignment, designs, sliders, waveforms, ver_rows, passed,
-                 rounds, scene_rows, motion=None):
+                 rounds, scene_rows, motion=None, manufacturability=None):
     """(plan.json dict, impacter records, device records, step records).
+
+    ``manufacturability``: the block of :func:`planner.planning.manufacture.assess`.
 
     ``motion``: {"sizing", "drive", "settle_s", "repairs"} of the pipeline (burst sizing
     notes, drive peaks and acceleration scales, settle dwells by step key, motion
@@ -135,4 +137,6 @@ def build_record(settings, steps, assignment, designs, sliders, waveforms, ver_r
                          "max_travel_m": settings.max_travel_m, "steps": per_step},
         "scenes": scene_rows,
     }
+    if manufacturability is not None:
+        data["manufacturability"] = manufacturability
     return round_floats(data), impacter_recs, device_recs, step_recs

@@ -143,6 +143,11 @@ class Settings:
         Largest peak base acceleration of a step's summed drive [m/s^2].
     max_settle_s : float
         Longest settle dwell after a step [s].
+    sensitivity_band : (float, float) or None
+        ``design.match_sensitivity``: the band (lo, hi) of the line-width sensitivity
+        d ln nu_n / dw every design must lie in [1/m]; None when off.
+    fabrication : planner.spec.FabricationSpec
+        The tolerance model (manufacturability, yield).
     spec_record : dict
         The spec as plan.json records it.
     """
@@ -182,6 +187,8 @@ class Settings:
     max_travel_m: float
     max_acceleration_m_s2: float | None
     max_settle_s: float
+    sensitivity_band: tuple | None = None
+    fabrication: object = None
 
     @property
     def spec(self):
@@ -199,7 +206,7 @@ class Settings:
                     restitution=imp.restitution,
                     slider=build_slider(imp.slider, imp.process, self.environment),
                     max_mass_ratio=self.max_mass_ratio, contact=imp.contact,
-                    **self._robust_kwargs(imp))
+                    sensitivity=self.sensitivity_band, **self._robust_kwargs(imp))
 
     def _robust_kwargs(self, imp) -> dict:
         """``robust_shift`` for the designer when ``design.robust`` is on (k sigma of
@@ -265,7 +272,21 @@ def _bounds(spec):
     b = spec.design.bounds
     kwargs = {key: tuple(getattr(b, key)) for key in ("area_um2", "width_um", "length_um",
                                                         "gap_um") if getattr(b, key) is not None}
+    if spec.design.beam_width_um is not None:
+        # one width for every beam: the designer's width bounds collapse onto it
+        kwargs["width_um"] = (spec.design.beam_width_um, spec.design.beam_width_um)
     return DesignBounds.from_spec(**kwargs) if kwargs else DesignBounds()
+
+
+def _sensitivity_band(spec):
+    """(lo, hi) [1/m] of ``design.match_sensitivity``, or None."""
+    des = spec.design
+    if not des.match_sensitivity:
+        return None
+    from planner.manufacturability import sensitivity_target_per_um
+
+    s = sensitivity_target_per_um(des) / UM
+    return (s * (1.0 - des.sensitivity_tolerance), s * (1.0 + des.sensitivity_tolerance))
 
 
 def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
@@ -285,10 +306,7 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
     """
     spec = loaded.spec
     _check_impacter_sections(loaded)
-    fab = spec.fabrication
-    scatter = any(getattr(fab, k).die > 0 or getattr(fab, k).device > 0
-                  for k in type(fab).model_fields)
-    if spec.design.robust and not scatter:
+    if spec.design.robust and spec.fabrication.zero:
         _refuse(loaded, ("design", "robust"), "design.robust needs fabrication tolerances "
                 "(a fabrication section with a non-zero sigma) to be robust against")
     devices = sorted(loaded.device_ids, key=device_key)
@@ -333,6 +351,8 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
         max_acceleration_m_s2=(drive.max_acceleration_g * G0
                                if drive.max_acceleration_g is not None else None),
         max_settle_s=MAX_SETTLE_S,
+        sensitivity_band=_sensitivity_band(spec),
+        fabrication=spec.fabrication,
     )
 
 

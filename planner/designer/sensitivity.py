@@ -1,0 +1,148 @@
+"""Line-width sensitivity of a design's natural frequency, and the geometry that matches it.
+
+A lithographic line-width error dw moves every drawn edge by dw/2 outward: beams widen
+to w + dw and the mass plate, a square of side sqrt(A), grows to (sqrt(A) + dw)^2; the
+beam length l is set by the anchors and stays (:mod:`planner.fabrication` builds
+as-built chips by the same rule).  With eqs. (2) and (4),
+
+    m = rho t A + 2 rho h w l = c_A A + c_wl w l,    k = K w^3 / l^3,
+
+so the relative shift of nu_n = sqrt(k/m) / (2 pi) per unit of dw is
+
+    S = d ln nu_n / d dw = (3 / w - (2 c_A sqrt(A) + c_wl l) / m) / 2     [1/m].
+
+Beam-dominated mass gives S -> 1/w, plate-dominated S -> 3/(2w) - 1/sqrt(A).  Designs of
+one array with equal S move by one common factor under a die-level line-width error
+(which a re-plan absorbs by scaling every tone); unequal ones are reshuffled by it.
+
+:class:`LineWidthModel` reads c_A, c_wl and K off the designer's impacter factory once
+and then solves, in closed form plus one-dimensional roots, for the beam length that
+gives a natural frequency and for the width (or area) that gives a sensitivity.
+"""
+
+from __future__ import annotations
+
+import math
+
+from scipy import optimize
+
+#: Finite-difference step of the line width for :meth:`LineWidthModel.check` [m].
+FD_STEP_M = 1e-10
+#: Relative tolerance of the roots (length, width, area) [-].
+XTOL_REL = 1e-12
+
+
+class LineWidthModel:
+    """Eqs. (2) and (4) as m = c_A A + c_wl w l and k = K w^3 / l^3, read off ``factory``.
+
+    Parameters
+    ----------
+    factory : callable
+        ``(area, width, length, gap) -> model.Impacter`` by eqs. (2)-(4) (the designer's
+        factory, with the process constants bound).
+
+    Examples
+    --------
+    >>> from planner.designer.design import _impacter_factory
+    >>> from planner.config import ProcessConfig, EnvironmentConfig
+    >>> import math
+    >>> f = _impacter_factory(ProcessConfig(), EnvironmentConfig(), math.pi / 4, 0.5)
+    >>> lw = LineWidthModel(f)
+    >>> round(lw.sensitivity(3e-8, 5e-6, 4e-4) * 1e-6, 4)   # per um
+    0.2876
+    """
+
+    def __init__(self, factory):
+        a = factory(1e-9, 4e-6, 4e-4, 1e-6)
+        b = factory(2e-9, 4e-6, 4e-4, 1e-6)
+        c = factory(1e-9, 8e-6, 4e-4, 1e-6)
+        self.c_area = (b.mass - a.mass) / 1e-9                    # rho t [kg/m^2]
+        self.c_wl = (c.mass - a.mass) / (4e-6 * 4e-4)             # 2 rho h [kg/m^3]
+        self.k_coef = a.stiffness * (4e-4 / 4e-6) ** 3            # K [N/m]
+        self.factory = factory
+
+    def mass(self, area, width, length):
+        """m of eq. (2) [kg]."""
+        return self.c_area * area + self.c_wl * width * length
+
+    def natural_frequency(self, area, width, length):
+        """nu_n [Hz] by eqs. (2) and (4)."""
+        k = self.k_coef * (width / length) ** 3
+        return math.sqrt(k / self.mass(area, width, length)) / (2.0 * math.pi)
+
+    def sensitivity(self, area, width, length):
+        """S = d ln nu_n / d(line width) [1/m] at (A, w, l) [m^2, m, m]."""
+        dm = 2.0 * self.c_area * math.sqrt(area) + self.c_wl * length
+        return 0.5 * (3.0 / width - dm / self.mass(area, width, length))
+
+    def check(self, area, width, length):
+        """S by central differences through ``factory`` itself [1/m] (for tests)."""
+        h = FD_STEP_M
+
+        def nu(dw):
+            side = math.sqrt(area) + dw
+            return self.factory(side * side, width + dw, length, 1e-6).natural_frequency
+
+        return (math.log(nu(h)) - math.log(nu(-h))) / (2.0 * h)
+
+    def length_for(self, area, width, nu_n, bounds):
+        """l [m] with natural frequency ``nu_n`` [Hz], clipped to ``bounds`` (lo, hi) [m]."""
+        l_lo, l_hi = bounds
+        w2 = (2.0 * math.pi * nu_n) ** 2
+        kk = self.k_coef * width ** 3
+
+        def f(log_l):
+            ll = math.exp(log_l)
+            return math.log(kk / ll ** 3) - math.log(self.mass(area, width, ll) * w2)
+
+        if f(math.log(l_lo)) <= 0.0:
+            return l_lo
+        if f(math.log(l_hi)) >= 0.0:
+            return l_hi
+        return math.exp(optimize.brentq(f, math.log(l_lo), math.log(l_hi), xtol=1e-13))
+
+    def _solve(self, g, lo, hi):
+        """Root of g on [lo, hi] (log coordinates), or the end nearer to one."""
+        g_lo, g_hi = g(math.log(lo)), g(math.log(hi))
+        if g_lo == 0.0:
+            return lo
+        if g_hi == 0.0 or (g_lo > 0) == (g_hi > 0):
+            return lo if abs(g_lo) < abs(g_hi) else hi
+        return math.exp(optimize.brentq(g, math.log(lo), math.log(hi),
+                                        xtol=XTOL_REL, rtol=XTOL_REL))
+
+    def width_for(self, area, nu_n, target, width_bounds, length_bounds):
+        """(w, l) [m] with natural frequency ``nu_n`` and sensitivity ``target`` [1/m],
+        w within ``width_bounds``; the nearer bound when no width in them reaches it."""
+        def g(log_w):
+            w = math.exp(log_w)
+            return math.log(self.sensitivity(area, w, self.length_for(area, w, nu_n,
+                                                                         length_bounds))
+                            / target)
+
+        w = self._solve(g, *width_bounds)
+        return w, self.length_for(area, w, nu_n, length_bounds)
+
+    def area_for(self, width, nu_n, target, area_bounds, length_bounds):
+        """(A, l) [m^2, m] with natural frequency ``nu_n`` and sensitivity ``target``
+        [1/m] at the fixed width ``width``, A within ``area_bounds``; the nearer bound
+        when no area in them reaches it."""
+        def g(log_a):
+            a = math.exp(log_a)
+            return math.log(self.sensitivity(a, width, self.length_for(a, width, nu_n,
+                                                                         length_bounds))
+                            / target)
+
+        a = self._solve(g, *area_bounds)
+        return a, self.length_for(a, width, nu_n, length_bounds)
+
+
+def reference_sensitivity(width, beam_mass_fraction):
+    """S [1/m] of a beam of width ``width`` [m] carrying a plate that makes
+    ``1 - beam_mass_fraction`` of the mass, the plate's own edge term neglected:
+    (3 - beam_mass_fraction) / (2 w).
+
+    >>> round(reference_sensitivity(5e-6, 0.2) * 1e-6, 3)
+    0.28
+    """
+    return (3.0 - beam_mass_fraction) / (2.0 * width)

@@ -1,0 +1,125 @@
+"""Stage 7, manufacturability: sensitivities, separations and the collision-free yield.
+
+After the designs are final, every design's sensitivity to each fabrication parameter
+and its separation (silent band and tone window, by simulation once per design) are
+measured, and a Monte Carlo of as-built resonances under the spec's ``fabrication:``
+section predicts the fraction of chips whose impacters a re-planned drive can still tell
+apart (:mod:`planner.manufacturability`).  The result is plan.json's
+``manufacturability`` block.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from planner.fabrication import ERRORS, NodeDesign
+from planner.manufacturability import (
+    CHIPS,
+    collision_free_yield,
+    measure_separation,
+    pair_sigma_rel,
+    sensitivities,
+    z_for,
+)
+from planner.nodes import Node, node_key
+
+
+def told_apart_pairs(assignment, nodes):
+    """Index pairs (into ``nodes``) of the impacters the conflict graph keeps apart."""
+    index = {n: k for k, n in enumerate(nodes)}
+    out = set()
+    for a, b in assignment.graph.edges():
+        for u in assignment.groups[a]:
+            for v in assignment.groups[b]:
+                if u in index and v in index:
+                    out.add(tuple(sorted((index[u], index[v]))))
+    return np.array(sorted(out), dtype=np.int64).reshape(-1, 2)
+
+
+def _node_design(n, design):
+    g = design.geometry
+    node = Node.parse(n)
+    return NodeDesign(n, node.device, node.direction, g.area, g.width, g.length, g.gap,
+                      design.impact_angle_rad, design.restitution)
+
+
+def _tone_amplitudes(steps, assignment, waveforms):
+    """Node -> the smallest amplitude its tone plays at in any step [m]."""
+    out = {}
+    for st in steps:
+        w = waveforms[st.key]
+        req = np.asarray(w.requested_frequencies, dtype=float)
+        for d, r in st.active_nodes():
+            n = Node(d, r).text
+            f = assignment.frequencies.get(n)
+            if f is None or req.size == 0:
+                continue
+            k = int(np.argmin(np.abs(req - f)))
+            out[n] = min(out.get(n, np.inf), float(w.amplitudes[k]))
+    return out
+
+
+def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> dict:
+    """plan.json's ``manufacturability`` block for the final designs.
+
+    Returns
+    -------
+    dict
+        ``sensitivity`` (impacter id -> {parameter: d ln nu / d unit}),
+        ``line_width_sensitivity_per_um`` ({min, max, spread}), ``separation_hz``
+        (impacter id -> :meth:`planner.manufacturability.Separation.to_dict`),
+        ``collision_free_yield`` ({value, ci95, chips}, None without tolerances),
+        ``die_only_yield``, ``device_only_yield``, ``closest_pair_hz``,
+        ``limiting_pairs``, ``nominal_collisions``, ``target_yield``, ``meets_target``,
+        ``pair_sigma_rel`` (the grid's prediction of the scatter of a resonance
+        difference), ``model``.
+    """
+    spec = settings.spec
+    nodes = sorted(designs, key=node_key)
+    fab = settings.fabrication
+    amps = _tone_amplitudes(steps, assignment, waveforms)
+    sens, seps = {}, {}
+    for n in nodes:
+        d = designs[n]
+        sens[n] = sensitivities(spec, _node_design(n, d))
+        seps[n] = measure_separation(
+            d.impacter, assignment.frequencies[n], power=settings.power_m2_s3,
+            amplitude=settings.amplitude_m, tone_amplitude=amps.get(n), window=settings.window_s)
+    lw = np.array([sens[n]["line_width_um"] for n in nodes])
+    out = {
+        "model": ("first-order Monte Carlo of as-built natural frequencies (planner."
+                  "manufacturability); a pair collides when one impacter's tone window "
+                  "lies inside the other's silent band on the chip"),
+        "sensitivity": sens,
+        "line_width_sensitivity_per_um": {
+            "min": float(lw.min()), "max": float(lw.max()),
+            "spread": float(lw.max() / lw.min() - 1.0) if lw.min() > 0 else None},
+        "separation_hz": {n: seps[n].to_dict() for n in nodes},
+        "target_yield": fab.target_yield,
+    }
+    pairs = told_apart_pairs(assignment, nodes)
+    if fab.zero:
+        out.update(collision_free_yield=None, meets_target=None,
+                   note="no fabrication tolerances in the spec (fabrication: all sigmas 0): "
+                        "nothing to predict")
+        return out
+    nu = np.array([designs[n].natural_frequency_hz for n in nodes])
+    tone = np.array([assignment.frequencies[n] for n in nodes])
+    s_mat = np.array([[sens[n][e] for e in ERRORS] for n in nodes])
+    sd_die = np.array([getattr(fab, e).die for e in ERRORS])
+    sd_dev = np.array([getattr(fab, e).device for e in ERRORS])
+    pred = collision_free_yield(
+        nodes, nu, tone, s_mat, sd_die, sd_dev, pairs,
+        silent_below=[seps[n].silent_below_hz for n in nodes],
+        silent_above=[seps[n].silent_above_hz for n in nodes],
+        responds_below=[seps[n].responds_below_hz for n in nodes],
+        responds_above=[seps[n].responds_above_hz for n in nodes],
+        chips=chips, seed=settings.seed)
+    out.update(
+        collision_free_yield=pred.to_dict(), die_only_yield=pred.die_only,
+        device_only_yield=pred.device_only, closest_pair_hz=pred.closest_pair_hz,
+        limiting_pairs=pred.limiting_pairs, nominal_collisions=pred.nominal_collisions,
+        meets_target=bool(pred.value >= fab.target_yield),
+        pair_sigma_rel=pair_sigma_rel(spec),
+        z_for_target=z_for(fab.target_yield, max(len(nodes) - 1, 1)))
+    return out

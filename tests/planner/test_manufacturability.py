@@ -1,0 +1,286 @@
+"""Design for yield (issue 25): matched sensitivities, the tolerance grid, the predicted
+collision-free yield, and the refusal of an array the band cannot hold."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+import yaml
+from click.testing import CliRunner
+from scipy import integrate, stats
+
+from planner.config import EnvironmentConfig, ProcessConfig
+from planner.designer.design import _impacter_factory
+from planner.designer.sensitivity import LineWidthModel
+from planner.fabrication import (
+    ERRORS,
+    ChipDesign,
+    NodeDesign,
+    frequency_sensitivities,
+    sample_chip,
+)
+from planner.manufacturability import (
+    collision_free_yield,
+    pair_sigma_rel,
+    tolerance_grid,
+    z_for,
+)
+from planner.spec import ArraySpec, FabricationSpec
+
+AIR = EnvironmentConfig(viscosity_mpa_s=0.0179)
+ANGLE, E = math.pi / 4, 0.5
+
+
+def _line_width():
+    return LineWidthModel(_impacter_factory(ProcessConfig(), AIR, ANGLE, E))
+
+
+def _node(k, area, width, length, gap=4e-6):
+    return NodeDesign(f"A{k + 1}.forward", f"A{k + 1}", "forward", area, width, length, gap,
+                      ANGLE, E)
+
+
+@pytest.mark.parametrize("area, width, length", [(3e-8, 5e-6, 4e-4), (5e-9, 2e-6, 1.2e-3),
+                                                 (4.5e-8, 9e-6, 2e-4)])
+def test_closed_form_sensitivity_is_the_fabrication_models(area, width, length):
+    """The designer's closed form of d ln nu_n / dw agrees with central differences
+    through the designer's factory and through the as-built equations of
+    planner.fabrication (an independent path: the chip builder)."""
+    lw = _line_width()
+    s = lw.sensitivity(area, width, length)
+    assert s == pytest.approx(lw.check(area, width, length), rel=1e-6)
+    fab = frequency_sensitivities(ArraySpec(), _node(0, area, width, length))
+    assert s * 1e-6 == pytest.approx(fab[0], rel=1e-5)
+    # beam-dominated mass: S -> 1/w; plate-dominated: S -> 3/(2w) - 1/sqrt(A)
+    assert 1.0 / width < s < 1.5 / width
+
+
+def test_matched_designs_keep_their_frequency_ratios_under_a_die_error():
+    """Designs of one line-width sensitivity, at frequencies 6-60 kHz, sampled as real
+    chips (planner.fabrication.sample_chip, the full equations) with a die-level error
+    only: every pairwise ratio of as-built natural frequencies stays as designed to
+    second order, while designs of unmatched widths are reshuffled by the same error."""
+    lw = _line_width()
+    target = 0.22e6          # 1/m
+    matched, unmatched = [], []
+    for k, (nu, area) in enumerate([(6e3, 3e-8), (15e3, 2e-8), (30e3, 1e-8), (60e3, 3e-8)]):
+        w, l = lw.width_for(area, nu, target, (2e-6, 10e-6), (8e-6, 1.5e-3))
+        assert lw.sensitivity(area, w, l) == pytest.approx(target, rel=1e-9)
+        matched.append(_node(k, area, w, l))
+        w2 = (2.2e-6, 9e-6, 3e-6, 7e-6)[k]
+        unmatched.append(_node(k, area, w2, lw.length_for(area, w2, nu, (8e-6, 1.5e-3))))
+    spec = ArraySpec.model_validate({"fabrication": {"line_width_um": {"die": 0.05}}})
+
+    def ratio_change(nodes):
+        design = ChipDesign(spec, tuple(nodes), tuple(n.device for n in nodes))
+        nominal = sample_chip(design, spec.fabrication, np.random.default_rng(0), scale=0.0)
+        worst = 0.0
+        for seed in range(20):
+            chip = sample_chip(design, spec.fabrication, np.random.default_rng(seed))
+            for a, b in itertools.combinations([n.id for n in nodes], 2):
+                r0 = (nominal.impacters[a].natural_frequency
+                      / nominal.impacters[b].natural_frequency)
+                r1 = (chip.impacters[a].natural_frequency
+                      / chip.impacters[b].natural_frequency)
+                worst = max(worst, abs(r1 / r0 - 1.0))
+        return worst
+
+    # a 0.05 um die sigma moves every resonance by ~1.1 % per sigma; matched designs keep
+    # their ratios to second order (measured ~1e-4), unmatched ones lose them by ~1 %
+    assert ratio_change(matched) < 5e-4
+    assert ratio_change(unmatched) > 5e-3
+
+
+def test_the_designer_keeps_a_design_inside_the_sensitivity_band():
+    """A real (fast) design with a sensitivity band returns a design inside it."""
+    from planner.config import SliderConfig
+    from planner.designer import design_impacter
+
+    band = (0.22e6 * 0.95, 0.22e6 * 1.05)
+    res = design_impacter(25000.0, (24000.0, 26000.0), environment=AIR, budget="fast",
+                          slider=SliderConfig(area_um2=1.6e5), max_mass_ratio=0.4,
+                          contact="two_body", guard=0.004, sensitivity=band, seed=1)
+    g = res.geometry
+    s = _line_width().sensitivity(g.area, g.width, g.length)
+    assert band[0] * (1 - 1e-9) <= s <= band[1] * (1 + 1e-9)
+    assert res.checks["line_width_sensitivity_per_um"] == pytest.approx(s * 1e-6)
+    # and a fixed beam width is kept, the area solved for the sensitivity instead
+    from planner.designer import DesignBounds
+
+    res = design_impacter(25000.0, (24000.0, 26000.0), environment=AIR, budget="fast",
+                          slider=SliderConfig(area_um2=1.6e5), max_mass_ratio=0.4,
+                          contact="two_body", guard=0.004, seed=1,
+                          bounds=DesignBounds(width=(6e-6, 6e-6)))
+    assert res.geometry.width == 6e-6
+
+
+def test_tolerance_grid_widens_with_the_scatter():
+    """Channels are separation_hz + z sigma f apart: uniform without scatter, wider at
+    the top than at the bottom with it, and fewer when the scatter grows."""
+    flat = tolerance_grid((5000.0, 20000.0), 500.0, 0.0, 3.0)
+    assert np.allclose(np.diff(flat), 500.0)
+    g = tolerance_grid((5000.0, 60000.0), 400.0, 0.006, 3.0)
+    steps = np.diff(g)
+    assert np.all(np.diff(steps) > 0)
+    assert steps[0] == pytest.approx(400.0 + 3.0 * 0.006 * 5000.0)
+    assert steps[-1] == pytest.approx(400.0 + 3.0 * 0.006 * g[-2])
+    assert g[-1] <= 60000.0 < g[-1] + 400.0 + 3.0 * 0.006 * g[-1]
+    wider = tolerance_grid((5000.0, 60000.0), 400.0, 0.012, 3.0)
+    assert len(wider) < len(g)
+    # sub-channels: 4 channels make one separation
+    fine = tolerance_grid((5000.0, 60000.0), 400.0, 0.006, 3.0, sub=4)
+    assert fine[4] - fine[0] == pytest.approx(g[1] - g[0], rel=0.02)
+
+
+def test_spec_grid_follows_the_fabrication_section():
+    """drive.channels.spacing: tolerance reads the sigmas and the target yield: a larger
+    sigma or a higher target gives fewer channels in the same band."""
+    from planner.spec import channel_grid
+
+    def spec(device, target=0.95):
+        return ArraySpec.model_validate({
+            "array": {"rows": 2, "cols": 2},
+            "drive": {"band_hz": [5000, 60000], "channels": {"spacing": "tolerance"},
+                      "guard": {"separation_channels": 1}},
+            "fabrication": {"line_width_um": {"die": 0.05, "device": device},
+                            "target_yield": target}})
+
+    base = channel_grid(spec(0.02))
+    assert len(channel_grid(spec(0.04))) < len(base)
+    assert len(channel_grid(spec(0.02, 0.99))) < len(base)
+    s = spec(0.02)
+    # matched (the default): sqrt(2) S* sigma_device, plus the die error times the
+    # matched band's spread
+    assert pair_sigma_rel(s) == pytest.approx(
+        math.sqrt(2 * (0.28 * 0.02) ** 2 + (2 * 0.05 * 0.28 * 0.05) ** 2 / 6), rel=1e-3)
+    z = z_for(0.95, 7)            # 8 impacters of a 2 x 2 array, all told apart
+    assert base[1] - base[0] == pytest.approx(400 + z * pair_sigma_rel(s) * 5000)
+
+
+def _exact_pair_yield(nu1, nu2, a, d):
+    """P(|nu1 exp(a z1) - nu2 exp(a z2)| >= d), z1, z2 standard normal: the inner
+    probability in closed form, the outer by quadrature."""
+    def inner(z1):
+        x = nu1 * math.exp(a * z1)
+        hi = stats.norm.cdf(math.log((x + d) / nu2) / a)
+        lo = stats.norm.cdf(math.log((x - d) / nu2) / a) if x > d else 0.0
+        return stats.norm.pdf(z1) * (hi - lo)
+
+    collide, _ = integrate.quad(inner, -9, 9, epsabs=1e-12, limit=200)
+    return 1.0 - collide
+
+
+def test_monte_carlo_yield_of_two_impacters_matches_the_exact_value():
+    """Two impacters 600 Hz apart at 30 kHz, 1 % device-level scatter each, colliding
+    when their resonances come within 400 Hz: the Monte Carlo's interval holds the
+    exact probability."""
+    nu = np.array([30000.0, 30600.0])
+    sens = np.zeros((2, len(ERRORS)))
+    sens[:, ERRORS.index("natural_frequency_pct")] = 0.01       # 1/%
+    sd_dev = np.zeros(len(ERRORS))
+    sd_dev[ERRORS.index("natural_frequency_pct")] = 1.0          # 1 %
+    pred = collision_free_yield(["a", "b"], nu, nu, sens, np.zeros(len(ERRORS)), sd_dev,
+                                [[0, 1]], silent_below=[400, 400], silent_above=[400, 400],
+                                chips=40000, seed=3)
+    exact = _exact_pair_yield(30000.0, 30600.0, 0.01, 400.0)
+    assert 0.4 < exact < 0.8
+    assert pred.ci95[0] <= exact <= pred.ci95[1]
+    assert pred.die_only == 1.0 and pred.device_only == pred.value
+    assert pred.limiting_pairs[0]["pair"] == ["a", "b"]
+    assert pred.nominal_collisions == []
+
+
+def test_monte_carlo_against_chips_sampled_through_the_full_equations():
+    """The first-order Monte Carlo against chips built by planner.fabrication.sample_chip
+    (the full equations, its own draws): the same collision rule on both gives yields
+    within their intervals."""
+    lw = _line_width()
+    nodes = []
+    for k, nu in enumerate((20000.0, 20800.0, 21700.0)):
+        w, l = lw.width_for(2e-8, nu, 0.25e6, (2e-6, 10e-6), (8e-6, 1.5e-3))
+        nodes.append(_node(k, 2e-8, w, l))
+    spec = ArraySpec.model_validate(
+        {"fabrication": {"line_width_um": {"die": 0.05, "device": 0.06}}})
+    design = ChipDesign(spec, tuple(nodes), tuple(n.device for n in nodes))
+    nominal = sample_chip(design, spec.fabrication, np.random.default_rng(0), scale=0.0)
+    nu0 = np.array([nominal.impacters[n.id].natural_frequency for n in nodes])
+    pairs = [[0, 1], [1, 2], [0, 2]]
+    chips, ok = 4000, 0
+    for i in range(chips):
+        chip = sample_chip(design, spec.fabrication, np.random.default_rng(1000 + i))
+        f = np.array([chip.impacters[n.id].natural_frequency for n in nodes])
+        ok += all(abs(f[a] - f[b]) >= 400.0 for a, b in pairs)
+    sens = np.array([frequency_sensitivities(spec, n) for n in nodes])
+    fab = spec.fabrication
+    pred = collision_free_yield([n.id for n in nodes], nu0, nu0, sens,
+                                [getattr(fab, e).die for e in ERRORS],
+                                [getattr(fab, e).device for e in ERRORS], pairs,
+                                silent_below=[400] * 3, silent_above=[400] * 3, chips=20000)
+    from planner.yield_ import wilson_interval
+
+    lo, hi = wilson_interval(ok, chips)
+    assert 0.2 < pred.value < 0.95
+    # the two estimates' intervals overlap
+    assert pred.ci95[0] <= hi and lo <= pred.ci95[1]
+
+
+def test_an_array_the_band_cannot_hold_is_refused_in_seconds(tmp_path):
+    """A 5 x 5 independently addressable array on a 5-20 kHz tolerance grid: refused by
+    the CLI with exit 2 before any design, saying how many fit and what would help."""
+    from planner.cli import main
+
+    spec = tmp_path / "big.yaml"
+    spec.write_text(yaml.safe_dump({
+        "name": "big", "array": {"rows": 5, "cols": 5},
+        "drive": {"band_hz": [5000, 20000], "channels": {"spacing": "tolerance"}},
+        "fabrication": {"line_width_um": {"die": 0.05, "device": 0.02}}}))
+    res = CliRunner().invoke(main, ["plan", str(spec), "--out", str(tmp_path / "out")])
+    assert res.exit_code == 2, res.output
+    assert "holds only 22" in res.output
+    assert "drive.band_hz" in res.output and "fabrication.target_yield" in res.output
+    assert "independent: false" in res.output
+    assert not (tmp_path / "out").exists()
+
+
+def test_dry_run_predicts_the_yield_from_the_grid(tmp_path):
+    """--dry-run prints the collision-free yield of the channel grid before any design;
+    a grid sized for 0.95 predicts about 0.95, an old 500 Hz linear grid far less."""
+    from planner.cli import main
+
+    def dry(drive):
+        spec = tmp_path / "s.yaml"
+        design = drive.pop("design", {})
+        spec.write_text(yaml.safe_dump({
+            "name": "s", "array": {"rows": 2, "cols": 2}, "drive": drive, "design": design,
+            "fabrication": {"line_width_um": {"die": 0.05, "device": 0.02}}}))
+        res = CliRunner().invoke(main, ["plan", str(spec), "--dry-run"])
+        assert res.exit_code == 0, res.output
+        line = next(x for x in res.output.splitlines() if "collision-free yield" in x)
+        return float(line.split("yield ")[1].split()[0])
+
+    spec = ArraySpec.model_validate({"fabrication": {"line_width_um": {"die": 0.05,
+                                                                       "device": 0.02}}})
+    # a band that holds the 8 impacters of a 2 x 2 array exactly (no spare room for the
+    # assigner to spread the tones over): the grid's own yield, about 0.95
+    top = tolerance_grid((20000.0, 1e6), 400.0, pair_sigma_rel(spec), z_for(0.95, 7))[7]
+    tol = dry({"band_hz": [20000, float(top) + 1.0], "channels": {"spacing": "tolerance"},
+               "guard": {"separation_channels": 1}})
+    assert 0.93 <= tol <= 0.97
+    # spare room: the assigner spreads the tones (stride), and the yield rises
+    assert dry({"band_hz": [20000, 2 * float(top)], "channels": {"spacing": "tolerance"},
+                "guard": {"separation_channels": 1}}) > 0.99
+    lin = dry({"band_hz": [36000, 40000], "channels": {"spacing": "linear", "count": 41},
+               "guard": {"separation_channels": 5}, "design": {"guard": 0.004}})
+    assert lin < 0.5
+
+
+def test_no_tolerance_no_yield():
+    """Without fabrication tolerances nothing is predicted (a yield of 1 would be a
+    claim about nothing)."""
+    from planner.manufacturability import prediction_lines
+
+    assert FabricationSpec().zero
+    assert "not predicted" in prediction_lines(None, 0.95, before_designs=True)[0]
