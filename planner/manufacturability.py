@@ -392,6 +392,17 @@ class YieldPrediction:
     def to_dict(self) -> dict:
         return {"value": self.value, "ci95": list(self.ci95), "chips": self.chips}
 
+    @classmethod
+    def from_block(cls, block: dict) -> "YieldPrediction | None":
+        """The prediction recorded in plan.json's ``manufacturability`` block (None if the
+        plan predicted none)."""
+        y = block.get("collision_free_yield")
+        if y is None:
+            return None
+        return cls(y["value"], tuple(y["ci95"]), y["chips"], block.get("die_only_yield"),
+                   block.get("device_only_yield"), block.get("closest_pair_hz") or {},
+                   block.get("limiting_pairs") or [], block.get("nominal_collisions") or [])
+
 
 def _collisions(nu, tone, below, above, lo, hi, g, pairs):
     """(chips, pairs) bool: pair collides on the chip (see the module notes)."""

@@ -220,3 +220,51 @@ def slider_positions(scene_rows, path):
                       title_fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     save(fig, path)
+
+
+def manufacturability(impacters, block, path):
+    """Design for yield: each design's line-width sensitivity against its tone (the
+    matched band shaded), and the distance from each resonance to the next one up
+    against what a collision-free chip needs.
+
+    Parameters
+    ----------
+    impacters : list of dict
+        plan.json's impacter records (``id``, ``frequency_hz``, ``natural_frequency_hz``).
+    block : dict
+        plan.json's ``manufacturability`` block.
+    path : path
+        The PNG.
+    """
+    recs = sorted(impacters, key=lambda r: r["natural_frequency_hz"])
+    f = np.array([r["frequency_hz"] for r in recs]) / 1e3
+    nu = np.array([r["natural_frequency_hz"] for r in recs])
+    s = np.array([block["sensitivity"][r["id"]]["line_width_um"] for r in recs])
+    sep = block["separation_hz"]
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.8))
+    band = block.get("sensitivity_band_per_um")
+    if band:
+        a1.axhspan(band[0], band[1], color="C2", alpha=0.15, label="matched band")
+    a1.plot(f, s, "o", ms=4, label="design")
+    a1.set_xlabel("tone [kHz]")
+    a1.set_ylabel("d ln nu_n / d line width [1/um]")
+    a1.set_title("line-width sensitivity")
+    a1.legend(fontsize=8)
+    gap = np.diff(nu)
+    need = np.array([max(sep[recs[k + 1]["id"]]["silent_below"], sep[recs[k]["id"]]["silent_above"])
+                     for k in range(len(recs) - 1)])
+    mid = 0.5 * (nu[1:] + nu[:-1]) / 1e3
+    a2.plot(mid, gap, "o", ms=4, label="designed distance to the next resonance")
+    a2.plot(mid, need, "s", ms=3, color="C3", label="wider silent band of the two")
+    sig = block.get("pair_sigma_rel")
+    if sig:
+        a2.errorbar(mid, gap, yerr=3 * sig * nu[1:], fmt="none", ecolor="C0", alpha=0.4,
+                    label="+-3 sigma of its scatter")
+    a2.set_yscale("log")
+    a2.set_xlabel("frequency [kHz]")
+    a2.set_ylabel("[Hz]")
+    y = block.get("collision_free_yield")
+    a2.set_title("neighbours" + (f": predicted collision-free yield {y['value']:.3f}" if y else ""))
+    a2.legend(fontsize=7)
+    fig.tight_layout()
+    save(fig, path)

@@ -118,6 +118,12 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
         bars.close()
         for line in estimate(settings, steps, assignment, jobs).lines():
             click.echo(line, err=True)
+        from planner.manufacturability import prediction_lines, predict_from_channels
+
+        for line in prediction_lines(predict_from_channels(settings.spec, assignment,
+                                                           seed=settings.seed),
+                                     settings.fabrication.target_yield, before_designs=True):
+            click.echo(line, err=True)
 
     try:
         result = plan(loaded, out_dir=out_dir, seed=seed, progress=bars,
@@ -144,6 +150,12 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
         click.echo(line)
     t = result.timings
     click.echo("time: " + ", ".join(f"{k} {v:.1f} s" for k, v in t.items()))
+    from planner.manufacturability import YieldPrediction, prediction_lines
+
+    m = d.get("manufacturability") or {}
+    for line in prediction_lines(YieldPrediction.from_block(m), m.get("target_yield", 0.95),
+                                 before_designs=False):
+        click.echo(line)
     dc = result.design_cache
     if dc is not None:
         click.echo(f"designs: {dc['designed']} distinct, {dc['read']} read from the design "

@@ -96,6 +96,8 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
             "spread": float(lw.max() / lw.min() - 1.0) if lw.min() > 0 else None},
         "separation_hz": {n: seps[n].to_dict() for n in nodes},
         "target_yield": fab.target_yield,
+        "sensitivity_band_per_um": (None if settings.sensitivity_band is None else
+                                    [b * 1e-6 for b in settings.sensitivity_band]),
     }
     pairs = told_apart_pairs(assignment, nodes)
     if fab.zero:

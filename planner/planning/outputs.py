@@ -91,6 +91,9 @@ def _figures(result, out_dir):
         rp.waveform_and_spectrum(result.waveforms[k], figs / _drive_figure_name(k), k)
     if result.data["scenes"]:
         rp.slider_positions(result.data["scenes"], figs / "slider_positions.png")
+    if result.data.get("manufacturability"):
+        rp.manufacturability(result.data["impacters"], result.data["manufacturability"],
+                             figs / "manufacturability.png")
 
 
 def _md_table(header, rows):
@@ -181,8 +184,9 @@ def _report(result, out_dir):
     lines += _md_table(["impacter", "channel", "tone [kHz]", "nu_n [kHz]", "A [um^2]", "w [um]",
                         "l [um]", "gap [um]", "mass [ng]", "r_min [nN]", "m/M",
                         "speed [mm/s]", "feasible"], rows)
-    lines += ["", "![response curves](figures/response_curves.png)", "",
-              "## Cross-coupling", "",
+    lines += ["", "![response curves](figures/response_curves.png)", ""]
+    lines += _manufacturability_section(d)
+    lines += ["## Cross-coupling", "",
               "Worst response of every impacter to every tone alone, over the x0 grid "
               "(coupling.csv).", "", "![coupling](figures/coupling.png)", "", "## Steps", ""]
     summary = _step_summary(ver)
@@ -248,6 +252,47 @@ def _report(result, out_dir):
     lines += ["", "## Timings", ""]
     lines += _md_table(["stage", "seconds"], [[k, f"{v:.2f}"] for k, v in result.timings.items()])
     (out_dir / "report.md").write_text("\n".join(lines) + "\n")
+
+
+def _manufacturability_section(d):
+    """Design for yield: what a fabricated chip does to these designs."""
+    m = d.get("manufacturability")
+    if not m:
+        return []
+    lw = m["line_width_sensitivity_per_um"]
+    seps = m["separation_hz"].values()
+    out = ["## Manufacturability", "",
+           f"Line-width sensitivity d ln nu_n / dw of the {len(m['sensitivity'])} designs: "
+           f"{lw['min']:.4f}-{lw['max']:.4f} per um"
+           + (f" (spread {100 * lw['spread']:.1f} %)" if lw.get("spread") is not None else "")
+           + (f", matched band {m['sensitivity_band_per_um'][0]:.4f}-"
+              f"{m['sensitivity_band_per_um'][1]:.4f} per um" if m.get("sensitivity_band_per_um")
+              else ", not matched (design.match_sensitivity: false)")
+           + ": a die-level line-width error moves every resonance by nearly one factor, "
+           "which a re-plan absorbs.  Silent bands (how far from its resonance a tone must "
+           f"be for an impacter to stay silent from every x0 at full power): "
+           f"{min(s['silent_beyond'] for s in seps):.0f}-"
+           f"{max(s['silent_beyond'] for s in seps):.0f} Hz; tone windows (how far its own "
+           f"tone may move and still drive it): {min(s['responds_within'] for s in seps):.0f}-"
+           f"{max(s['responds_within'] for s in seps):.0f} Hz.", ""]
+    y = m.get("collision_free_yield")
+    if y is None:
+        out += [f"Collision-free yield: not predicted ({m.get('note', 'no tolerances')}).", ""]
+    else:
+        c = m["closest_pair_hz"]
+        out += [f"**Predicted collision-free yield {y['value']:.3f}** (95 % CI "
+                f"{y['ci95'][0]:.3f}-{y['ci95'][1]:.3f}, {y['chips']} chips; target "
+                f"{m['target_yield']:g}): the fraction of fabricated chips on which a drive "
+                "re-planned from the measured resonances can still tell every pair apart "
+                f"that must be told apart.  Die-level errors alone: {m['die_only_yield']:.3f}; "
+                f"device-level alone: {m['device_only_yield']:.3f}.  Closest as-built pair: "
+                f"median {c['median']:.0f} Hz (5-95 %: {c['p5']:.0f}-{c['p95']:.0f} Hz).", ""]
+        if m["limiting_pairs"]:
+            out += _md_table(["pair", "collides on", "designed distance [Hz]"],
+                             [[" / ".join(p["pair"]), f"{100 * p['collision_fraction']:.2f} %",
+                               f"{p['nominal_separation_hz']:.0f}"]
+                              for p in m["limiting_pairs"]]) + [""]
+    return out + ["![manufacturability](figures/manufacturability.png)", ""]
 
 
 def _travel_range(rec):

@@ -284,3 +284,36 @@ def test_no_tolerance_no_yield():
 
     assert FabricationSpec().zero
     assert "not predicted" in prediction_lines(None, 0.95, before_designs=True)[0]
+
+
+def test_plan_records_its_manufacturability(tmp_path):
+    """A real plan of the tiny spec with a fabrication section: plan.json carries the
+    pinned manufacturability keys (every design's sensitivities and separations, the
+    yield with its interval), the CLI prints it and report.md shows it with a figure."""
+    import json
+
+    from planner.cli import main
+    from tests.planner.test_pipeline import TINY
+
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(TINY + "fabrication:\n  line_width_um: {die: 0.05, device: 0.02}\n")
+    out = tmp_path / "plan"
+    res = CliRunner().invoke(main, ["plan", str(spec), "--out", str(out), "--jobs", "1"])
+    assert res.exit_code == 0, res.output
+    assert "predicted collision-free yield" in res.output
+    d = json.loads((out / "plan.json").read_text())
+    m = d["manufacturability"]
+    ids = [r["id"] for r in d["impacters"]]
+    assert set(m["sensitivity"]) == set(m["separation_hz"]) == set(ids)
+    for n in ids:
+        assert set(m["sensitivity"][n]) == set(ERRORS)
+        assert 0.266 <= m["sensitivity"][n]["line_width_um"] <= 0.294   # the matched band
+        sep = m["separation_hz"][n]
+        assert sep["silent_beyond"] > 0 and sep["responds_within"] >= 0
+    y = m["collision_free_yield"]
+    assert set(y) == {"value", "ci95", "chips"} and y["chips"] == 10000
+    assert y["ci95"][0] <= y["value"] <= y["ci95"][1]
+    assert isinstance(m["limiting_pairs"], list)
+    report = (out / "report.md").read_text()
+    assert "## Manufacturability" in report and "Predicted collision-free yield" in report
+    assert (out / "figures" / "manufacturability.png").stat().st_size > 10000

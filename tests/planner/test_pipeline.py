@@ -13,7 +13,7 @@ name: tiny
 array: {rows: 1, cols: 2}
 independent: false
 drive:
-  band_hz: [3000, 12000]
+  band_hz: [5000, 14000]
   channels: {count: 60}
 verification: {repair_rounds: 0, x0_points: 5}
 scenes:
