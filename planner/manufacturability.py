@@ -203,7 +203,7 @@ def told_apart_count(spec) -> int:
 def spec_tolerance_grid(spec) -> np.ndarray:
     """The channel grid of a spec with ``drive.channels.spacing: tolerance`` [Hz]."""
     z = z_for(spec.fabrication.target_yield, told_apart_count(spec) - 1)
-    return tolerance_grid(spec.drive.band_hz, spec.drive.channels.separation_hz,
+    return tolerance_grid(spec.drive.band_hz, spec.drive.channels.resonance_separation_hz,
                           pair_sigma_rel(spec), z, spec.drive.guard.separation_channels)
 
 
@@ -229,7 +229,7 @@ class Separation:
     responds_below_hz, responds_above_hz : float
         Its tone may move down or up this far and still drive it (least response over
         x0 at least :data:`RESPONDS_FRACTION` of the planned tone's) [Hz], at the
-        smallest amplitude its tone plays at.
+        amplitude its tone plays at alone.
     """
 
     natural_frequency_hz: float
@@ -302,8 +302,8 @@ def measure_separation(impacter, tone_hz, *, power=50.0, amplitude=None, tone_am
     amplitude : float, optional
         A fixed tone amplitude [m] instead of the power convention.
     tone_amplitude : float, optional
-        The smallest amplitude its own tone plays at [m] (a multi-tone step lowered by
-        the acceleration limit); default the power convention's at ``tone_hz``.
+        The amplitude its own tone plays at where it must be told apart from its
+        neighbours [m]; default the power convention's at ``tone_hz``.
     x0s : array_like, optional
         Initial positions [m]; default the designer's grid over [-c, c].
     window : float
@@ -532,7 +532,7 @@ def predict_from_channels(spec, assignment, *, chips=CHIPS, seed=0) -> YieldPred
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 26]))
     # each design's sensitivity somewhere in the matched band (or the unmatched range)
     sens = s[None, :] + (rng.random((len(nodes), len(ERRORS))) - 0.5) * spread[None, :]
-    sep = spec.drive.channels.separation_hz
+    sep = spec.drive.channels.resonance_separation_hz
     edge = np.full(len(nodes), float(sep))
     return collision_free_yield(nodes, f, f, sens,
                                 [getattr(fab, k).die for k in ERRORS],

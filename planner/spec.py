@@ -81,24 +81,42 @@ class ChannelGrid(_Strict):
         difference of two as-built resonances under the ``fabrication:`` section at
         ``fabrication.target_yield`` (:func:`planner.manufacturability.tolerance_grid`):
         wider where the scatter in Hz is larger.  The count then follows from the band.
-    count : the number of channels of a ``log`` or ``linear`` grid.
+    count : the number of channels of a ``log`` or ``linear`` grid (default
+        :data:`DEFAULT_CHANNELS`); refused with ``tolerance``.
     separation_hz : how close two as-built resonances may be and still be told apart by
-        a drive re-planned for the chip [Hz]: the width of an impacter's response band,
-        about 300-450 Hz in air at every frequency (used by ``spacing: tolerance``).
+        a drive re-planned for the chip [Hz]: about the width of an impacter's response
+        band, 300-500 Hz in air at every frequency (``tolerance`` only; default
+        :data:`DEFAULT_SEPARATION_HZ`).
     """
 
     spacing: Literal["log", "linear", "tolerance"] = "log"
-    count: Annotated[int, Field(ge=2, le=100000)] = 240
-    separation_hz: PositiveFloat = 400.0
+    count: Annotated[int, Field(ge=2, le=100000)] | None = None
+    separation_hz: PositiveFloat | None = None
 
     @model_validator(mode="after")
     def _count_or_tolerance(self):
-        if self.spacing == "tolerance" and "count" in self.model_fields_set:
+        if self.spacing == "tolerance" and self.count is not None:
             raise ValueError("count cannot be given with spacing: tolerance (the band and "
                              "the tolerance set how many channels there are)")
-        if self.spacing != "tolerance" and "separation_hz" in self.model_fields_set:
+        if self.spacing != "tolerance" and self.separation_hz is not None:
             raise ValueError("separation_hz applies to spacing: tolerance only")
         return self
+
+    @property
+    def channel_count(self) -> int:
+        """The count of a log or linear grid."""
+        return DEFAULT_CHANNELS if self.count is None else self.count
+
+    @property
+    def resonance_separation_hz(self) -> float:
+        """The separation of a tolerance grid [Hz]."""
+        return DEFAULT_SEPARATION_HZ if self.separation_hz is None else self.separation_hz
+
+
+#: Channels of a log or linear grid without ``count``.
+DEFAULT_CHANNELS = 240
+#: ``drive.channels.separation_hz`` of a tolerance grid without one [Hz].
+DEFAULT_SEPARATION_HZ = 400.0
 
 
 class GuardRules(_Strict):
@@ -512,7 +530,7 @@ def channel_grid(spec: ArraySpec):
 
         return spec_tolerance_grid(spec)
     lo, hi = spec.drive.band_hz
-    n = spec.drive.channels.count
+    n = spec.drive.channels.channel_count
     if spec.drive.channels.spacing == "log":
         return np.geomspace(lo, hi, n)
     return np.linspace(lo, hi, n)
@@ -525,7 +543,7 @@ def separation_for_bandwidth(spec: ArraySpec, relative_halfwidth: float) -> int:
     relative half-width b around each needs rho^k >= (1 + b) / (1 - b).
     """
     lo, hi = spec.drive.band_hz
-    n = spec.drive.channels.count
+    n = spec.drive.channels.channel_count
     b = min(max(relative_halfwidth, 1e-6), 0.99)
     if spec.drive.channels.spacing == "log":
         rho = (hi / lo) ** (1.0 / (n - 1))

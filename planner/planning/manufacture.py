@@ -44,7 +44,10 @@ def _node_design(n, design):
 
 
 def _tone_amplitudes(steps, assignment, waveforms):
-    """Node -> the smallest amplitude its tone plays at in any step [m]."""
+    """Node -> the largest amplitude its tone plays at in any step [m]: its own
+    single-tone step's, where it must be told apart from its neighbours (a multi-tone
+    step lowered by the acceleration limit holds only tones far from its idle
+    impacters: the ensemble separation)."""
     out = {}
     for st in steps:
         w = waveforms[st.key]
@@ -55,7 +58,7 @@ def _tone_amplitudes(steps, assignment, waveforms):
             if f is None or req.size == 0:
                 continue
             k = int(np.argmin(np.abs(req - f)))
-            out[n] = min(out.get(n, np.inf), float(w.amplitudes[k]))
+            out[n] = max(out.get(n, 0.0), float(w.amplitudes[k]))
     return out
 
 

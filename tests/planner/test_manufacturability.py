@@ -317,3 +317,35 @@ def test_plan_records_its_manufacturability(tmp_path):
     report = (out / "report.md").read_text()
     assert "## Manufacturability" in report and "Predicted collision-free yield" in report
     assert (out / "figures" / "manufacturability.png").stat().st_size > 10000
+
+
+@pytest.mark.parametrize("section, message", [
+    ({"drive": {"channels": {"spacing": "tolerance", "count": 100}}}, "count cannot be given"),
+    ({"drive": {"channels": {"spacing": "linear", "separation_hz": 300}}},
+     "separation_hz applies to spacing: tolerance only"),
+    ({"design": {"beam_width_um": 6, "bounds": {"width_um": [3, 8]}}}, "beam_width_um fixes"),
+    ({"design": {"match_sensitivity": False, "sensitivity_per_um": 0.2}},
+     "sensitivity_per_um needs match_sensitivity"),
+    ({"fabrication": {"target_yield": 1.0}}, "target_yield"),
+])
+def test_contradicting_design_for_yield_fields_are_refused_with_their_line(section, message):
+    from planner.errors import SpecError
+    from planner.spec import load_spec
+
+    text = yaml.safe_dump({"name": "t", "array": {"rows": 1, "cols": 2}, **section})
+    with pytest.raises(SpecError) as err:
+        load_spec(text + "\n")
+    assert message in str(err.value)
+    assert err.value.line is not None
+
+
+def test_a_spec_read_back_from_plan_json_validates():
+    """plan.json records every default; a tolerance grid's record (count: null) and a
+    linear grid's (separation_hz: null) both validate again (yield and replan read it)."""
+    import json
+
+    for channels in ({"spacing": "tolerance"}, {"spacing": "linear", "count": 50}):
+        spec = ArraySpec.model_validate({"drive": {"band_hz": [5000, 60000],
+                                                   "channels": channels}})
+        again = ArraySpec.model_validate(json.loads(spec.model_dump_json()))
+        assert again == spec
