@@ -289,6 +289,21 @@ class FabricationSpec(_Strict):
                    if isinstance(getattr(self, k), Tolerance))
 
 
+class TrimSpec(_Strict):
+    """Post-fabrication trimming of the impacters' resonances (``vibroplan trim``).
+
+    range_pct : the largest move of one resonance [%] (a laser or FIB cut).
+    direction : ``up`` removes plate mass (the resonance rises), ``down`` removes beam
+        stiffness by cutting the beam free of its anchor over a length (it falls).  A
+        trim moves a resonance one way only.
+    precision_pct : one sigma of the error of a trim, relative to the resonance [%].
+    """
+
+    range_pct: Annotated[float, Field(gt=0, le=20, allow_inf_nan=False)] = 1.0
+    direction: Literal["up", "down"] = "up"
+    precision_pct: Annotated[float, Field(ge=0, le=5, allow_inf_nan=False)] = 0.1
+
+
 class StepSpec(_Strict):
     """One step of a scene: who moves which way, for how long or how far.
 
@@ -334,6 +349,9 @@ class ArraySpec(_Strict):
     verification: VerificationSpec = VerificationSpec()
     #: Fabrication tolerances for ``vibroplan yield``; all zero by default.
     fabrication: FabricationSpec = FabricationSpec()
+    #: How a fabricated chip's resonances may be trimmed (``vibroplan trim``); None: the
+    #: defaults of :class:`TrimSpec` when trimming is asked for.
+    trim: TrimSpec | None = None
     independent: bool | None = None
     scenes: dict[str, list[StepSpec]] = {}
 

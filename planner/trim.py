@@ -1,0 +1,276 @@
+"""Trimming a fabricated chip: one-way moves of its resonances that make every pair separable.
+
+After fabrication a lab measures every impacter's resonance (``vibroplan calibrate``).
+Where two that must be told apart came too close, a cut can still move one of them -- one
+way only: removing plate mass raises a resonance (``trim.direction: up``), cutting a beam
+free of its anchor over a length lowers it (``down``) -- by at most ``trim.range_pct``.
+:func:`plan_trim` chooses the targets with the fewest and smallest moves; :func:`cut_for`
+says what to cut, through eqs. (2)-(4); the drive is then re-planned for the trimmed chip.
+
+When are two resonances separable?
+----------------------------------
+The plan's ``manufacturability`` block gives every design its silent band (it answers a
+tone from some x0 only within (nu - a, nu + b)) and its tone window (its tone may sit
+anywhere in [t - lo, t + hi] and still drive it), and the re-plan keeps each tone's place
+relative to its resonance, t = rho nu (rho = the designed tone over the designed nu_n).
+Two impacters i below j are separable when some tone of i's window lies below j's silent
+band and some tone of j's window above i's:
+
+    nu_j >= max(rho_i nu_i - lo_i + a_j, (nu_i + b_i - hi_j) / rho_j) + margin,
+
+the margin covering the trim's own error (:data:`MARGIN_SIGMAS` sigmas of
+``trim.precision_pct`` on both).  This is the collision rule of
+:mod:`planner.manufacturability`, solved for nu_j.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: Sigmas of the trim precision kept between two trimmed targets, on top of the
+#: separation: a trimmed pair then stays separable on ~98 % of trims [-].
+MARGIN_SIGMAS = 2.0
+#: Relative tolerance of "already separable": a move smaller than this is no move [-].
+MOVE_TOL = 1e-9
+#: Passes of :func:`plan_trim` over the impacters (each pass clears what the previous
+#: moves crossed; two suffice on the default plan's chips).
+MAX_PASSES = 8
+
+
+@dataclass(frozen=True)
+class Separations:
+    """What :func:`plan_trim` needs of each impacter, as arrays over impacters.
+
+    Attributes
+    ----------
+    ids : tuple of str
+    rho : ndarray
+        Designed tone / designed natural frequency [-].
+    below, above : ndarray
+        Silent band reach below and above the resonance [Hz].
+    lo, hi : ndarray
+        Tone window reach below and above the tone [Hz].
+    """
+
+    ids: tuple
+    rho: np.ndarray
+    below: np.ndarray
+    above: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+
+    @classmethod
+    def from_plan(cls, data: dict) -> "Separations":
+        """From a plan.json dict (its impacters and ``manufacturability`` block).
+
+        Raises
+        ------
+        ValueError
+            The plan has no ``manufacturability`` block (made before issue 25).
+        """
+        m = data.get("manufacturability")
+        if not m or "separation_hz" not in m:
+            raise ValueError("plan.json has no manufacturability.separation_hz (a plan made "
+                             "before design for yield): re-plan it with this version")
+        recs = sorted(data["impacters"], key=lambda r: r["id"])
+        sep = m["separation_hz"]
+        return cls(tuple(r["id"] for r in recs),
+                   np.array([r["frequency_hz"] / r["natural_frequency_hz"] for r in recs]),
+                   np.array([sep[r["id"]]["silent_below"] for r in recs]),
+                   np.array([sep[r["id"]]["silent_above"] for r in recs]),
+                   np.array([sep[r["id"]]["responds_below"] for r in recs]),
+                   np.array([sep[r["id"]]["responds_above"] for r in recs]))
+
+    def needed(self, i: int, j: int, nu_i: float, precision: float = 0.0) -> float:
+        """The lowest resonance [Hz] impacter ``j`` may have above impacter ``i`` at
+        ``nu_i`` [Hz] and still be told apart from it (module notes); ``precision`` [-]
+        adds the trim margin."""
+        r_i, r_j = self.rho[i], self.rho[j]
+        base = max(r_i * nu_i - self.lo[i] + self.below[j],
+                   (nu_i + self.above[i] - self.hi[j]) / r_j)
+        return base + MARGIN_SIGMAS * precision * math.sqrt(2.0) * base
+
+    def separable(self, i: int, j: int, nu_i: float, nu_j: float) -> bool:
+        """Whether ``i`` at ``nu_i`` and ``j`` at ``nu_j`` [Hz] can be told apart."""
+        if nu_i > nu_j:
+            i, j, nu_i, nu_j = j, i, nu_j, nu_i
+        return nu_j >= self.needed(i, j, nu_i)
+
+
+@dataclass
+class TrimPlan:
+    """Targets for one chip.
+
+    Attributes
+    ----------
+    measured, target : dict
+        Impacter id -> resonance measured / to trim to [Hz].
+    moved : list of str
+        The impacters to trim, in id order.
+    failures : list of dict
+        Why the chip cannot be made separable within the range: ``impacter``, ``why``,
+        and the ``needed_pct`` move.
+    """
+
+    measured: dict
+    target: dict
+    moved: list = field(default_factory=list)
+    failures: list = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.failures
+
+    def change_pct(self, n: str) -> float:
+        return 100.0 * (self.target[n] / self.measured[n] - 1.0)
+
+
+def plan_trim(seps: Separations, measured: dict, pairs, *, range_pct=1.0, direction="up",
+              precision_pct=0.1) -> TrimPlan:
+    """The fewest and smallest one-way moves that make every pair in ``pairs`` separable.
+
+    Parameters
+    ----------
+    seps : Separations
+        The plan's designs (:meth:`Separations.from_plan`).
+    measured : dict
+        Impacter id -> measured resonance [Hz].
+    pairs : iterable of (str, str)
+        Impacters that must be told apart (the plan's conflict graph).
+    range_pct, direction, precision_pct
+        ``trim:`` of the spec.
+
+    Returns
+    -------
+    TrimPlan
+
+    Notes
+    -----
+    ``up``: the impacters are taken in rising order of resonance; each one that sits
+    too close above a lower one it must be told apart from (at that one's target) is
+    raised just enough.  Raising only the upper member of a pair is the smallest move
+    that keeps the order, and each move is the least that clears every lower
+    neighbour, so the total is minimal for that order; a move that would exceed the
+    range is a failure naming the impacter and the move it needed.  ``down`` is the
+    mirror image (falling order, the lower member lowered).
+    """
+    if direction not in ("up", "down"):
+        raise ValueError(f"direction must be 'up' or 'down', {direction!r} was given")
+    index = {n: k for k, n in enumerate(seps.ids)}
+    missing = sorted(set(seps.ids) - set(measured))
+    if missing:
+        raise ValueError(f"no measured resonance for {', '.join(missing)}")
+    limit = range_pct / 100.0
+    prec = precision_pct / 100.0
+    partners = {n: set() for n in seps.ids}
+    for a, b in pairs:
+        partners[a].add(b)
+        partners[b].add(a)
+    target = {n: float(measured[n]) for n in seps.ids}
+    up = direction == "up"
+    failed = {}
+    # passes until nothing moves: a raised impacter can pass one above it, which the
+    # next pass then clears (every move is one way, so the passes end)
+    for _ in range(MAX_PASSES):
+        changed = False
+        order = sorted(seps.ids, key=lambda n: target[n], reverse=not up)
+        for k, n in enumerate(order):
+            j = index[n]
+            need = target[n]
+            for m in order[:k]:
+                if m not in partners[n]:
+                    continue
+                i = index[m]
+                if up:
+                    # n above m: at least m's target plus the separation
+                    need = max(need, seps.needed(i, j, target[m], prec))
+                else:
+                    # mirror: n below m, at most the highest that keeps m far enough above
+                    need = min(need, _highest_below(seps, j, i, target[m], prec))
+            move = need / measured[n] - 1.0
+            if (need - target[n]) * (1 if up else -1) > MOVE_TOL * target[n]:
+                if abs(move) > limit:
+                    failed[n] = move
+                    continue
+                target[n] = need
+                changed = True
+        if not changed:
+            break
+    failures = [{"impacter": n, "needed_pct": 100.0 * mv,
+                 "why": f"needs a {100 * mv:+.2f} % move to clear its neighbours, beyond "
+                        f"trim.range_pct {range_pct:g}"} for n, mv in sorted(failed.items())]
+    # the outcome, checked pair by pair (without the trim margin)
+    for a, b in sorted({tuple(sorted(p)) for p in pairs}):
+        if a in failed or b in failed:
+            continue
+        if not seps.separable(index[a], index[b], target[a], target[b]):
+            failures.append({"impacter": a, "needed_pct": None,
+                             "why": f"{a} and {b} stay too close ({target[a]:.0f} and "
+                                    f"{target[b]:.0f} Hz) after every move the range allows"})
+    moved = sorted(n for n in seps.ids if abs(target[n] / measured[n] - 1.0) > MOVE_TOL)
+    return TrimPlan({n: float(measured[n]) for n in seps.ids}, target, moved, failures)
+
+
+def _highest_below(seps, j, i, nu_i, prec):
+    """The highest resonance [Hz] ``j`` may have below ``i`` at ``nu_i`` (bisection on
+    :meth:`Separations.needed`, which rises with its argument)."""
+    lo, hi = 0.5 * nu_i, nu_i
+    if seps.needed(j, i, lo, prec) > nu_i:
+        return lo
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        if seps.needed(j, i, mid, prec) <= nu_i:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def cut_for(record: dict, measured_hz: float, target_hz: float, process, direction: str):
+    """What to cut from one impacter to move its resonance from ``measured_hz`` to
+    ``target_hz`` [Hz]: (plate area [m^2], beam length [m]), the other one 0.
+
+    ``up``: nu ~ sqrt(k/m), so m' = m (measured / target)^2 and the plate loses
+    (m - m') / (rho t) of its area (eq. (2)).  ``down``: the beams are freed from the
+    anchor over a length dl, k ~ (w / (l + dl))^3 (eq. (4)) while the freed beam still
+    moves (m grows by 2 rho h w dl): dl solves nu(l + dl) / nu(l) = target / measured
+    on the design geometry.
+
+    Parameters
+    ----------
+    record : dict
+        The impacter's plan.json record (``mass_kg``, ``geometry``).
+    process : planner.config.ProcessConfig
+        The spec's process (density, mass thickness, beam height).
+    """
+    from scipy import optimize
+
+    ratio = target_hz / measured_hz
+    g = record["geometry"]
+    m = record["mass_kg"]
+    rho = process.density_kg_m3
+    t = process.mass_thickness_um * 1e-6
+    h = process.beam_height_um * 1e-6
+    if direction == "up":
+        if ratio < 1.0:
+            raise ValueError("a trim up cannot lower a resonance")
+        dm = m * (1.0 - 1.0 / ratio ** 2)
+        return dm / (rho * t), 0.0
+    if ratio > 1.0:
+        raise ValueError("a trim down cannot raise a resonance")
+    w, l, area = g["width_m"], g["length_m"], g["area_m2"]
+    c_wl = 2.0 * rho * h
+
+    def nu_rel(dl):
+        # k ~ 1/l^3 at fixed w; m = rho t A + 2 rho h w l
+        m0 = rho * t * area + c_wl * w * l
+        m1 = rho * t * area + c_wl * w * (l + dl)
+        return math.sqrt((l / (l + dl)) ** 3 * m0 / m1)
+
+    if ratio == 1.0:
+        return 0.0, 0.0
+    dl = optimize.brentq(lambda x: nu_rel(x) - ratio, 0.0, l, xtol=1e-15)
+    return 0.0, dl

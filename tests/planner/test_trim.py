@@ -1,0 +1,112 @@
+"""Trim (issue 26): one-way moves that make a chip's resonances separable, and what to cut."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from model import Impacter
+from planner.config import ProcessConfig
+from planner.trim import MARGIN_SIGMAS, Separations, cut_for, plan_trim
+
+
+def _seps(n, band=400.0, window=100.0, rho=1.002):
+    ids = tuple(f"A{k + 1}.forward" for k in range(n))
+    ones = np.ones(n)
+    return Separations(ids, rho * ones, band * ones, band * ones, window * ones,
+                       window * ones)
+
+
+def test_separable_is_the_collision_rule():
+    """i below j: j must sit above rho_i nu_i - lo_i + a_j and (nu_i + b_i - hi_j)/rho_j."""
+    s = _seps(2)
+    nu_i = 30000.0
+    need = max(1.002 * nu_i - 100 + 400, (nu_i + 400 - 100) / 1.002)
+    assert s.needed(0, 1, nu_i) == pytest.approx(need)
+    assert s.separable(0, 1, nu_i, need + 1e-6)
+    assert not s.separable(0, 1, nu_i, need - 1.0)
+    assert s.separable(1, 0, need + 1e-6, nu_i)        # symmetric in its arguments
+
+
+def test_up_raises_only_the_upper_of_a_colliding_pair_by_just_enough():
+    s = _seps(3)
+    measured = {"A1.forward": 30000.0, "A2.forward": 30200.0, "A3.forward": 32000.0}
+    pairs = [("A1.forward", "A2.forward"), ("A1.forward", "A3.forward"),
+             ("A2.forward", "A3.forward")]
+    tp = plan_trim(s, measured, pairs, range_pct=1.0, direction="up", precision_pct=0.1)
+    assert tp.ok and tp.moved == ["A2.forward"]
+    want = s.needed(0, 1, 30000.0, 0.001)
+    assert tp.target["A2.forward"] == pytest.approx(want)
+    # the margin: MARGIN_SIGMAS sigmas of the trim precision on both
+    assert want == pytest.approx(s.needed(0, 1, 30000.0) * (1 + MARGIN_SIGMAS * 0.001
+                                                            * math.sqrt(2)))
+    assert tp.target["A1.forward"] == 30000.0 and tp.target["A3.forward"] == 32000.0
+    assert 0 < tp.change_pct("A2.forward") < 1.0
+    # every pair is separable at the targets
+    for a, b in pairs:
+        assert s.separable(s.ids.index(a), s.ids.index(b), tp.target[a], tp.target[b])
+
+
+def test_a_cascade_moves_each_upper_neighbour_and_down_mirrors_it():
+    """Up, raising A2 off A1 brings it near A3, which moves too; down, one move does."""
+    s = _seps(3)
+    measured = {"A1.forward": 30000.0, "A2.forward": 30100.0, "A3.forward": 30500.0}
+    pairs = [("A1.forward", "A2.forward"), ("A2.forward", "A3.forward"),
+             ("A1.forward", "A3.forward")]
+    up = plan_trim(s, measured, pairs, range_pct=5.0, direction="up", precision_pct=0.0)
+    assert up.ok and up.moved == ["A2.forward", "A3.forward"]
+    assert up.target["A3.forward"] == pytest.approx(s.needed(1, 2, up.target["A2.forward"]))
+    # down: A2 and A3 are already 400 Hz apart (separable), so lowering A1 alone does it
+    down = plan_trim(s, measured, pairs, range_pct=5.0, direction="down", precision_pct=0.0)
+    assert down.ok and down.moved == ["A1.forward"]
+    assert all(down.target[n] <= measured[n] for n in measured)
+    for a, b in pairs:
+        assert s.separable(s.ids.index(a), s.ids.index(b), down.target[a], down.target[b])
+
+
+def test_a_chip_no_trim_in_range_can_fix_is_named():
+    """Two resonances 50 Hz apart at 30 kHz need a ~2.3 % move; 1 % cannot."""
+    s = _seps(2)
+    measured = {"A1.forward": 30000.0, "A2.forward": 30050.0}
+    tp = plan_trim(s, measured, [("A1.forward", "A2.forward")], range_pct=1.0)
+    assert not tp.ok
+    f = tp.failures[0]
+    assert f["impacter"] == "A2.forward" and f["needed_pct"] > 1.0
+    assert "trim.range_pct 1" in f["why"]
+    # pairs that need not be told apart are left alone
+    assert plan_trim(s, measured, [], range_pct=1.0).moved == []
+
+
+def _record(area=3e-8, width=5.5e-6, length=5e-4):
+    p = ProcessConfig()
+    imp = Impacter.from_geometry(area, width, length, 4e-6, viscosity=1.79e-5)
+    return {"mass_kg": imp.mass, "geometry": {"area_m2": area, "width_m": width,
+                                              "length_m": length, "gap_m": 4e-6}}, imp, p
+
+
+def test_cut_plate_area_raises_the_resonance_to_the_target():
+    """The cut area, taken off the plate and rebuilt through eqs. (2)-(4), gives the
+    target (an independent path: model.Impacter.from_geometry)."""
+    rec, imp, p = _record()
+    nu = imp.natural_frequency
+    area, length = cut_for(rec, nu, nu * 1.008, p, "up")
+    assert length == 0.0 and area > 0
+    g = rec["geometry"]
+    trimmed = Impacter.from_geometry(g["area_m2"] - area, g["width_m"], g["length_m"], 4e-6,
+                                     viscosity=1.79e-5)
+    assert trimmed.natural_frequency == pytest.approx(nu * 1.008, rel=1e-9)
+    with pytest.raises(ValueError):
+        cut_for(rec, nu, nu * 0.99, p, "up")
+
+
+def test_cut_beam_length_lowers_the_resonance_to_the_target():
+    rec, imp, p = _record()
+    nu = imp.natural_frequency
+    area, dl = cut_for(rec, nu, nu * 0.992, p, "down")
+    assert area == 0.0 and dl > 0
+    g = rec["geometry"]
+    trimmed = Impacter.from_geometry(g["area_m2"], g["width_m"], g["length_m"] + dl, 4e-6,
+                                     viscosity=1.79e-5)
+    assert trimmed.natural_frequency == pytest.approx(nu * 0.992, rel=1e-9)
