@@ -6,7 +6,7 @@ impact detection, chattering and sticking), the paper's RK4 as a reference, the
 response r of eq. (12) and parallel sweeps.  SI units throughout.
 """
 
-from model.devices import Geometry, Impacter, Slider, UnitWarning
+from model.devices import Geometry, Impacter, PairHalves, Slider, UnitWarning, halves, pair_of
 from model.drive import POWER, Drive, amplitude_from_power
 from model.simulation import (
     CONTACTS,
@@ -26,7 +26,7 @@ from model.simulation import (
 
 __all__ = [
     "CONTACTS", "Drive", "Geometry", "Impacter", "ImpactResult", "Kicks", "METHODS", "POWER",
-    "Slider", "SliderResult", "SolverWarning", "UnitWarning", "amplitude_from_power", "kick",
-    "response",
+    "PairHalves", "Slider", "SliderResult", "SolverWarning", "UnitWarning",
+    "amplitude_from_power", "halves", "kick", "pair_of", "response",
     "responses", "simulate", "simulate_slider", "slider_motion", "sweep",
 ]

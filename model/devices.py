@@ -275,6 +275,78 @@ class Impacter:
 
 
 @dataclass(frozen=True)
+class PairHalves:
+    """An impacter pair whose two cantilevers differ (a fabricated pair).
+
+    The paper's impacter is a pair of identical cantilevers that strike the slider
+    together, modelled as one oscillator whose kicks count twice (:class:`Impacter`;
+    the gain 2 (m/M) cos(theta) of eq. (10)).  Fabricated, the two halves differ by the
+    local scatter: each is its own oscillator of eq. (1), and each strikes the same slider
+    alone, with its own mass, its kicks counting once.  Use :func:`pair_of` to build one:
+    two equal halves are an :class:`Impacter` again, so that identical halves reproduce
+    the symmetric pair's results exactly.
+
+    Parameters
+    ----------
+    a, b : Impacter
+        The two halves.
+
+    Examples
+    --------
+    >>> imp = Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6)
+    >>> pair_of(imp, imp) is imp
+    True
+    >>> p = pair_of(imp, imp.with_natural_frequency(4700.0))
+    >>> round(p.natural_frequency)
+    4672
+    """
+
+    a: Impacter
+    b: Impacter
+
+    def __post_init__(self):
+        for name in ("a", "b"):
+            if not isinstance(getattr(self, name), Impacter):
+                raise ValueError(f"{name} must be a model.Impacter, "
+                                 f"{type(getattr(self, name)).__name__} was given")
+
+    @property
+    def halves(self):
+        """((half, share), ...): each half and the fraction of the pair it is (1/2)."""
+        return ((self.a, 0.5), (self.b, 0.5))
+
+    @property
+    def natural_frequency(self):
+        """The mean of the halves' natural frequencies [Hz]."""
+        return 0.5 * (self.a.natural_frequency + self.b.natural_frequency)
+
+    @property
+    def gap(self):
+        """The larger of the halves' gaps [m] (the initial states span both)."""
+        return max(self.a.gap, self.b.gap)
+
+    @property
+    def mass(self):
+        """The mean of the halves' masses [kg] (one cantilever's, as Impacter.mass)."""
+        return 0.5 * (self.a.mass + self.b.mass)
+
+
+def pair_of(a, b):
+    """The pair of two halves: ``a`` itself when they are equal (the symmetric pair of
+    the paper), else a :class:`PairHalves`."""
+    return a if a == b else PairHalves(a, b)
+
+
+def halves(impacter):
+    """The halves of a pair as ((Impacter, share), ...): ((impacter, 1.0),) for the
+    symmetric pair (one oscillator whose kicks count for both cantilevers), the two
+    halves at 1/2 each for :class:`PairHalves`."""
+    if isinstance(impacter, PairHalves):
+        return impacter.halves
+    return ((impacter, 1.0),)
+
+
+@dataclass(frozen=True)
 class Slider:
     """The linear slider of eqs. (6)-(7).
 

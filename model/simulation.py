@@ -501,7 +501,7 @@ class Kicks:
     slider_mass: float
 
     @classmethod
-    def from_impacts(cls, impacter, slider, impacts, direction=1.0):
+    def from_impacts(cls, impacter, slider, impacts, direction=1.0, share=1.0):
         """Kicks of every impact of ``impacts`` (chatter tails included) on ``slider``.
 
         Parameters
@@ -513,6 +513,10 @@ class Kicks:
             From :func:`simulate`.
         direction : float
             +1 for the forward pair, -1 for the backward pair.
+        share : float
+            The fraction of the pair that strikes: 1 for the symmetric pair (both
+            cantilevers together, eq. (10)'s factor 2), 1/2 for one half of a
+            :class:`PairHalves` striking alone.  The kicks' mass ratio is scaled by it.
 
         Examples
         --------
@@ -529,17 +533,21 @@ class Kicks:
             raise ValueError(f"impacts must be a model.ImpactResult, {type(impacts).__name__} "
                              "was given")
         direction = _check_direction(direction)
+        share = float(share)
+        if not 0.0 < share <= 1.0:
+            raise ValueError(f"share must be in (0, 1], {share!r} was given")
         times = np.concatenate([impacts.times, impacts.chatter_times])
         speeds = np.concatenate([impacts.velocities, impacts.chatter_sums])
         n = times.size
         chatter = np.zeros(n, dtype=bool)
         chatter[impacts.times.size:] = True
+        dv = kick(impacter, slider, speeds, direction)
         return cls(times=times, velocities=speeds, chatter=chatter,
                    direction=np.full(n, direction),
-                   mass_ratio=np.full(n, impacter.mass / slider.mass),
+                   mass_ratio=np.full(n, share * impacter.mass / slider.mass),
                    impact_angle=np.full(n, impacter.impact_angle),
                    restitution=np.full(n, impacter.restitution),
-                   velocity_changes=kick(impacter, slider, speeds, direction),
+                   velocity_changes=dv if share == 1.0 else share * dv,
                    slider_mass=slider.mass)
 
     @classmethod

@@ -25,10 +25,12 @@ How each error moves the design (all errors normal, mean 0, sigma from the spec)
 Mass (2) and damping (3) follow the moved A, w, t and h; k (4) the moved w, h and E.
 
 Each error is the sum of a per-die draw (one per chip, shared by every device) and a
-per-device draw.  The per-device draw is taken once per *impacter pair* (a node:
-device + direction): the two impacters of a pair hit the slider together and are one
-lumped design in the model, which cannot represent two different halves; the slider of
-each device gets its own independent line-width and thickness draw.
+per-device draw, taken once per *impacter pair* (a node: device + direction); the slider
+of each device gets its own independent line-width and thickness draw.  With a ``pair``
+sigma, each of the two cantilevers of a pair gets a further draw of its own, and the
+node becomes a :class:`model.PairHalves` (two oscillators striking the same slider);
+without one, the two halves are identical and the node is the symmetric
+:class:`model.Impacter` of the paper.
 
 A chip whose errors make a dimension non-physical (a gap closed, a beam or layer of
 zero width or thickness) cannot be built; its nodes are reported as ``unbuildable``.
@@ -45,7 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from model import Impacter, Slider
+from model import Impacter, Slider, pair_of
 from planner.spec import ArraySpec, FabricationSpec
 
 UM = 1e-6
@@ -161,6 +163,10 @@ def _sigmas(fab: FabricationSpec, scale: float):
     return die, dev
 
 
+def _pair_sigmas(fab: FabricationSpec, scale: float):
+    return np.array([getattr(fab, k).pair for k in ERRORS]) * scale
+
+
 @dataclass
 class Chip:
     """One sampled chip: as-built impacters (node id -> Impacter), sliders (device ->
@@ -194,17 +200,26 @@ def sample_chip(design: ChipDesign, fab: FabricationSpec, rng: np.random.Generat
     if not (math.isfinite(scale) and scale >= 0):
         raise ValueError(f"scale must be finite and >= 0, {scale!r} was given")
     sd_die, sd_dev = _sigmas(fab, scale)
-    # fixed draw order: die, then every node, then every slider (line width, thickness)
+    sd_pair = _pair_sigmas(fab, scale)
+    # fixed draw order: die, then every node, then every slider (line width, thickness),
+    # then every half of every node (drawn last, so that the earlier draws are those of
+    # a chip without the pair level)
     z_die = rng.standard_normal(len(ERRORS))
     z_nodes = rng.standard_normal((len(design.nodes), len(ERRORS)))
     z_sliders = rng.standard_normal((len(design.devices), 2))
+    z_halves = rng.standard_normal((len(design.nodes), 2, len(ERRORS)))
     die = sd_die * z_die
     impacters, sliders, bad, errors = {}, {}, [], {}
-    for node, z in zip(design.nodes, z_nodes):
+    for node, z, zh in zip(design.nodes, z_nodes, z_halves):
         err = die + sd_dev * z
         errors[node.id] = [float(e) for e in err]
         try:
-            impacters[node.id] = _impacter(design.spec, node, err)
+            if np.any(sd_pair > 0):
+                # two halves, each the pair's error plus its own mismatch
+                a, b = (_impacter(design.spec, node, err + sd_pair * zk) for zk in zh)
+                impacters[node.id] = pair_of(a, b)
+            else:
+                impacters[node.id] = _impacter(design.spec, node, err)
         except ValueError:
             bad.append(node.id)
     for dev, z in zip(design.devices, z_sliders):

@@ -243,16 +243,20 @@ class Tolerance(_Strict):
         or die-to-die process shift).
     device : the per-device part, one independent draw per impacter pair design (a
         node, device + direction) and per slider (local lithography / etch scatter).
+    pair : the mismatch of the two halves of a pair: each cantilever of a pair gets its
+        own draw of this sigma on top of the pair's, so the halves differ by sqrt(2)
+        pair (the two cantilevers that strike one slider together, side by side).
 
-    The unit is the one of the field that holds it (um or %).  Both >= 0, default 0.
+    The unit is the one of the field that holds it (um or %).  All >= 0, default 0.
     """
 
     die: NonNegFloat = 0.0
     device: NonNegFloat = 0.0
+    pair: NonNegFloat = 0.0
 
     @property
     def zero(self) -> bool:
-        return self.die == 0.0 and self.device == 0.0
+        return self.die == 0.0 and self.device == 0.0 and self.pair == 0.0
 
 
 class FabricationSpec(_Strict):

@@ -72,7 +72,8 @@ def run_phase(impacters, sliders, contacts, drive, duration, states, sl_states):
     duration : float
         [s].
     states : dict
-        Node -> (x [m], v [m/s], stuck); updated in place (missing: rest at x = 0).
+        Node -> (x [m], v [m/s], stuck); updated in place (missing: rest at x = 0).  A
+        pair of unequal halves (:class:`model.PairHalves`) has one such state per half.
     sl_states : dict
         Device -> (z [m], v [m/s]); updated in place (missing: rest at 0).
 
@@ -87,13 +88,26 @@ def run_phase(impacters, sliders, contacts, drive, duration, states, sl_states):
         node = Node.parse(n)
         if node.device not in sliders:
             continue
-        x0, v0, stuck = states.get(n, (0.0, 0.0, False))
-        res = model.simulate(imp, drive, x0, v0, duration, stuck=stuck or None,
-                             max_events=1_000_000)
-        states[n] = (min(res.x_end, imp.gap), res.v_end, res.stuck_end)
-        per_device[node.device].append(
-            model.Kicks.from_impacts(imp, sliders[node.device], res, node.sign))
-        hits[n] = int(res.times.size + res.chatter_times.size)
+        parts = model.halves(imp)
+        # a pair of unequal halves carries one state per half
+        prior = states.get(n)
+        if len(parts) == 1:
+            starts = (prior,)
+        elif prior is None or not isinstance(prior[0], tuple):
+            starts = (prior,) * len(parts)        # one start (an x0 of the grid) for both
+        else:
+            starts = prior
+        after, count = [], 0
+        for (half, share), start in zip(parts, starts):
+            x0, v0, stuck = start or (0.0, 0.0, False)
+            res = model.simulate(half, drive, x0, v0, duration, stuck=stuck or None,
+                                 max_events=1_000_000)
+            after.append((min(res.x_end, half.gap), res.v_end, res.stuck_end))
+            per_device[node.device].append(
+                model.Kicks.from_impacts(half, sliders[node.device], res, node.sign, share))
+            count += int(res.times.size + res.chatter_times.size)
+        states[n] = after[0] if len(parts) == 1 else tuple(after)
+        hits[n] = count
     for dev, slider in sliders.items():
         z0, v0 = sl_states.get(dev, (0.0, 0.0))
         if per_device[dev]:
@@ -109,7 +123,12 @@ def run_phase(impacters, sliders, contacts, drive, duration, states, sl_states):
 
 def can_hit(impacter, state):
     """Whether an undriven impacter in ``state`` (x, v, stuck) can still reach its wall
-    with a positive speed: its energy amplitude sqrt(x^2 + m v^2 / k) exceeds c."""
+    with a positive speed: its energy amplitude sqrt(x^2 + m v^2 / k) exceeds c.  A
+    pair of unequal halves (:class:`model.PairHalves`) has a state per half and can hit
+    while either half can."""
+    parts = model.halves(impacter)
+    if len(parts) > 1:
+        return any(can_hit(h, st or (0.0, 0.0, False)) for (h, _), st in zip(parts, state))
     x, v, _ = state
     amp2 = x * x + impacter.mass * v * v / impacter.stiffness
     return amp2 > impacter.gap * impacter.gap * (1.0 + 1e-9)
@@ -119,8 +138,14 @@ def settled(impacters, sliders, states, sl_states):
     """Every slider of ``sliders`` at rest and no impacter of theirs able to hit."""
     if any(sl_states.get(d, (0.0, 0.0))[1] != 0.0 for d in sliders):
         return False
-    return not any(can_hit(imp, states.get(n, (0.0, 0.0, False)))
+    return not any(can_hit(imp, states.get(n, rest_state(imp)))
                    for n, imp in impacters.items() if Node.parse(n).device in sliders)
+
+
+def rest_state(impacter):
+    """The state of an impacter (pair) at rest, as :func:`run_phase` keeps it."""
+    parts = model.halves(impacter)
+    return (0.0, 0.0, False) if len(parts) == 1 else ((0.0, 0.0, False),) * len(parts)
 
 
 def settle(impacters, sliders, contacts, states, sl_states, cap, at_least=0.0):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from planner.nodes import Node
 from planner.planning.drives import drive_of
-from planner.planning.motion import REST, run_phase, settle
+from planner.planning.motion import REST, rest_state, run_phase, settle
 from planner.planning.settings import SETTLE_S  # noqa: F401  (re-exported)
 
 #: Step name of the undriven tail in the scene rows (``"driven": false``).
@@ -45,10 +45,15 @@ def _scene_phase(settings, impacters, sliders, drive, duration, states, sl_state
         travel[dev] = float(z - z_start[dev])
         if abs(z - z_start[dev]) > settings.idle_tolerance_m and dev not in driven_devices:
             moved[dev] = float(z - z_start[dev])
-    ringing = sorted(n for n, (x, v, s) in states.items()
-                     if abs(v) > RINGING_V and n not in active)
+    ringing = sorted(n for n, st in states.items()
+                     if n not in active and any(abs(v) > RINGING_V for _, v, _ in _per_half(st)))
     return {"positions_m": positions, "ringing_impacters": ringing, "idle_hits": idle_hits,
             "idle_moved_m": moved, "travel_m": travel, **fields}
+
+
+def _per_half(state):
+    """The (x, v, stuck) of each half of a state (one for a symmetric pair)."""
+    return state if isinstance(state[0], tuple) else (state,)
 
 
 def simulate_scenes(settings, steps, waveforms, impacters, sliders, dwells=None):
@@ -90,7 +95,7 @@ def simulate_scenes(settings, steps, waveforms, impacters, sliders, dwells=None)
     settle_s = settings.settle_s
     rows = []
     for scene in settings.scenes:
-        states = {n: (0.0, 0.0, False) for n in impacters}
+        states = {n: rest_state(imp) for n, imp in impacters.items()}
         sl_states = {d: (0.0, 0.0) for d in sliders}
         for st in [s for s in steps if s.scene == scene]:
             active = {Node(d, r).text for d, r in st.active_nodes()}

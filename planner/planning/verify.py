@@ -63,6 +63,29 @@ def x0_grid(impacter, n):
     return np.linspace(-impacter.gap, impacter.gap, n)
 
 
+def pair_responses(impacter, drive, n, duration, stop_at_first=False):
+    """r [N] of eq. (12) from each of the ``n`` initial positions of :func:`x0_grid`;
+    for a pair of unequal halves (:class:`model.PairHalves`) each half starts at the
+    same point of its own grid over [-c, c] and the larger response of the two counts
+    (the pair answers when either half does)."""
+    out = None
+    for half, _ in model.halves(impacter):
+        r = model.responses(half, drive, x0_grid(half, n), duration=duration,
+                            stop_at_first=stop_at_first)
+        out = r if out is None else np.maximum(out, r)
+    return out
+
+
+def pair_starts(impacter, n):
+    """The ``n`` initial states of :func:`x0_grid` at rest (a state per half for a pair
+    of unequal halves, each on its own grid)."""
+    parts = model.halves(impacter)
+    if len(parts) == 1:
+        return [(x0, 0.0, False) for x0 in x0_grid(impacter, n)]
+    grids = [x0_grid(h, n) for h, _ in parts]
+    return [tuple((g[k], 0.0, False) for g in grids) for k in range(n)]
+
+
 def kicks(impacter, slider, res, direction):
     """Times [s] and slider velocity kicks [m/s] of a simulation's impacts (eq. 10, the
     "paper" law; the plan itself uses :func:`planner.planning.motion.run_phase`)."""
@@ -114,9 +137,9 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
             if n in active:
                 continue
             x0s = x0_grid(imp, settings.x0_points)
-            r = model.responses(imp, drive, x0s, duration=duration, stop_at_first=True)
+            r = pair_responses(imp, drive, settings.x0_points, duration, stop_at_first=True)
             if np.any(r > 0):
-                full = model.responses(imp, drive, x0s, duration=duration)
+                full = pair_responses(imp, drive, settings.x0_points, duration)
                 worst_idle_r = max(worst_idle_r, float(full.max()))
                 causes.append(f"{n} responds (r = {full.max():.3g} N from x0 = "
                               f"{x0s[int(np.argmax(full))] / UM:.2f} um)")
@@ -136,8 +159,8 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
             n = moving[0]
             sign = Node.parse(n).sign
             speeds = []
-            for x0 in x0_grid(own[n], settings.x0_points):
-                z, _ = device_motion(own, sliders[dev], drive, duration, {n: (x0, 0.0, False)},
+            for start in pair_starts(own[n], settings.x0_points):
+                z, _ = device_motion(own, sliders[dev], drive, duration, {n: start},
                                      contact)
                 speeds.append(sign * z / duration)
             worst = float(min(speeds))
@@ -230,8 +253,7 @@ def coupling_matrix(impacters, tones, settings: Settings, duration):
     mat = np.zeros((len(names), len(freqs)))
     for i, n in enumerate(names):
         imp = impacters[n]
-        x0s = x0_grid(imp, settings.x0_points)
         for j, (f, z) in enumerate(zip(freqs, amps)):
-            mat[i, j] = float(np.max(model.responses(imp, Drive([f], [z]), x0s,
-                                                     duration=duration)))
+            mat[i, j] = float(np.max(pair_responses(imp, Drive([f], [z]), settings.x0_points,
+                                                    duration)))
     return pd.DataFrame(mat, index=names, columns=[f"{f:.3f}" for f in freqs])
