@@ -56,9 +56,10 @@ from planner.layout.trim import TrimPlan, tab_areas
 from planner.units import UM
 
 # Drawing constants: sizes [m] and multiples of the rules (min_line, min_space).
-#: Side of an anchor cut (ANCHOR1, ANCHOR2) [m].
+#: Side of an anchor cut (ANCHOR1, ANCHOR2) [m], at least a line.
 ANCHOR_CUT = 8.0 * UM
-#: Side of a dimple [m] and the pitch of the dimple grids under plates and sliders [m].
+#: Side of a dimple [m] (at least a line) and the pitch of the dimple grids under
+#: plates and sliders [m].
 DIMPLE_SIDE = 3.0 * UM
 DIMPLE_PITCH = 40.0 * UM
 #: Space along a joining member's roof between the ridge and each leg [min_space]:
@@ -245,7 +246,8 @@ def _bar(base, along, width, length) -> np.ndarray:
 
 def _dimples(x0, y0, x1, y1, rules) -> list:
     """A grid of dimples inside the box, each at least the enclosure from its edges."""
-    inset = rules.anchor_enclosure + DIMPLE_SIDE / 2.0
+    side = max(DIMPLE_SIDE, rules.min_line)
+    inset = rules.anchor_enclosure + side / 2.0
     out = []
     spans = []
     for lo, hi in ((x0 + inset, x1 - inset), (y0 + inset, y1 - inset)):
@@ -254,7 +256,7 @@ def _dimples(x0, y0, x1, y1, rules) -> list:
         n = int((hi - lo) // DIMPLE_PITCH) + 1
         start = (lo + hi) / 2.0 - (n - 1) * DIMPLE_PITCH / 2.0
         spans.append([start + i * DIMPLE_PITCH for i in range(n)])
-    h = DIMPLE_SIDE / 2.0
+    h = side / 2.0
     for y in spans[1]:
         for x in spans[0]:
             out.append(Shape("DIMPLE", _rect(x - h, y - h, x + h, y + h)))
@@ -301,16 +303,16 @@ def cantilever(impacter_id, area, width, length, beam_angle, impact_angle, rules
                          f"{math.degrees(beam_angle):g} deg was given")
     cp, sp = math.cos(beam_angle), math.sin(beam_angle)
     leg = length / 2.0
-    # the stem to the second V: twice a beam wide, so that it bends ~1000 times less
-    # than a leg and the second V acts as drawn
-    stem = max(2.0 * line, 2.0 * width)
+    # the stem to the second V, as wide as a leg and far shorter (its rise against
+    # l / 2): it bends hundreds of times less than a leg, the second V acts as drawn
+    stem = max(2.0 * line, width)
     # along the roof from the ridge to a leg: the legs of a V start a space apart
     # and clear the stem by one
     ridge = max(RIDGE_SPACE * space, (stem / 2.0 + space) / cp)
     roof = ridge + width + line            # one roof face, ridge to eave
     wall = max(2.0 * line, width)          # a joining member's vertical sides
     ridge_y = wall + roof * sp
-    pad = max(ANCHOR_CUT + 2.0 * enc, width + 2.0 * line)
+    pad = max(max(ANCHOR_CUT, line) + 2.0 * enc, width + 2.0 * line)
     foot = ridge + width / 2.0             # ridge to a leg's base centre, along the roof
     gap = PAD_SPACE * space
     # the second V is the first moved up by `rise`: its legs, parallel to the first's,
@@ -524,7 +526,7 @@ def build_chip(design: ChipDesign, frequencies: dict, rules: LayoutRules,
             else:
                 contact[nid] = -clear / 2.0 - pts[:, 0].max()
         # guides at both ends, beyond everything of the pairs near the walls
-        foot = ANCHOR_CUT + 2.0 * rules.anchor_enclosure
+        foot = max(ANCHOR_CUT, line) + 2.0 * rules.anchor_enclosure
         play = GUIDE_PLAY * space
         band = play + foot + clear
         reach = clear / 2.0

@@ -114,9 +114,11 @@ def tab_areas(mass: float, density: float, thickness: float, trim: TrimPlan) -> 
     Examples
     --------
     >>> a = tab_areas(1.0, 1.0, 1.0, TrimPlan(0.21, 0.1, "up"))
-    >>> [round(x, 4) for x in a]             # m -> m / 1.1^2 in two steps of 1.1
-    [0.1736, 0.1435]
+    >>> [round(x, 4) for x in a]      # nu_n up 21 % in two steps of 10 %: m -> m / 1.21^2
+    [0.1736, 0.1434]
     """
     n = trim.tabs
+    if n == 0:
+        return ()
     masses = [mass * (1.0 + trim.range) ** (-2.0 * k / n) for k in range(n + 1)]
     return tuple((masses[k - 1] - masses[k]) / (density * thickness) for k in range(1, n + 1))
