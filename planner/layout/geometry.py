@@ -57,7 +57,7 @@ from planner.units import UM
 
 # Drawing constants: sizes [m] and multiples of the rules (min_line, min_space).
 #: Side of an anchor cut (ANCHOR1, ANCHOR2) [m], at least a line.
-ANCHOR_CUT = 8.0 * UM
+ANCHOR_CUT = 5.0 * UM
 #: Side of a dimple [m] (at least a line) and the pitch of the dimple grids under
 #: plates and sliders [m].
 DIMPLE_SIDE = 3.0 * UM
@@ -315,14 +315,23 @@ def cantilever(impacter_id, area, width, length, beam_angle, impact_angle, rules
     pad = max(max(ANCHOR_CUT, line) + 2.0 * enc, width + 2.0 * line)
     foot = ridge + width / 2.0             # ridge to a leg's base centre, along the roof
     gap = PAD_SPACE * space
-    # the second V is the first moved up by `rise`: its legs, parallel to the first's,
-    # clear their pads, and its pads clear theirs
-    rise = max((gap + (width + pad) / 2.0) / sp, pad / cp + gap)
-    tops = 2.0 * (foot * cp + leg * sp)    # the two pads of a V, centre to centre
-    if tops < pad * (cp + sp) + gap:
+    # The second V is the first moved up by `rise`, which moves everything of it by
+    # rise sin(phi) across the first V's legs (towards the axis) and rise cos(phi)
+    # along them.  Across: its legs must clear the first V's pads, and its joining
+    # member (whose eaves reach `beyond` a leg's inner edge) the first V's legs and
+    # pads (which reach (pad - w) / 2 inside the legs); along: its pads theirs.
+    eave = roof * cp
+    inner = np.array([foot * cp, ridge_y - foot * sp]) - width / 2.0 * np.array([cp, -sp])
+    beyond = max(float((np.array(q) - inner) @ np.array([cp, -sp]))
+                 for q in ((eave, 0.0), (eave, wall)))
+    rise = max((gap + (width + pad) / 2.0) / sp, (gap + beyond + (pad - width) / 2.0) / sp,
+               (pad + gap) / cp)
+    # the stem rises between the first V's pads: their inner corners must clear it
+    if (foot + leg * math.tan(beam_angle) - pad / 2.0) * cp < stem / 2.0 + gap:
         raise ValueError(f"impacter {impacter_id}: beams {length / UM:.4g} um long are too "
-                         f"short for two anchor pads of {pad / UM:.3g} um at a beam angle "
-                         f"of {math.degrees(beam_angle):.3g} deg")
+                         f"short for the double-V layout at a beam angle of "
+                         f"{math.degrees(beam_angle):.3g} deg (the anchor pads of a V would "
+                         "meet the stem between them)")
     shapes = []
     roofs = []                             # per V: right leg (outer, inner), left (inner, outer)
     for level in (0.0, rise):
@@ -341,7 +350,7 @@ def cantilever(impacter_id, area, width, length, beam_angle, impact_angle, rules
             shapes.append(Shape("ANCHOR1", _bar(base + (leg + enc) * along, along, cut, cut)))
             corners += [bar[1], bar[0]]
         roofs.append(corners)
-    eave, notch = roof * cp, ridge_y - stem / 2.0 * sp / cp
+    notch = ridge_y - stem / 2.0 * sp / cp
     # right to left over the top: the first block, up the stem's right side, round the
     # second block, down the stem's left side onto the first block's left roof face
     upper = np.array(

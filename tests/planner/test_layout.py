@@ -28,14 +28,22 @@ def _layout(*args):
     return CliRunner().invoke(main, ["layout", *map(str, args)])
 
 
-def _synthetic_plan(tiny_plan_dir, folder, *, edit=None):
-    """A consistent 5 x 5 plan.json from the tiny plan's: impacter i gets
-    A = 1.5e4 + 700 i um^2, w = 2.5 + 0.07 i um, l = 180 + 6 i um, c = 3 + 0.05 i um."""
+def _graded(i):
+    """Impacter i of the synthetic 5 x 5: A = 1.5e4 + 700 i um^2, w = 2.5 + 0.07 i um,
+    l = 180 + 6 i um, c = 3 + 0.05 i um."""
+    return 1.5e4 + 700 * i, 2.5 + 0.07 * i, 180 + 6 * i, 3.0 + 0.05 * i
+
+
+def _synthetic_plan(tiny_plan_dir, folder, *, edit=None, geometry=_graded, rows=5, cols=5,
+                    pitch_um=PITCH_UM):
+    """A consistent plan.json made from the tiny plan's: impacter i (two per device, in
+    device order) gets ``geometry(i)`` = (A um^2, w um, l um, c um); its m, k, b and
+    nu_n follow from eqs. (2)-(4)."""
     from planner.fabrication import NodeDesign, nominal_impacter
     from planner.spec import ArraySpec
 
     data = json.loads((tiny_plan_dir / "plan.json").read_text(encoding="utf-8"))
-    data["spec"]["array"] = {"rows": 5, "cols": 5, "pitch_um": PITCH_UM}
+    data["spec"]["array"] = {"rows": rows, "cols": cols, "pitch_um": pitch_um}
     if edit is not None:
         edit(data["spec"])
     spec = ArraySpec.model_validate({k: v for k, v in data["spec"].items() if k != "trim"})
@@ -43,9 +51,9 @@ def _synthetic_plan(tiny_plan_dir, folder, *, edit=None):
     records = []
     for k, device in enumerate(spec.array.device_ids()):
         for j, direction in enumerate(("forward", "backward")):
-            i = 2 * k + j
-            g = {"area_m2": (1.5e4 + 700 * i) * UM**2, "width_m": (2.5 + 0.07 * i) * UM,
-                 "length_m": (180 + 6 * i) * UM, "gap_m": (3.0 + 0.05 * i) * UM}
+            area, width, length, gap = geometry(2 * k + j)
+            g = {"area_m2": area * UM**2, "width_m": width * UM, "length_m": length * UM,
+                 "gap_m": gap * UM}
             nid = f"{device}.{direction}"
             imp = nominal_impacter(spec, NodeDesign(
                 nid, device, direction, g["area_m2"], g["width_m"], g["length_m"], g["gap_m"],
@@ -310,6 +318,25 @@ def test_a_plan_made_otherwise_is_refused(chip, tmp_path):
     result = _layout(tmp_path / "plan.json", "--out", tmp_path / "chip.gds")
     assert result.exit_code == 2
     assert data["impacters"][3]["id"] in result.output
+
+
+def test_designs_across_the_bounds_are_drawn_inside_the_rules(tiny_plan_dir, tmp_path):
+    """The corners of the designer's box (w 2-10 um, l 60-1500 um, A 5e3-5e4 um^2; the
+    double-V cannot draw much shorter beams or smaller plates, see below) with the gaps
+    the rules allow (c >= 2 um / sin 45 deg, up to 10 um) are drawn clean: only the
+    designed w and c meet a rule, and inside the bounds they keep it."""
+    grid = [(a, w, l, c) for a in (5e3, 5e4) for w in (2.0, 10.0) for l in (60.0, 1500.0)
+            for c in (2.0 / math.sin(math.pi / 4), 10.0)]
+    grid += [(2e4, 5.0, 400.0, 4.0), (1e4, 7.0, 150.0, 3.0)]
+
+    def rules(spec):
+        spec["process"].update(min_line_um=2.0, min_space_um=2.0)
+
+    plan = _synthetic_plan(tiny_plan_dir, tmp_path / "plan", edit=rules,
+                           geometry=lambda i: grid[i], rows=3, cols=3, pitch_um=3500.0)
+    result = _layout(plan, "--out", tmp_path / "chip.gds", "--check")
+    assert result.exit_code == 0, result.output
+    assert "design-rule check: clean" in result.output
 
 
 # ------------------------------------------------------------------ the geometry, pure
