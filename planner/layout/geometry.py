@@ -50,7 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.fabrication import ChipDesign, nominal_impacter
+from planner.fabrication import ChipDesign, NodeDesign, nominal_impacter
 from planner.layout.rules import LayoutRules
 from planner.layout.trim import TrimPlan, tab_areas
 from planner.units import UM
@@ -144,36 +144,28 @@ class ImpacterDrawing:
 
     Attributes
     ----------
-    id, device, direction : str
-    area, width, length, gap : float
-        The design: A [m^2], w [m], l [m], c [m].
-    impact_angle, beam_angle : float
-        theta, phi [rad].
+    node : planner.fabrication.NodeDesign
+        Its design: id, device, direction, A, w, l, c, theta.
+    beam_angle : float
+        phi [rad].
     frequency_hz, natural_frequency_hz : float
         Its drive tone and its natural frequency (plan.json) [Hz].
     plate : (float, float)
         The plate's sides along and across the motion [m].
-    joint_area : float
-        Area of one joining member [m^2].
+    joints_area : float
+        Area of its joining members and stem, part of A [m^2].
     tabs : tuple of float
-        Areas of its trim tabs, in cutting order [m^2].
+        Areas of its trim tabs, in cutting order, part of A [m^2].
     contact_x : float
         Where its tips meet the slider walls, along the slider axis [m].
     """
 
-    id: str
-    device: str
-    direction: str
-    area: float
-    width: float
-    length: float
-    gap: float
-    impact_angle: float
+    node: NodeDesign
     beam_angle: float
     frequency_hz: float
     natural_frequency_hz: float
     plate: tuple
-    joint_area: float
+    joints_area: float
     tabs: tuple
     contact_x: float
 
@@ -270,7 +262,7 @@ class _Cantilever:
     shapes: tuple
     tip: np.ndarray
     plate: tuple
-    joint_area: float
+    joints_area: float
     tabs: tuple
 
 
@@ -360,13 +352,13 @@ def cantilever(impacter_id, area, width, length, beam_angle, impact_angle, rules
          [-stem / 2.0, rise], [-stem / 2.0, notch], *roofs[0][2:], [-eave, wall],
          [-eave, 0.0]], dtype=float)
     tabs = tuple(float(a) for a in tabs)
-    plate = area - _area(upper) - sum(tabs)
+    plate = area - polygon_area(upper) - sum(tabs)
     side = max(math.sqrt(max(plate, 0.0)), 2.0 * roof * cp)
     depth = plate / side
     if depth < 4.0 * line:
         raise ValueError(
             f"impacter {impacter_id}: its plate area {area / UM**2:.4g} um^2 is too small "
-            f"to carry the joining members of its beams ({_area(upper) / UM**2:.4g} um^2)"
+            f"to carry the joining members of its beams ({polygon_area(upper) / UM**2:.4g} um^2)"
             + (f" and {len(tabs)} trim tabs of {sum(tabs) / UM**2:.4g} um^2" if tabs else ""))
     outline = [[-side / 2.0, -depth], [side / 2.0, -depth], [side / 2.0, 0.0]]
     outline += list(upper) + [[-side / 2.0, 0.0]]
@@ -382,11 +374,10 @@ def cantilever(impacter_id, area, width, length, beam_angle, impact_angle, rules
     shapes += _dimples(-side / 2.0, -depth, side / 2.0, 0.0, rules)
     tip = np.array([side / 2.0, -depth])
     _check_tip(impacter_id, shapes, tip, impact_angle, space)
-    joints = _area(upper)
-    return _Cantilever(tuple(shapes), tip, (side, depth), joints, tabs)
+    return _Cantilever(tuple(shapes), tip, (side, depth), polygon_area(upper), tabs)
 
 
-def _area(points) -> float:
+def polygon_area(points) -> float:
     """Area of a simple polygon [m^2] (the shoelace formula)."""
     x, y = points[:, 0], points[:, 1]
     return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
@@ -571,10 +562,8 @@ def build_chip(design: ChipDesign, frequencies: dict, rules: LayoutRules,
                                                (float(centre[0]), float(centre[1]))),),
                               placements=tuple(pair)))
             placements.append(Placement(nid))
-            drawings[nid] = ImpacterDrawing(
-                nid, node.device, node.direction, node.area, node.width, node.length,
-                node.gap, node.impact_angle, phi, float(f), float(nu), half.plate,
-                half.joint_area, half.tabs, contact[nid])
+            drawings[nid] = ImpacterDrawing(node, phi, float(f), float(nu), half.plate,
+                                            half.joints_area, half.tabs, contact[nid])
         pts = np.concatenate(device_pts)
         footprints[device] = tuple(float(v) for v in (*pts.min(axis=0), *pts.max(axis=0)))
         lo, hi = pts.min(axis=0) - GROUND_MARGIN, pts.max(axis=0) + GROUND_MARGIN

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from planner.fabrication import NodeDesign, nominal_impacter
-from planner.layout.geometry import cantilever_cell_name, slider_cell_name
+from planner.layout.geometry import cantilever_cell_name, polygon_area, slider_cell_name
 
 #: Largest relative difference between the plan's natural frequency and the one the
 #: measured geometry gives (the issue's round-trip criterion) [-].
@@ -114,9 +114,7 @@ def _leg(points) -> tuple:
     opposite = (k + 2) % 4
     d = edges[k] / lengths[k] - edges[opposite] / lengths[opposite]
     length = 0.5 * float(lengths[k] + lengths[opposite])
-    x, y = points[:, 0], points[:, 1]
-    area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
-    return area / length, length, d / np.hypot(*d)
+    return polygon_area(points) / length, length, d / np.hypot(*d)
 
 
 def _cantilever(cell, layers, unit):
@@ -159,7 +157,8 @@ def _cantilever(cell, layers, unit):
 def _gap(vertices, axis, wall) -> tuple:
     """(c, theta) of a placed cantilever: its POLY1 ``vertices`` and beam ``axis`` in
     the device frame, ``wall`` the slider polygon there."""
-    ccw = float(np.sum(wall[:, 0] * np.roll(wall[:, 1], -1) - wall[:, 1] * np.roll(wall[:, 0], -1))) > 0
+    x, y = wall[:, 0], wall[:, 1]
+    ccw = float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))) > 0
     best = None
     for a, b in zip(wall, np.roll(wall, -1, axis=0)):
         e = b - a

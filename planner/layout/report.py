@@ -108,7 +108,8 @@ def _round_trip(rows) -> list:
            f"{100 * ROUND_TRIP_RTOL:g} %): **{'PASSED' if passed else 'FAILED'}**.", ""]
     table = []
     for x in rows:
-        table.append((x["id"], f"{x['area_m2_plan'] / UM**2:.1f} / {_g(x['area_m2_layout'] / UM**2, 6)}",
+        table.append((x["id"],
+                      f"{x['area_m2_plan'] / UM**2:.1f} / {_g(x['area_m2_layout'] / UM**2, 6)}",
                       f"{x['width_m_plan'] / UM:.4f} / {_g(x['width_m_layout'] / UM, 6)}",
                       f"{x['length_m_plan'] / UM:.2f} / {_g(x['length_m_layout'] / UM, 6)}",
                       f"{x['gap_m_plan'] / UM:.4f} / {_g(x['gap_m_layout'] / UM, 6)}",

@@ -351,12 +351,12 @@ def _rules(**process):
 def test_a_cantilever_is_drawn_to_its_design():
     """Legs of width w and length l/2 at +-phi from the beams' axis, a mass of area A,
     and its tip nearer the wall than anything else."""
-    from planner.layout.geometry import _area, cantilever
+    from planner.layout.geometry import cantilever, polygon_area
 
     phi, theta = math.radians(15.0), math.radians(45.0)
     half = cantilever("A1.forward", 2.5e4 * UM**2, 3.3e-6, 400e-6, phi, theta, _rules())
     mass = [s.points for s in half.shapes if s.layer == "POLY2"]
-    assert len(mass) == 1 and _area(mass[0]) == pytest.approx(2.5e4 * UM**2, rel=1e-12)
+    assert len(mass) == 1 and polygon_area(mass[0]) == pytest.approx(2.5e4 * UM**2, rel=1e-12)
     legs = [s.points for s in half.shapes if s.layer == "POLY1" and len(s.points) == 4]
     assert len(legs) == 4
     for leg in legs:
