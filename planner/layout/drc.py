@@ -254,29 +254,41 @@ def _box(box, metre) -> tuple:
 
 
 def _pitch(kdb, top, index, parts, pitch, space, metre) -> list:
-    """Devices whose structures leave their pitch cell (less half a space each side)."""
+    """Devices whose structures leave their pitch cell (less half a space each side).
+
+    The boxes are those of the flattened shapes: a cell placed at 45 degrees has a
+    hierarchical bounding box far larger than its shapes.
+    """
     out = []
     half = (pitch - space) / 2.0 / metre
+
+    def inside(box, allowed):
+        return allowed.contains(box.p1) and allowed.contains(box.p2)
+
     for inst in top.each_inst():
         device = inst.cell.name
         trans = inst.cplx_trans
-        cell_box = kdb.Box()
+        shapes = kdb.Region()
         for mask in PITCH_MASKS:
             if mask in index:
-                cell_box += inst.cell.bbox_per_layer(index[mask])
-        if cell_box.empty():
+                shapes += kdb.Region(inst.cell.begin_shapes_rec(index[mask])).transformed(trans)
+        if shapes.is_empty():
             continue
-        box = cell_box.transformed(trans)
+        box = shapes.bbox()
         centre = trans.disp
         allowed = kdb.Box(round(centre.x - half), round(centre.y - half),
                           round(centre.x + half), round(centre.y + half))
-        if allowed.contains(box.p1) and allowed.contains(box.p2):
+        if inside(box, allowed):
             continue
-        imps = sorted({ident for i, kind, ident, b in parts.boxes()
-                       if kind == "impacter" and ident.split(".")[0] == device
-                       and not (allowed.contains(b.p1) and allowed.contains(b.p2))})
+        imps = set()
+        for i, kind, ident, _ in parts.boxes():
+            if kind == "impacter" and ident.split(".")[0] == device:
+                own = kdb.Region()
+                for mask in PITCH_MASKS:
+                    own += parts.region(i, mask)
+                if not inside(own.bbox(), allowed):
+                    imps.add(ident)
         size = max(box.width(), box.height()) * metre
-        out.append(Violation("device.pitch", pitch, size, _box(box, metre), tuple(imps),
-                             (device,)))
+        out.append(Violation("device.pitch", pitch, size, _box(box, metre),
+                             tuple(sorted(imps)), (device,)))
     return out
-
