@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 
 from planner.layout.measure import ROUND_TRIP_RTOL
-from planner.layout.rules import PAPER_MIN_FEATURE
 from planner.units import UM
 
 #: First line of every layout report: a later run may replace a report that has it.
@@ -73,16 +72,15 @@ def write_report(path, *, plan, chip, rows, drc, files, gds_bytes, version) -> N
               f"![Device {files['device']}]({files['device_png']})", ""]
     lines += ["## Process", "",
               f"Rules and layers from {plan.rules_source}:", ""]
-    proc = spec.process
+    proc = plan.process
 
-    def rule(value, own):
+    def rule(value, given):
         text = f"{value / UM:g} um"
-        return text if own else text + " (the spec sets none: the paper's minimum feature)"
+        return text if given is not None else text + " (unset: the paper's minimum feature)"
 
-    own_line = plan.rules.min_line != PAPER_MIN_FEATURE or proc.min_line_um is not None
-    own_space = plan.rules.min_space != PAPER_MIN_FEATURE or proc.min_space_um is not None
-    lines += [f"- min line {rule(r.min_line, own_line)}, min space "
-              f"{rule(r.min_space, own_space)}, anchor enclosure {r.anchor_enclosure / UM:g} um;",
+    lines += [f"- min line {rule(r.min_line, proc.min_line_um)}, min space "
+              f"{rule(r.min_space, proc.min_space_um)}, anchor enclosure "
+              f"{r.anchor_enclosure / UM:g} um;",
               f"- beams: double-V, half angle {proc.beam_angle_deg:.4g} deg between the two "
               f"legs of a V; plates POLY1 + POLY2 ({proc.mass_thickness_um:g} um), beams "
               f"POLY1 ({proc.beam_height_um:g} um).", ""]

@@ -31,6 +31,8 @@ class LayoutPlan:
         Its designed impacters (geometry in SI).
     frequencies : dict
         Impacter id -> (drive tone, natural frequency) [Hz].
+    process : planner.config.ProcessConfig
+        The plan's process with the layout fields of ``--spec`` if given.
     rules : LayoutRules
         The process rules and layers the layout is drawn and checked with.
     rules_source : str
@@ -43,6 +45,7 @@ class LayoutPlan:
     spec: object
     design: object
     frequencies: dict
+    process: object
     rules: LayoutRules
     rules_source: str
     trim: TrimPlan | None
@@ -115,5 +118,5 @@ def read_layout_plan(plan_path, rules_spec=None) -> LayoutPlan:
                                              for k in LAYOUT_FIELDS})
         source = str(rules_spec)
         trim = trim_from_spec(json.loads(other.model_dump_json()))
-    return LayoutPlan(path, spec, design, frequencies, LayoutRules.from_process(process),
-                      source, trim)
+    return LayoutPlan(path, spec, design, frequencies, process,
+                      LayoutRules.from_process(process), source, trim)
