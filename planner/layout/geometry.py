@@ -71,6 +71,11 @@ PAD_SPACE = 2.0
 #: Space between neighbouring trim tabs [min_space]; widest tab [m].
 TAB_SPACE = 2.0
 TAB_WIDTH_MAX = 20.0 * UM
+#: Largest compliance of the stem to the second V, relative to that V's (from eq.
+#: (4)) [-]: the stem lowers the drawn k by at most about half of it.
+STEM_COMPLIANCE = 0.002
+#: Rounds of widening the stem (each moves the second V up, which lengthens it).
+STEM_ROUNDS = 6
 #: Space between a moving structure and anything else, besides the swing of the
 #: impacters on either side (2 c each) [min_space].
 CLEARANCE = 2.0
@@ -295,29 +300,41 @@ def cantilever(impacter_id, area, width, length, beam_angle, impact_angle, rules
                          f"{math.degrees(beam_angle):g} deg was given")
     cp, sp = math.cos(beam_angle), math.sin(beam_angle)
     leg = length / 2.0
-    # the stem to the second V, as wide as a leg and far shorter (its rise against
-    # l / 2): it bends hundreds of times less than a leg, the second V acts as drawn
-    stem = max(2.0 * line, width)
-    # along the roof from the ridge to a leg: the legs of a V start a space apart
-    # and clear the stem by one
-    ridge = max(RIDGE_SPACE * space, (stem / 2.0 + space) / cp)
-    roof = ridge + width + line            # one roof face, ridge to eave
-    wall = max(2.0 * line, width)          # a joining member's vertical sides
-    ridge_y = wall + roof * sp
     pad = max(max(ANCHOR_CUT, line) + 2.0 * enc, width + 2.0 * line)
-    foot = ridge + width / 2.0             # ridge to a leg's base centre, along the roof
+    wall = max(2.0 * line, width)          # a joining member's vertical sides
     gap = PAD_SPACE * space
-    # The second V is the first moved up by `rise`, which moves everything of it by
-    # rise sin(phi) across the first V's legs (towards the axis) and rise cos(phi)
-    # along them.  Across: its legs must clear the first V's pads, and its joining
-    # member (whose eaves reach `beyond` a leg's inner edge) the first V's legs and
-    # pads (which reach (pad - w) / 2 inside the legs); along: its pads theirs.
-    eave = roof * cp
-    inner = np.array([foot * cp, ridge_y - foot * sp]) - width / 2.0 * np.array([cp, -sp])
-    beyond = max(float((np.array(q) - inner) @ np.array([cp, -sp]))
-                 for q in ((eave, 0.0), (eave, wall)))
-    rise = max((gap + (width + pad) / 2.0) / sp, (gap + beyond + (pad - width) / 2.0) / sp,
-               (pad + gap) / cp)
+    # The stem to the second V carries its spring force: a beam of length `rise` and
+    # width `stem` in series with that V, guided at its top (the V's two legs, at
+    # +-phi, hold its joining member from turning).  It is made wide enough to add at
+    # most STEM_COMPLIANCE to the V's compliance (eq. (4): one V is half of k), so that
+    # the second V acts as drawn; a wider stem moves the legs apart and the V up, hence
+    # the few rounds.
+    stem = max(2.0 * line, width)
+    k_v = 0.5 * (width / length) ** 3 * (4.0 / cp) * (2.0 / cp + 1.0)   # / (E h)
+    for _ in range(STEM_ROUNDS):
+        # along the roof from the ridge to a leg: the legs of a V start a space apart
+        # and clear the stem by one
+        ridge = max(RIDGE_SPACE * space, (stem / 2.0 + space) / cp)
+        roof = ridge + width + line        # one roof face, ridge to eave
+        ridge_y = wall + roof * sp
+        foot = ridge + width / 2.0         # ridge to a leg's base centre, along the roof
+        # The second V is the first moved up by `rise`, which moves everything of it by
+        # rise sin(phi) across the first V's legs (towards the axis) and rise cos(phi)
+        # along them.  Across: its legs must clear the first V's pads, and its joining
+        # member (whose eaves reach `beyond` a leg's inner edge) the first V's legs and
+        # pads (which reach (pad - w) / 2 inside the legs); along: its pads theirs.
+        eave = roof * cp
+        inner = (np.array([foot * cp, ridge_y - foot * sp])
+                 - width / 2.0 * np.array([cp, -sp]))
+        beyond = max(float((np.array(q) - inner) @ np.array([cp, -sp]))
+                     for q in ((eave, 0.0), (eave, wall)))
+        rise = max((gap + (width + pad) / 2.0) / sp,
+                   (gap + beyond + (pad - width) / 2.0) / sp, (pad + gap) / cp)
+        # a fixed-guided stem: k = E h stem^3 / rise^3
+        need = (rise**3 * k_v / STEM_COMPLIANCE) ** (1.0 / 3.0)
+        if need <= stem:
+            break
+        stem = need
     # the stem rises between the first V's pads: their inner corners must clear it
     if (foot + leg * math.tan(beam_angle) - pad / 2.0) * cp < stem / 2.0 + gap:
         raise ValueError(f"impacter {impacter_id}: beams {length / UM:.4g} um long are too "

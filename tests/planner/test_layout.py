@@ -321,19 +321,24 @@ def test_a_plan_made_otherwise_is_refused(chip, tmp_path):
 
 
 def test_designs_across_the_bounds_are_drawn_inside_the_rules(tiny_plan_dir, tmp_path):
-    """The corners of the designer's box (w 2-10 um, l 60-1500 um, A 5e3-5e4 um^2; the
-    double-V cannot draw much shorter beams or smaller plates, see below) with the gaps
-    the rules allow (c >= 2 um / sin 45 deg, up to 10 um) are drawn clean: only the
-    designed w and c meet a rule, and inside the bounds they keep it."""
-    grid = [(a, w, l, c) for a in (5e3, 5e4) for w in (2.0, 10.0) for l in (60.0, 1500.0)
-            for c in (2.0 / math.sin(math.pi / 4), 10.0)]
-    grid += [(2e4, 5.0, 400.0, 4.0), (1e4, 7.0, 150.0, 3.0)]
+    """The corners of the designer's box (w 2-10 um, l 150-1500 um, A 5e3-5e4 um^2,
+    c from 2 um / sin 45 deg, the rules' bound, to 10 um) whose natural frequency a drive
+    can reach (below 100 kHz; the default band ends at 42 kHz) are drawn clean: only
+    the designed w and c meet a rule, and inside the bounds they keep it."""
+    def nu(a, w, l):
+        return model.Impacter.from_geometry(a * UM**2, w * UM, l * UM, 3 * UM).natural_frequency
+
+    corners = [(a, w, l, c) for a in (5e3, 5e4) for w in (2.0, 10.0) for l in (150.0, 1500.0)
+               for c in (2.0 / math.sin(math.pi / 4), 10.0)]
+    grid = [g for g in corners if nu(*g[:3]) < 1e5]
+    grid += [(2e4, 5.0, 400.0, 4.0), (1e4, 7.0, 600.0, 3.0)]
+    assert len(grid) == 14                 # 12 corners a drive can reach, 2 inside
 
     def rules(spec):
         spec["process"].update(min_line_um=2.0, min_space_um=2.0)
 
     plan = _synthetic_plan(tiny_plan_dir, tmp_path / "plan", edit=rules,
-                           geometry=lambda i: grid[i], rows=3, cols=3, pitch_um=3500.0)
+                           geometry=lambda i: grid[i], rows=1, cols=7, pitch_um=3500.0)
     result = _layout(plan, "--out", tmp_path / "chip.gds", "--check")
     assert result.exit_code == 0, result.output
     assert "design-rule check: clean" in result.output
