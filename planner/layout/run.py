@@ -69,16 +69,21 @@ def output_paths(out, device: str, check: bool) -> dict:
     OutputError
         ``out`` does not end in ``.gds``.
     """
-    out = Path(out)
-    if out.suffix.lower() != ".gds":
-        raise OutputError(f"--out {out}: name a .gds file (the report and pictures are "
-                          "written beside it)")
+    out = _gds_name(out)
     stem = out.with_suffix("")
     paths = {"gds": out, "report": Path(f"{stem}.md"), "chip_png": Path(f"{stem}.png"),
              "device_png": Path(f"{stem}_{device}.png")}
     if check:
         paths["drc_json"] = Path(f"{stem}_drc.json")
     return paths
+
+
+def _gds_name(out) -> Path:
+    out = Path(out)
+    if out.suffix.lower() != ".gds":
+        raise OutputError(f"--out {out}: name a .gds file (the report and pictures are "
+                          "written beside it)")
+    return out
 
 
 def _check_outputs(paths: dict, plan_file: Path) -> None:
@@ -125,6 +130,7 @@ def run_layout(plan_path, out, *, check: bool = False, rules_spec=None,
     """
     from planner._io import atomic_path
 
+    _gds_name(out)                         # refused before any work
     plan = read_layout_plan(plan_path, rules_spec)
     chip = build_chip(plan.design, plan.frequencies, plan.rules, plan.trim)
     devices = list(chip.device_origins)
