@@ -37,6 +37,46 @@ NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 _Strict = Strict
 
 
+#: A GDSII layer and datatype, each 0 ... 255.
+GdsLayer = tuple[Annotated[int, Field(ge=0, le=255)], Annotated[int, Field(ge=0, le=255)]]
+
+
+class LayerMap(_Strict):
+    """GDSII (layer, datatype) of every mask the layout draws (``process.layers``).
+
+    The defaults follow the mask names and numbering of a PolyMUMPs-style three-poly
+    surface-micromachining process, the paper's (Section IV): POLY0 is the ground
+    plane under the devices, ANCHOR1 the cuts where POLY1 lands on POLY0, DIMPLE the
+    bumps under POLY1, POLY1 the structural layer of beams, plates and sliders,
+    POLY1_POLY2_VIA the cut that bonds POLY2 onto POLY1 (the impacter plates are
+    POLY1 + POLY2, t = 3.5 um), ANCHOR2 the cuts of the POLY2 slider guides, POLY2 the
+    second structural layer.  LABEL (text: ids and frequencies) and TRIM (outlines of
+    the trim tabs) are no masks.  Check the numbers against the foundry's layer map
+    and give only the names that differ, e.g. ``process: {layers: {POLY2: [50, 0]}}``.
+    """
+
+    POLY0: GdsLayer = (13, 0)
+    ANCHOR1: GdsLayer = (43, 0)
+    DIMPLE: GdsLayer = (50, 0)
+    POLY1: GdsLayer = (45, 0)
+    POLY1_POLY2_VIA: GdsLayer = (47, 0)
+    ANCHOR2: GdsLayer = (52, 0)
+    POLY2: GdsLayer = (49, 0)
+    LABEL: GdsLayer = (100, 0)
+    TRIM: GdsLayer = (101, 0)
+
+    @model_validator(mode="after")
+    def _distinct(self):
+        seen = {}
+        for name in type(self).model_fields:
+            pair = tuple(getattr(self, name))
+            if pair in seen:
+                raise ValueError(f"{name} and {seen[pair]} are both on layer {list(pair)}; "
+                                 "every mask needs its own (layer, datatype)")
+            seen[pair] = name
+        return self
+
+
 class ProcessConfig(_Strict):
     """Process constants (Table I and Section III-B); defaults are the paper's MUMPs values."""
 
@@ -47,6 +87,34 @@ class ProcessConfig(_Strict):
     substrate_gap_um: PositiveFloat = _d.SUBSTRATE_GAP / UM
     beam_angle_deg: Annotated[float, Field(ge=0, lt=90)] = math.degrees(_d.BEAM_ANGLE)
     slider_thickness_um: PositiveFloat = _d.SLIDER_THICKNESS / UM
+    #: GDSII layer and datatype of every mask of the layout (``vibroplan layout``).
+    layers: LayerMap = LayerMap()
+    #: Minimum line width [um] of the structural layers.  Unset: the layout is checked
+    #: against the paper's 2 um minimum feature and the designer keeps its own lower
+    #: bounds (17); set: every beam is at least this wide (designer bounds included).
+    min_line_um: PositiveFloat | None = None
+    #: Minimum space [um] between structures of one layer.  Unset: checked against 2 um,
+    #: designer bounds unchanged; set: the designer keeps every impacter tip at least
+    #: this far from its slider wall (c sin(theta) >= min_space_um).
+    min_space_um: PositiveFloat | None = None
+    #: How far POLY0, POLY1 and POLY2 must reach beyond an anchor cut [um].
+    anchor_enclosure_um: PositiveFloat = 2.0
+
+    def physics(self) -> "ProcessConfig":
+        """This process with the layout-only fields (:data:`LAYOUT_FIELDS`) at their
+        defaults.
+
+        What a design depends on: the designer gets this copy, so that a new layer map
+        or rule (which reach the designer through its bounds) never invalidates a
+        cached design.
+        """
+        return self.model_copy(update={k: type(self).model_fields[k].default
+                                       for k in LAYOUT_FIELDS})
+
+
+#: The fields of :class:`ProcessConfig` that only the layout reads (and the designer's
+#: bounds, through the rules).
+LAYOUT_FIELDS = ("layers", "min_line_um", "min_space_um", "anchor_enclosure_um")
 
 
 class EnvironmentConfig(_Strict):

@@ -99,14 +99,16 @@ class DesignConfig(_Strict):
     def design_kwargs(self) -> dict:
         """Keyword arguments of :func:`planner.designer.design_impacter` (SI units)."""
         from planner.config import build_slider
+        from planner.layout.rules import narrow_bounds
 
         d = self.design
         return {
-            "process": self.process,
+            "process": self.process.physics(),
             "environment": self.environment,
             "power": self.drive.power_m2_s3,
             "amplitude": None if self.drive.amplitude_um is None else self.drive.amplitude_um * UM,
-            "bounds": d.bounds(),
+            # the process rules the config sets keep the beams and tips drawable
+            "bounds": narrow_bounds(d.bounds(), self.process, [math.radians(d.impact_angle_deg)]),
             "window": d.window_ms * 1e-3,
             "budget": d.budget,
             "x0_points": d.x0_points,

@@ -120,6 +120,12 @@ def design_from_plan(data: dict, spec: ArraySpec) -> ChipDesign:
     return ChipDesign(spec, tuple(nodes), devices)
 
 
+def nominal_impacter(spec: ArraySpec, node: NodeDesign) -> Impacter:
+    """The impacter a node's geometry makes by eqs. (2)-(4) with the spec's process and
+    environment, no fabrication error: what plan.json records for a designed node."""
+    return _impacter(spec, node, np.zeros(len(ERRORS)))
+
+
 def _impacter(spec: ArraySpec, node: NodeDesign, err) -> Impacter:
     """As-built impacter pair; ``err`` = the five errors in :data:`ERRORS` order (um, %)."""
     dw, dt, dc, de, dnu = (float(e) for e in err)

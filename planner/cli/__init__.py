@@ -29,6 +29,7 @@ COMMANDS = {
     "replan": "replan",
     "bench": "bench",
     "yield": "yield_",
+    "layout": "layout",
 }
 
 

@@ -57,7 +57,9 @@ class ImpacterSettings:
     restitution : float
         e [-].
     process : ProcessConfig
-        The spec's process with this impacter's ``mass_thickness_um`` if it sets one.
+        The spec's process with this impacter's ``mass_thickness_um`` if it sets one,
+        its layout-only fields at their defaults (:meth:`ProcessConfig.physics`: no
+        design depends on them; the rules reach the designer through ``bounds``).
     slider : SliderConfig
         Its device's slider (the designer's predicted speed).
     contact : str
@@ -106,7 +108,8 @@ class Settings:
     process, environment
         The spec's process and environment configs.
     bounds : planner.designer.DesignBounds
-        Bounds of the design variables (SI).
+        Bounds of the design variables (SI): ``design.bounds`` narrowed by the
+        ``process.min_line_um`` and ``process.min_space_um`` the spec sets.
     window_s : float
         The designer's window [s].
     budget : str
@@ -256,7 +259,7 @@ def _check_impacter_sections(loaded):
 
 def _impacter_settings(spec, device, direction):
     cfg = spec.impacter_config(device, direction)
-    process = spec.process
+    process = spec.process.physics()
     if cfg.mass_thickness_um is not None:
         process = process.model_copy(update={"mass_thickness_um": cfg.mass_thickness_um})
     angle = (math.radians(cfg.impact_angle_deg) if cfg.impact_angle_deg is not None
@@ -266,16 +269,25 @@ def _impacter_settings(spec, device, direction):
                             spec.contact(device))
 
 
-def _bounds(spec):
+def _bounds(loaded, impacters):
+    """``design.bounds`` narrowed by the process rules the spec sets (the layout's
+    beam width and tip space, :func:`planner.layout.rules.narrow_bounds`)."""
     from planner.designer import DesignBounds
+    from planner.layout.rules import RuleBoundsError, narrow_bounds
 
+    spec = loaded.spec
     b = spec.design.bounds
     kwargs = {key: tuple(getattr(b, key)) for key in ("area_um2", "width_um", "length_um",
                                                         "gap_um") if getattr(b, key) is not None}
     if spec.design.beam_width_um is not None:
         # one width for every beam: the designer's width bounds collapse onto it
         kwargs["width_um"] = (spec.design.beam_width_um, spec.design.beam_width_um)
-    return DesignBounds.from_spec(**kwargs) if kwargs else DesignBounds()
+    bounds = DesignBounds.from_spec(**kwargs) if kwargs else DesignBounds()
+    try:
+        return narrow_bounds(bounds, spec.process,
+                             [imp.impact_angle_rad for imp in impacters.values()])
+    except RuleBoundsError as exc:
+        _refuse(loaded, exc.field, str(exc))
 
 
 def _sensitivity_band(spec):
@@ -311,6 +323,8 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
                 "(a fabrication section with a non-zero sigma) to be robust against")
     devices = sorted(loaded.device_ids, key=device_key)
     drive, ver, des = spec.drive, spec.verification, spec.design
+    impacters = {Node(d, r).text: _impacter_settings(spec, d, r)
+                 for d in devices for r in DIRECTIONS}
     return Settings(
         loaded=loaded,
         seed=des.seed if seed is None else int(seed),
@@ -327,13 +341,12 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
         separation_channels=drive.guard.separation_channels,
         process=spec.process,
         environment=spec.environment,
-        bounds=_bounds(spec),
+        bounds=_bounds(loaded, impacters),
         window_s=des.window_ms * MS,
         budget=des.budget,
         guard=des.guard,
         robust_k=des.robust_k if des.robust else None,
-        impacters={Node(d, r).text: _impacter_settings(spec, d, r)
-                   for d in devices for r in DIRECTIONS},
+        impacters=impacters,
         sliders={d: build_slider(spec.slider_config(d), spec.process, spec.environment)
                  for d in devices},
         x0_points=ver.x0_points,

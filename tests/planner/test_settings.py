@@ -49,6 +49,12 @@ CASES = [
     ("process.density_kg_m3", 2000.0, lambda s: s.impacters["A1.forward"].process),
     ("process.mass_thickness_um", 3.0, lambda s: s.impacters["A1.forward"].process),
     ("process.slider_thickness_um", 3.0, lambda s: s.sliders["A1"].mass),
+    # the layout's rules reach the designer through its bounds (issue 30), the layer map
+    # and the anchor enclosure only the layout (vibroplan layout reads them from plan.json)
+    ("process.min_line_um", 3.0, lambda s: s.bounds),
+    ("process.min_space_um", 2.0, lambda s: s.bounds),
+    ("process.layers", {"POLY2": [50, 1]}, lambda s: s.process),
+    ("process.anchor_enclosure_um", 4.0, lambda s: s.process),
     ("environment.viscosity_mpa_s", 0.01, lambda s: s.environment),
     ("device.impacter.restitution", 0.7, _imp("A1.forward", "restitution")),
     ("device.impacter.impact_angle_deg", 30.0, _imp("A2.backward", "impact_angle_rad")),
@@ -165,6 +171,8 @@ DESIGN_CASES = [
     ("design.width_um", [3.0, 9.0], "bounds"),
     ("design.length_um", [10.0, 1400.0], "bounds"),
     ("design.gap_um", [3.0, 9.0], "bounds"),
+    ("process.min_line_um", 3.0, "bounds"),
+    ("process.min_space_um", 2.0, "bounds"),
     ("design.window_ms", 2.0, "window"),
     ("design.budget", "fast", "budget"),
     ("design.x0_points", 7, "x0_points"),
@@ -182,3 +190,61 @@ def test_every_design_config_field_reaches_the_designer(path, value, key):
         assert changed[key].mass != base[key].mass
     else:
         assert changed[key] != base[key], path
+
+
+# ------------------------------------------------------------------ process rules (issue 30)
+
+def test_unset_rules_leave_the_default_bounds_alone():
+    """The default spec's designer bounds are the paper's (17) and the documented upper
+    bounds, exactly: a plan without rules is the plan it was before the rules existed."""
+    from planner.designer import DesignBounds
+
+    assert _settings().bounds == DesignBounds()
+    assert resolve_settings(load_spec(_default_spec_text())).bounds == DesignBounds()
+
+
+def _default_spec_text():
+    from planner.spec import default_spec_path
+
+    return default_spec_path().read_text(encoding="utf-8")
+
+
+def test_rules_narrow_the_bounds_to_what_the_layout_can_draw():
+    # w >= min_line; the tip clears its wall by c sin(theta): c >= min_space / sin(theta)
+    s = _settings(("process.min_line_um", 3.0), ("process.min_space_um", 2.5),
+                  ("device.forward.impact_angle_deg", 30.0))
+    assert s.bounds.width[0] == pytest.approx(3e-6)
+    # the smallest impact angle (30 deg, the forward impacters) sets the gap bound
+    assert s.bounds.gap[0] == pytest.approx(2.5e-6 / math.sin(math.radians(30.0)))
+    # a rule below the paper's bounds leaves them
+    assert _settings(("process.min_line_um", 1.0)).bounds.width[0] == pytest.approx(2e-6)
+
+
+@pytest.mark.parametrize("path, value, bound", [
+    ("process.min_line_um", 12.0, "design.bounds.width_um"),
+    ("process.min_space_um", 8.0, "design.bounds.gap_um"),
+])
+def test_rules_no_design_can_meet_are_refused_with_their_line(path, value, bound):
+    with pytest.raises(SpecError) as err:
+        _settings((path, value))
+    assert path in str(err.value) and bound in str(err.value)
+    assert err.value.line is not None
+
+
+def test_the_layer_map_does_not_reach_the_designs():
+    """The designer gets the process without its layout-only fields: a new layer map
+    (or enclosure) leaves every design task, and so its cache key, as it was."""
+    from planner.planning.design_store import task_digest
+
+    base = _settings().design_kwargs("A1.forward")
+    other = _settings(("process.layers", {"POLY2": [50, 1]}),
+                      ("process.anchor_enclosure_um", 4.0)).design_kwargs("A1.forward")
+    assert task_digest(base) == task_digest(other)
+    narrowed = _settings(("process.min_line_um", 3.0)).design_kwargs("A1.forward")
+    assert task_digest(narrowed) != task_digest(base)
+
+
+def test_two_masks_on_one_layer_are_refused():
+    with pytest.raises(SpecError) as err:
+        _settings(("process.layers", {"POLY2": [45, 0]}))
+    assert "process.layers" in str(err.value) and "POLY1" in str(err.value)

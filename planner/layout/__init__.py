@@ -1,0 +1,1 @@
+"""The chip layout of a plan (``vibroplan layout``): GDSII, geometry round trip, DRC."""

@@ -1,0 +1,162 @@
+"""``vibroplan layout`` as a library call: plan -> GDSII, round trip, DRC, pictures, report.
+
+Outputs, all beside the GDSII file ``STEM.gds`` and written atomically together (a
+failed run leaves every one of them as it was):
+
+- ``STEM.gds`` the layout;
+- ``STEM.png`` the chip, ``STEM_<device>.png`` one device;
+- ``STEM.md`` the report (round trip, devices, trim tabs, the check);
+- ``STEM_drc.json`` the check's violations (with ``check=True``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from planner.errors import OutputError
+from planner.layout.drc import DrcResult, check as run_check
+from planner.layout.gds import read_gds, write_gds
+from planner.layout.geometry import ChipLayout, build_chip
+from planner.layout.measure import measure, round_trip
+from planner.layout.plots import chip_figure, device_figure
+from planner.layout.report import HEADER, write_report
+from planner.layout.source import LayoutPlan, read_layout_plan
+
+
+@dataclass(frozen=True)
+class LayoutResult:
+    """What :func:`run_layout` made.
+
+    Attributes
+    ----------
+    plan : LayoutPlan
+    chip : ChipLayout
+    round_trip : list of dict
+        :func:`planner.layout.measure.round_trip`.
+    drc : DrcResult or None
+    files : dict
+        Output kind (``gds``, ``report``, ``chip_png``, ``device_png``, ``drc_json``)
+        -> its path.
+    gds_bytes : int
+        Size of the GDSII file.
+    """
+
+    plan: LayoutPlan
+    chip: ChipLayout
+    round_trip: list
+    drc: DrcResult | None
+    files: dict
+    gds_bytes: int
+
+    @property
+    def round_trip_passed(self) -> bool:
+        return all(r["passed"] for r in self.round_trip)
+
+    @property
+    def passed(self) -> bool:
+        """The round trip reproduces the plan and (if run) the check is clean."""
+        return self.round_trip_passed and (self.drc is None or self.drc.clean)
+
+
+def output_paths(out, device: str, check: bool) -> dict:
+    """The output files of ``--out out`` (see the module docstring).
+
+    Raises
+    ------
+    OutputError
+        ``out`` does not end in ``.gds``.
+    """
+    out = _gds_name(out)
+    stem = out.with_suffix("")
+    paths = {"gds": out, "report": Path(f"{stem}.md"), "chip_png": Path(f"{stem}.png"),
+             "device_png": Path(f"{stem}_{device}.png")}
+    if check:
+        paths["drc_json"] = Path(f"{stem}_drc.json")
+    return paths
+
+
+def _gds_name(out) -> Path:
+    out = Path(out)
+    if out.suffix.lower() != ".gds":
+        raise OutputError(f"--out {out}: name a .gds file (the report and pictures are "
+                          "written beside it)")
+    return out
+
+
+def _check_outputs(paths: dict, plan_file: Path) -> None:
+    """Refuse to replace a plan's own files: in the plan's folder, an existing output
+    name may be replaced only when a layout report of the same name is there."""
+    folder = plan_file.resolve().parent
+    ours = paths["report"].is_file() and paths["report"].read_text(
+        encoding="utf-8", errors="replace").startswith(HEADER)
+    for path in paths.values():
+        if path.resolve() == plan_file.resolve() or (
+                path.exists() and path.resolve().parent == folder and not ours):
+            raise OutputError(f"--out: {path} would replace a file of the plan's folder; "
+                              "choose another name")
+
+
+def run_layout(plan_path, out, *, check: bool = False, rules_spec=None,
+               device: str | None = None, version: str = "") -> LayoutResult:
+    """Draw a plan's chip, read it back, optionally check it, and write the outputs.
+
+    Parameters
+    ----------
+    plan_path : str or Path
+        A plan folder or its plan.json.
+    out : str or Path
+        The GDSII file to write (``.gds``); the other outputs go beside it.
+    check : bool
+        Run the design-rule check (:func:`planner.layout.drc.check`).
+    rules_spec : str or Path, optional
+        Take the process layers, rules and trim section from this spec
+        (:func:`planner.layout.source.read_layout_plan`).
+    device : str, optional
+        The device of the zoomed picture (default: the first).
+    version : str
+        vibroplan's version, for the report.
+
+    Returns
+    -------
+    LayoutResult
+
+    Raises
+    ------
+    FileNotFoundError, ValueError, planner.errors.SpecError, OutputError
+        Bad input or output name; nothing is written.
+    """
+    from planner._io import atomic_path
+
+    _gds_name(out)                         # refused before any work
+    plan = read_layout_plan(plan_path, rules_spec)
+    chip = build_chip(plan.design, plan.frequencies, plan.rules, plan.trim)
+    devices = list(chip.device_origins)
+    device = devices[0] if device is None else device
+    if device not in chip.device_origins:
+        raise ValueError(f"--device {device}: the plan has no designed device {device!r} "
+                         f"(devices {devices[0]} ... {devices[-1]})")
+    paths = output_paths(out, device, check)
+    _check_outputs(paths, plan.path)
+    with contextlib.ExitStack() as stack:
+        tmp = {k: stack.enter_context(atomic_path(p)) for k, p in paths.items()}
+        write_gds(chip, tmp["gds"])
+        lib = read_gds(tmp["gds"])
+        rows = round_trip(plan.spec, plan.design, measure(lib, plan.rules.layers))
+        drc = run_check(tmp["gds"], plan.rules, chip.pitch) if check else None
+        chip_figure(lib, plan.rules.layers, tmp["chip_png"],
+                    f"{plan.spec.name}: {len(devices)} devices, "
+                    f"{plan.spec.array.pitch_um:g} um pitch")
+        device_figure(lib, plan.rules.layers, device, tmp["device_png"],
+                      f"{plan.spec.name}: device {device}")
+        if drc is not None:
+            tmp["drc_json"].write_text(json.dumps(drc.to_dict(), indent=1) + "\n",
+                                       encoding="utf-8")
+        size = tmp["gds"].stat().st_size
+        names = {k: p.name for k, p in paths.items()}
+        names["device"] = device
+        write_report(tmp["report"], plan=plan, chip=chip, rows=rows, drc=drc, files=names,
+                     gds_bytes=size, version=version)
+    return LayoutResult(plan, chip, rows, drc, paths, size)

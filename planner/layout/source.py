@@ -1,0 +1,122 @@
+"""What the layout reads of a plan: its designs, tones, process rules and trim section.
+
+:func:`read_layout_plan` is the layout's one reader of plan.json; it goes through the
+plan readers of the rest of vibroplan (:func:`planner.yield_.read_plan`,
+:func:`planner.fabrication.design_from_plan`), so that a change of plan.json's reader
+is one change here.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from planner.layout.rules import LayoutRules
+from planner.layout.trim import TrimPlan, trim_from_spec
+
+
+@dataclass(frozen=True)
+class LayoutPlan:
+    """A plan as the layout sees it.
+
+    Attributes
+    ----------
+    path : Path
+        Its plan.json.
+    spec : planner.spec.ArraySpec
+        Its spec (process, environment, array, sliders).
+    design : planner.fabrication.ChipDesign
+        Its designed impacters (geometry in SI).
+    frequencies : dict
+        Impacter id -> (drive tone, natural frequency) [Hz].
+    process : planner.config.ProcessConfig
+        The plan's process with the layout fields of ``--spec`` if given.
+    rules : LayoutRules
+        The process rules and layers the layout is drawn and checked with.
+    rules_source : str
+        Where they come from (the plan's spec, or the ``--spec`` file).
+    trim : TrimPlan or None
+        The spec's ``trim:`` section.
+    """
+
+    path: Path
+    spec: object
+    design: object
+    frequencies: dict
+    process: object
+    rules: LayoutRules
+    rules_source: str
+    trim: TrimPlan | None
+
+
+def _spec_of(data: dict, path):
+    """The plan's validated spec; ``trim`` (not in the spec model yet) is read apart."""
+    from pydantic import ValidationError
+
+    from planner.spec import ArraySpec
+
+    spec = dict(data["spec"]) if isinstance(data.get("spec"), dict) else data.get("spec")
+    if not isinstance(spec, dict):
+        raise ValueError(f"{path}: its spec is not a mapping")
+    if "trim" not in ArraySpec.model_fields:
+        spec.pop("trim", None)
+    try:
+        return ArraySpec.model_validate(spec)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        where = ".".join(str(p) for p in err["loc"])
+        raise ValueError(f"{path}: spec.{where}: {err['msg']}") from None
+
+
+def read_layout_plan(plan_path, rules_spec=None) -> LayoutPlan:
+    """Read a plan folder or plan.json for the layout.
+
+    Parameters
+    ----------
+    plan_path : str or Path
+        A folder written by ``vibroplan plan`` or its plan.json.
+    rules_spec : str or Path, optional
+        A spec file whose ``process`` layers and rules (``layers``, ``min_line_um``,
+        ``min_space_um``, ``anchor_enclosure_um``) and ``trim`` section replace the
+        plan's: the plan's designs drawn and checked with another process's rules.
+
+    Raises
+    ------
+    FileNotFoundError
+        No plan there.
+    ValueError
+        Not a plan.json, or one whose designs do not follow from its geometry.
+    planner.errors.SpecError
+        ``rules_spec`` is not a valid spec, or sets rules that no design inside its
+        own bounds can meet (naming the field).
+    """
+    from planner.config import LAYOUT_FIELDS
+    from planner.fabrication import design_from_plan
+    from planner.planning.settings import resolve_settings
+    from planner.spec import load_spec
+    from planner.yield_ import read_plan
+
+    data, path = read_plan(plan_path)
+    spec = _spec_of(data, path)
+    design = design_from_plan(data, spec)
+    frequencies = {}
+    for rec in data["impacters"]:
+        f, nu = rec.get("frequency_hz"), rec.get("natural_frequency_hz")
+        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in (f, nu)):
+            raise ValueError(f"{path}: impacter {rec.get('id')!r} has no frequency_hz and "
+                             "natural_frequency_hz")
+        frequencies[rec["id"]] = (float(f), float(nu))
+    trim = trim_from_spec(data["spec"])
+    process, source = spec.process, f"the plan's spec ({path})"
+    if rules_spec is not None:
+        # a spec the planner would refuse (rules no design inside its bounds can meet,
+        # with the field and line) is refused here too
+        other = resolve_settings(load_spec(Path(rules_spec))).spec
+        process = process.model_copy(update={k: getattr(other.process, k)
+                                             for k in LAYOUT_FIELDS})
+        source = str(rules_spec)
+        trim = trim_from_spec(json.loads(other.model_dump_json()))
+    return LayoutPlan(path, spec, design, frequencies, process,
+                      LayoutRules.from_process(process), source, trim)
