@@ -346,14 +346,20 @@ def assign(loaded: LoadedSpec, steps, *, separation=None, pair_separation=None,
         lo, hi = spec.drive.band_hz
         what = (f"{grid.size} channels" if count == grid.size else
                 f"{count} positions{_guard_note(spec, grid, sep, count)}")
+        fixes = ("a wider band (drive.band_hz), a lower fabrication.target_yield, smaller "
+                 "tolerances (fabrication), wider beams (design.sensitivity_per_um), a "
+                 "narrower drive.channels.separation_hz or ensemble separation "
+                 "(drive.guard.ensemble_separation_channels)"
+                 if spec.drive.channels.spacing == "tolerance" else
+                 "a wider band (drive.band_hz), more channels (drive.channels.count) with a "
+                 "narrower response band (drive.guard.separation_channels), a narrower "
+                 "design guard (design.guard)")
         raise PlanningError(
             f"the band {lo:g}-{hi:g} Hz holds {what}, but the conflict graph "
             f"({n_groups} channel groups that must be told apart, separation {sep} channels) "
-            f"needs a span of {result.span} (lower bound {result.lower_bound}). Fixes: a wider "
-            f"band (drive.band_hz), more channels (drive.channels.count) with a narrower response "
-            f"band (drive.guard.separation_channels), a narrower design guard (design.guard), "
-            f"fewer independently addressable devices (independent: false), or scenes in "
-            f"which devices move together and share a channel.")
+            f"needs a span of {result.span} (lower bound {result.lower_bound}). Fixes: "
+            f"{fixes}, fewer independently addressable devices (independent: false), or "
+            f"scenes in which devices move together and share a channel.")
     # layout: a colouring read upward or downward is equally valid, and so is any order
     # of its blocks (runs of channels set apart by wide gaps) that keeps every
     # separation within the span; choose the one whose multi-tone steps stir their
