@@ -119,16 +119,21 @@ def predicted_sigmas(spec) -> tuple[np.ndarray, np.ndarray]:
 def pair_sigma_rel(spec) -> float:
     """Relative standard deviation of the difference of two as-built resonances [-].
 
-    sqrt(2 sum_i (s_i sigma_device_i)^2 + sum_i (spread_i sigma_die_i)^2 / 6): the
-    device-level parts of two impacters are independent; a die-level error moves two
-    designs apart by the difference of their sensitivities, uniform over the spread
-    (variance spread^2 / 6 for the difference of two uniform draws on it).
+    sqrt(2 sum_i (s_i sigma_device_i)^2 + 2 sum_i (s_i sigma_pair_i)^2 + sum_i (spread_i
+    sigma_die_i)^2 / 6): the device-level parts of two impacters are independent; the
+    pair level moves each pair's mean and widens its band by about as much; a die-level
+    error moves two designs apart by the difference of their sensitivities, uniform over
+    the spread (variance spread^2 / 6 for the difference of two uniform draws on it).
     """
     fab = spec.fabrication
     s, spread = predicted_sigmas(spec)
     dev = np.array([getattr(fab, k).device for k in ERRORS])
     die = np.array([getattr(fab, k).die for k in ERRORS])
-    return float(math.sqrt(2.0 * np.sum((s * dev) ** 2) + np.sum((spread * die) ** 2) / 6.0))
+    # the pair level: each node's mean moves by sigma / sqrt(2) and its band widens by
+    # about as much again (half the halves' difference); counted as one more device sigma
+    pair = np.array([getattr(fab, k).pair for k in ERRORS])
+    return float(math.sqrt(2.0 * np.sum((s * dev) ** 2) + 2.0 * np.sum((s * pair) ** 2)
+                           + np.sum((spread * die) ** 2) / 6.0))
 
 
 def z_for(target_yield: float, pairs: int) -> float:
@@ -404,21 +409,32 @@ class YieldPrediction:
                    block.get("limiting_pairs") or [], block.get("nominal_collisions") or [])
 
 
-def _collisions(nu, tone, below, above, lo, hi, g, pairs):
-    """(chips, pairs) bool: pair collides on the chip (see the module notes)."""
+def _collisions(nu, tone, below, above, lo, hi, g, pairs, split=None):
+    """(chips, pairs) bool: pair collides on the chip (see the module notes).
+
+    ``split`` (chips, n): half the relative difference of a pair's two halves; the pair
+    answers where either half does (its silent band widens by split nu on each side)
+    and its tone must drive both (its window narrows by the same)."""
     i, j = pairs[:, 0], pairs[:, 1]
     nu_c, t_c = nu * g, tone * g
+    if split is None:
+        wide = np.zeros((1, nu.size))
+    else:
+        wide = np.abs(split) * nu_c
+    b_lo, b_hi = below + wide, above + wide
+    w_lo, w_hi = lo - wide, hi - wide
 
     def inside(a, b):       # a's whole tone window inside b's silent band
-        return ((t_c[:, a] - lo[a] > nu_c[:, b] - below[b])
-                & (t_c[:, a] + hi[a] < nu_c[:, b] + above[b]))
+        return ((t_c[:, a] - w_lo[:, a] > nu_c[:, b] - b_lo[:, b])
+                & (t_c[:, a] + w_hi[:, a] < nu_c[:, b] + b_hi[:, b]))
 
     return inside(i, j) | inside(j, i)
 
 
 def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,
                          silent_below, silent_above, responds_below=None,
-                         responds_above=None, chips=CHIPS, seed=0) -> YieldPrediction:
+                         responds_above=None, chips=CHIPS, seed=0,
+                         sigma_pair=None) -> YieldPrediction:
     """Monte Carlo of the collision-free yield (first order in the errors).
 
     Parameters
@@ -441,6 +457,11 @@ def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,
         Chips sampled.
     seed : int
         The draws come from ``numpy.random.SeedSequence([seed, 25])``.
+    sigma_pair : array_like, shape (p,), optional
+        Standard deviation of each half's own error (the ``pair`` level): the two
+        halves of a pair then differ, the pair answers where either does and its tone
+        must drive both (its silent band widens and its window narrows by half their
+        difference).
 
     Returns
     -------
@@ -472,6 +493,11 @@ def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 25]))
     z_die = rng.standard_normal((chips, p))
     z_dev = rng.standard_normal((chips, n, p))
+    sd_pair = None if sigma_pair is None else np.asarray(sigma_pair, dtype=float)
+    if sd_pair is not None and not np.any(sd_pair > 0):
+        sd_pair = None
+    # drawn after the others: without a pair level the chips are the same
+    z_half = rng.standard_normal((chips, n, 2, p)) if sd_pair is not None else None
     args = (nu, tone, below, above, lo, hi)
     ok_none = ~_collisions(*args, np.ones((1, n)), pairs)[0]
     nominal = [[ids[a], ids[b]] for (a, b), ok in zip(pairs, ok_none) if not ok]
@@ -489,11 +515,17 @@ def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,
         b = min(chips, a + step)
         die_part = (z_die[a:b] * sd_die) @ sens.T                     # (chunk, n)
         dev_part = np.einsum("cnp,np->cn", z_dev[a:b] * sd_dev, sens)
-        both = _collisions(*args, np.exp(die_part + dev_part), pairs)
+        split = None
+        if z_half is not None:
+            h = np.einsum("cnkp,np->cnk", z_half[a:b] * sd_pair, sens)
+            # the pair sits at the mean of its halves, half their difference either side
+            dev_part = dev_part + 0.5 * (h[..., 0] + h[..., 1])
+            split = 0.5 * (h[..., 0] - h[..., 1])
+        both = _collisions(*args, np.exp(die_part + dev_part), pairs, split)
         ok_both[a:b] = ~both.any(axis=1)
         hits += both.sum(axis=0)
         ok_die[a:b] = ~_collisions(*args, np.exp(die_part), pairs).any(axis=1)
-        ok_dev[a:b] = ~_collisions(*args, np.exp(dev_part), pairs).any(axis=1)
+        ok_dev[a:b] = ~_collisions(*args, np.exp(dev_part), pairs, split).any(axis=1)
         nu_c = nu * np.exp(die_part + dev_part)
         gaps[a:b] = np.abs(nu_c[:, pairs[:, 0]] - nu_c[:, pairs[:, 1]]).min(axis=1)
     value = float(np.mean(ok_both))

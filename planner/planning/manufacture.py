@@ -119,7 +119,8 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
         silent_above=[seps[n].silent_above_hz for n in nodes],
         responds_below=[seps[n].responds_below_hz for n in nodes],
         responds_above=[seps[n].responds_above_hz for n in nodes],
-        chips=chips, seed=settings.seed)
+        chips=chips, seed=settings.seed,
+        sigma_pair=[getattr(fab, e).pair for e in ERRORS])
     out.update(
         collision_free_yield=pred.to_dict(), die_only_yield=pred.die_only,
         device_only_yield=pred.device_only, closest_pair_hz=pred.closest_pair_hz,
