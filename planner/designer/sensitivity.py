@@ -111,9 +111,61 @@ class LineWidthModel:
         return math.exp(optimize.brentq(g, math.log(lo), math.log(hi),
                                         xtol=XTOL_REL, rtol=XTOL_REL))
 
+    def _length_at(self, area, width, target):
+        """The beam length [m] that gives (A, w) the sensitivity ``target`` [1/m]: eq. for S
+        solved for l, closed form (S = target is linear in l at fixed A, w):
+
+            l = (3 c_A A - 2 c_A w (S A + sqrt(A))) / (2 c_wl w (S w - 1)).
+
+        Not positive when no length reaches it (S w <= 1 is below the beam-only limit).
+        """
+        den = 2.0 * self.c_wl * width * (target * width - 1.0)
+        num = 3.0 * self.c_area * area - 2.0 * self.c_area * width * (target * area
+                                                                      + math.sqrt(area))
+        return num / den if den > 0 else -1.0
+
+    def _solve_pair(self, free, fixed_value, nu_n, target, bounds, length_bounds, on_width):
+        """Root in the free variable (w, or A when ``on_width`` is False) of nu_n at the
+        sensitivity ``target``, l following in closed form; None when the bracket has no
+        sign change with l inside its bounds (then :meth:`_nested` decides)."""
+        l_lo, l_hi = length_bounds
+        w2 = (2.0 * math.pi * nu_n) ** 2
+
+        def parts(log_x):
+            x = math.exp(log_x)
+            a, w = (fixed_value, x) if on_width else (x, fixed_value)
+            return a, w, self._length_at(a, w, target)
+
+        def g(log_x):
+            a, w, ll = parts(log_x)
+            return (math.log(self.k_coef * w ** 3 / ll ** 3)
+                    - math.log(self.mass(a, w, ll) * w2))
+
+        lo, hi = (math.log(b) for b in bounds)
+        ends = [parts(lo)[2], parts(hi)[2]]
+        if not all(l_lo <= ll <= l_hi for ll in ends):
+            return None
+        g_lo, g_hi = g(lo), g(hi)
+        if g_lo == 0.0:
+            x = lo
+        elif g_hi == 0.0:
+            x = hi
+        elif (g_lo > 0) == (g_hi > 0):
+            return None
+        else:
+            x = optimize.brentq(g, lo, hi, xtol=XTOL_REL, rtol=XTOL_REL)
+        a, w, ll = parts(x)
+        return a, w, ll
+
     def width_for(self, area, nu_n, target, width_bounds, length_bounds):
         """(w, l) [m] with natural frequency ``nu_n`` and sensitivity ``target`` [1/m],
         w within ``width_bounds``; the nearer bound when no width in them reaches it."""
+        if width_bounds[0] < width_bounds[1]:
+            hit = self._solve_pair("w", area, nu_n, target, width_bounds, length_bounds,
+                                   True)
+            if hit is not None:
+                return hit[1], hit[2]
+
         def g(log_w):
             w = math.exp(log_w)
             return math.log(self.sensitivity(area, w, self.length_for(area, w, nu_n,
@@ -127,6 +179,12 @@ class LineWidthModel:
         """(A, l) [m^2, m] with natural frequency ``nu_n`` and sensitivity ``target``
         [1/m] at the fixed width ``width``, A within ``area_bounds``; the nearer bound
         when no area in them reaches it."""
+        if area_bounds[0] < area_bounds[1]:
+            hit = self._solve_pair("A", width, nu_n, target, area_bounds, length_bounds,
+                                   False)
+            if hit is not None:
+                return hit[0], hit[2]
+
         def g(log_a):
             a = math.exp(log_a)
             return math.log(self.sensitivity(a, width, self.length_for(a, width, nu_n,
