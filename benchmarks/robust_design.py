@@ -14,6 +14,7 @@ its 95 % Wilson interval.  Writes benchmarks/results/robust_design.md.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import tempfile
@@ -27,7 +28,8 @@ sys.path.insert(0, str(HERE.parent))
 
 from planner.planning import plan  # noqa: E402
 from planner.spec import load_spec  # noqa: E402
-from planner.yield_ import make_payload, read_plan, run_yield  # noqa: E402
+from planner.planning.plan_file import read_plan  # noqa: E402
+from planner.yield_ import make_payload, run_yield  # noqa: E402
 
 
 def _spec_text(path, robust, device_only):
@@ -55,10 +57,11 @@ def main(argv=None):
             t0 = time.perf_counter()
             result = plan(load_spec(text), out_dir=out, figures=False, jobs=args.jobs)
             wall = time.perf_counter() - t0
-            data, _ = read_plan(out)
+            record = read_plan(out)
+            data = json.loads(record.path.read_text())  # the report's numbers
             imps = data["impacters"]
             t1 = time.perf_counter()
-            y = run_yield(make_payload(data, args.seed), args.chips, jobs=args.jobs)
+            y = run_yield(make_payload(record, args.seed), args.chips, jobs=args.jobs)
             ymc = time.perf_counter() - t1
             rows.append({
                 "design": "robust (k = 2)" if robust else "nominal",

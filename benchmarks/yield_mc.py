@@ -14,6 +14,7 @@ Writes benchmarks/results/yield.md.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import sys
@@ -25,7 +26,8 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
 from planner.spec import FabricationSpec, Tolerance  # noqa: E402
-from planner.yield_ import make_payload, read_plan, run_yield  # noqa: E402
+from planner.planning.plan_file import read_plan  # noqa: E402
+from planner.yield_ import make_payload, run_yield  # noqa: E402
 
 sys.path.insert(0, str(HERE))
 from _timing import machine  # noqa: E402
@@ -51,8 +53,10 @@ def main(argv=None):
         plan(None, out_dir=folder, figures=False)
         print(f"planned the default 5x5 in {time.perf_counter() - t:.0f} s", file=sys.stderr)
         args.plan = str(folder)
-    data, path = read_plan(args.plan)
-    payload = make_payload(data, args.seed, TOLERANCE)
+    record = read_plan(args.plan)
+    path = record.path
+    data = json.loads(path.read_text())  # the report's numbers
+    payload = make_payload(record, args.seed, TOLERANCE)
     runs = []
     jobs_list = [int(j) for j in args.jobs.split(",")]
     counts = ([int(c) for c in args.chips_per_run.split(",")] if args.chips_per_run

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import json
 import os
 import platform
 import sys
@@ -33,7 +34,8 @@ sys.path.insert(0, str(HERE.parent))
 
 from planner.fabrication import sample_chip  # noqa: E402
 from planner.spec import FabricationSpec, Tolerance, load_spec  # noqa: E402
-from planner.yield_ import make_payload, read_plan, run_yield  # noqa: E402
+from planner.planning.plan_file import read_plan  # noqa: E402
+from planner.yield_ import make_payload, run_yield  # noqa: E402
 
 sys.path.insert(0, str(HERE))
 from _timing import machine  # noqa: E402
@@ -98,8 +100,10 @@ def main(argv=None):
                                                       device=args.sigma_device))
         tol_text = (f"line width sigma {args.sigma_die:g} um per die and "
                     f"{args.sigma_device:g} um per device, nothing else")
-    data, path = read_plan(args.plan)
-    payload = make_payload(data, args.seed, fab, replan=True,
+    record = read_plan(args.plan)
+    path = record.path
+    data = json.loads(path.read_text())  # the report's numbers
+    payload = make_payload(record, args.seed, fab, replan=True,
                            measure_noise_pct=args.measure_noise)
     counter = itertools.count(1)
     t0 = time.perf_counter()

@@ -6,9 +6,22 @@ impact detection, chattering and sticking), the paper's RK4 as a reference, the
 response r of eq. (12) and parallel sweeps.  SI units throughout.
 """
 
-from model.devices import Geometry, Impacter, PairHalves, Slider, UnitWarning, halves, pair_of
-from model.drive import POWER, Drive, amplitude_from_power
-from model.simulation import (
+# before any kernel is decorated: an installed copy caches outside site-packages
+from model._numba_cache import cache_outside_installed_copy
+
+cache_outside_installed_copy()
+
+from model.devices import (  # noqa: E402
+    Geometry,
+    Impacter,
+    PairHalves,
+    Slider,
+    UnitWarning,
+    halves,
+    pair_of,
+)
+from model.drive import POWER, Drive, amplitude_from_power  # noqa: E402
+from model.simulation import (  # noqa: E402
     CONTACTS,
     METHODS,
     ImpactResult,

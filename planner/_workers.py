@@ -5,7 +5,11 @@ pin that makes a task's result independent of the process it ran in.
 whose workers ignore SIGINT (Ctrl-C reaches the whole process group; the parent
 decides) and are terminated, not waited for, when the block ends with an exception:
 an interrupted plan stops within a second instead of waiting for every running design
-to finish, and a SIGTERM to the main process leaves no orphaned worker behind.
+to finish, and a SIGTERM to the main process leaves no orphaned worker behind.  A main
+process that dies without running any clean-up (SIGKILL, the OOM killer, a crash) is
+noticed by the workers themselves: each watches its parent (:func:`watch_parent`) and
+exits within :data:`PARENT_POLL_S` of its death, and the resource tracker, whose pipe
+they held open, exits with them.
 
 :func:`single_thread_blas` runs a block with BLAS limited to one thread: the
 designer's SQP (scipy) moves in its 8th significant digit with the BLAS thread count, which
@@ -19,11 +23,17 @@ from __future__ import annotations
 import concurrent.futures as cf
 import contextlib
 import multiprocessing
+import os
 import signal
 import threading
+import time
 
 #: Seconds to wait for a terminated worker before killing it.
 TERMINATE_WAIT_S = 1.0
+#: Seconds between a worker's checks that the process that started it still lives.
+PARENT_POLL_S = 0.5
+#: Exit status of a worker that found its parent gone.
+ORPHANED_EXIT = 70
 
 
 #: Blocks inside :func:`single_thread_blas` in this process, and the limiter that the first
@@ -61,8 +71,26 @@ def single_thread_blas():
                 _blas_limiter = None
 
 
-def _ignore_sigint():
+def watch_parent(parent_pid: int, poll_s: float = PARENT_POLL_S) -> threading.Thread:
+    """Exit this process (``os._exit``, no clean-up to hang in) once ``parent_pid`` is no
+    longer its parent: the parent died and the process was re-parented.
+
+    A daemon thread polls ``os.getppid()`` every ``poll_s`` seconds; it costs nothing
+    measurable beside a design.  Returns the thread.
+    """
+    def watch():
+        while os.getppid() == parent_pid:
+            time.sleep(poll_s)
+        os._exit(ORPHANED_EXIT)
+
+    thread = threading.Thread(target=watch, name="vibroplan-watch-parent", daemon=True)
+    thread.start()
+    return thread
+
+
+def _init_worker(parent_pid: int):
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    watch_parent(parent_pid)
 
 
 def terminate(pool: cf.ProcessPoolExecutor) -> None:
@@ -83,7 +111,8 @@ def terminate(pool: cf.ProcessPoolExecutor) -> None:
 def process_pool(jobs: int):
     """A process pool of ``jobs`` spawned workers, terminated on any exception."""
     ctx = multiprocessing.get_context("spawn")
-    pool = cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_ignore_sigint)
+    pool = cf.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_init_worker,
+                                  initargs=(os.getpid(),))
     try:
         yield pool
     except BaseException:

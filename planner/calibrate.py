@@ -43,6 +43,13 @@ SWEEP_OPTIONAL = ("drive_amplitude_um",)
 MEASURED_COLUMNS = ("impacter", "natural_frequency_hz", "quality_factor",
                     "natural_frequency_std_hz", "quality_factor_std")
 
+#: Largest value of a lab file's column [its unit]: beyond it the number is no MEMS
+#: measurement (a typo, or another unit), and refused with its row and column before it
+#: reaches a fit or a model (frequencies: 1 GHz; amplitudes and gaps: 1 cm and 1 mm, the
+#: model's own bounds, :mod:`model.devices`; Q: the fit's search bound).
+MAX_VALUE = {"frequency_hz": 1e9, "natural_frequency_hz": 1e9, "amplitude_um": 1e4,
+             "drive_amplitude_um": 1e4, "gap_um": 1e3, "quality_factor": 1e6}
+
 #: Fewest distinct frequencies per impacter: three parameters are fitted, and two
 #: more points are the least that leave a residual to estimate the noise from.
 MIN_POINTS = 5
@@ -502,13 +509,19 @@ def read_sweep(path) -> pd.DataFrame:
 
 def csv_number(text, line, column, fail):
     """A cell of a lab CSV file (:func:`read_csv_rows`) as a finite float [its column's
-    unit]; else the ``fail(line, column, message)`` error is raised."""
+    unit], at most :data:`MAX_VALUE` of its column; else the ``fail(line, column,
+    message)`` error is raised."""
     try:
         x = float(text)
     except ValueError:
         x = math.nan
     if not math.isfinite(x):
         raise fail(line, column, f"{text!r} is not a finite number")
+    high = MAX_VALUE.get(column)
+    if high is not None and x > high:
+        unit = {"hz": " Hz", "um": " um"}.get(column.rsplit("_", 1)[-1], "")
+        raise fail(line, column, f"{text} is beyond any MEMS measurement (at most "
+                                 f"{high:g}{unit}): a typo, or another unit?")
     return x
 
 
@@ -543,14 +556,21 @@ def read_csv_rows(path, required, optional=(), *, what="the file", ignore=None):
         Not a CSV text file, empty, or a header with an unknown, repeated or missing
         column.
     """
+    import io
+
+    from planner._io import read_input
+
     path = Path(path)
     source = str(path)
 
     def fail(line, column, message):
         return SpecError(message, path=f"row {line}, column {column}", source=source)
 
+    raw = read_input(path)
+    if b"\0" in raw:
+        raise SpecError("not a CSV text file (it holds binary data)", source=source)
     try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
+        with io.StringIO(raw.decode("utf-8-sig"), newline="") as fh:
             lines = list(_csv_rows(fh))
     except (UnicodeDecodeError, csv.Error) as exc:
         raise SpecError(f"not a CSV text file: {exc}", source=source) from None

@@ -9,6 +9,17 @@ returns the results in the list's order.  Where they run:
 - ``scheduler="tcp://host:port"``: a ``distributed.Client`` on an existing cluster; the
   cluster is left running, only this run's tasks are cancelled on an exception.
 
+Every connect and every wait is bounded: the address is checked first
+(:func:`check_scheduler`: a well-formed address of a protocol a run can reach, and a
+handshake within :data:`CONNECT_TIMEOUT_S` -- distributed's own ``Client(timeout=...)``
+waits for ever on a peer that accepts the connection and never answers); a wait that
+sees no task finish for :data:`PROGRESS_POLL_S` asks the scheduler whether it is still
+there and gives up when it does not answer within :data:`REPLY_TIMEOUT_S`; a scheduler
+that goes away mid-run ends the run.  Each of these is a
+:class:`planner.errors.SchedulerError` naming the address (the CLI's exit 3).  Local
+worker processes (``jobs > 1``) end with the main process however it ends: distributed
+gives each a pipe from its parent and exits it when the pipe closes.
+
 ``shared`` (e.g. a plan) is sent to every worker once (``Client.scatter(broadcast=True)``),
 not with each task.  Results never depend on where or in which order tasks ran: every
 task must take its randomness from its own arguments (a seed and its index), never
@@ -17,26 +28,135 @@ from global state.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
+import errno
 import logging
+import threading
 from typing import Any, Callable, Sequence
+
+from planner.errors import SchedulerError
 
 #: Seconds to wait for a LocalCluster / Client to close.
 CLOSE_TIMEOUT_S = 10
+#: Seconds to connect to a scheduler, handshake included.
+CONNECT_TIMEOUT_S = 20
+#: Seconds without a finished task after which the scheduler is asked whether it lives.
+PROGRESS_POLL_S = 30
+#: Seconds a scheduler has to answer a request (that question, the shared data's upload).
+REPLY_TIMEOUT_S = 60
+#: Protocols of a scheduler that a run can reach (``inproc://`` lives inside one process).
+PROTOCOLS = ("tcp", "tls", "ws", "wss", "ucx")
+
+
+def check_scheduler(address: str) -> str:
+    """Check that ``address`` is a dask.distributed scheduler that answers, before any work.
+
+    Returns
+    -------
+    str
+        The address.
+
+    Raises
+    ------
+    ValueError
+        Not an address a run can use (no ``host:port``, an ``inproc://`` address, an
+        unknown protocol): bad input.
+    planner.errors.SchedulerError
+        Nothing answers there within :data:`CONNECT_TIMEOUT_S` (refused, unreachable,
+        a peer that accepts and stays silent, a protocol this installation lacks).
+    """
+    text = str(address).strip()
+    scheme, sep, loc = text.rpartition("://")
+    if not sep:
+        scheme, loc = "tcp", text
+    if scheme not in PROTOCOLS:
+        raise ValueError(f"--scheduler {address}: a scheduler is reached over "
+                         f"{', '.join(p + '://' for p in PROTOCOLS)}, not {scheme}:// "
+                         "(e.g. tcp://10.0.0.5:8786)")
+    host, _, port = loc.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"--scheduler {address}: expected {scheme}://HOST:PORT, e.g. "
+                         f"{scheme}://10.0.0.5:8786")
+    _probe(f"{scheme}://{loc}")
+    return text
+
+
+def _probe(address: str) -> None:
+    """Connect to ``address`` and complete distributed's handshake within the timeout."""
+    from distributed.comm import connect
+
+    async def handshake():
+        comm = await asyncio.wait_for(connect(address, timeout=CONNECT_TIMEOUT_S),
+                                      CONNECT_TIMEOUT_S)
+        await comm.close()
+
+    box = {}
+
+    def run():  # in a thread of its own: the caller may already run an event loop
+        try:
+            asyncio.run(handshake())
+        except BaseException as exc:  # noqa: BLE001 - every failure is reported below
+            box["error"] = exc
+
+    thread = threading.Thread(target=run, name="vibroplan-scheduler-probe", daemon=True)
+    thread.start()
+    thread.join(CONNECT_TIMEOUT_S + 10)
+    exc = box.get("error")
+    if thread.is_alive() or isinstance(exc, (asyncio.TimeoutError, TimeoutError)):
+        raise SchedulerError(errno.ETIMEDOUT, f"no dask.distributed scheduler answered within "
+                             f"{CONNECT_TIMEOUT_S} s (is it a scheduler's address?)", address)
+    if exc is not None:
+        reason = (getattr(exc, "strerror", None) or str(exc).strip()
+                  or type(exc).__name__).splitlines()[0]
+        if isinstance(exc, TypeError) and "abstract" in reason:  # distributed without ucx
+            reason = "this installation cannot speak its protocol"
+        raise SchedulerError(errno.ECONNREFUSED, f"cannot connect to the scheduler: {reason}",
+                             address)
+
+
+@contextlib.contextmanager
+def _quiet_distributed():
+    """distributed's own log records (a lost connection, with its traceback) stay out of
+    the user's terminal for the block: every failure reaches the caller as an exception."""
+    names = ["distributed"] + [n for n in logging.root.manager.loggerDict
+                               if n.startswith("distributed.")]
+    saved = {n: logging.getLogger(n).level for n in names}
+    for n in names:   # distributed gives some of its loggers levels of their own
+        logging.getLogger(n).setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        for n, level in saved.items():
+            logging.getLogger(n).setLevel(level)
 
 
 @contextlib.contextmanager
 def dask_client(jobs: int = 1, scheduler: str | None = None):
-    """A ``distributed.Client``: on ``scheduler`` if given, else on a private quiet
-    ``LocalCluster`` of ``jobs`` single-threaded processes; closed when the block ends."""
+    """A ``distributed.Client``: on ``scheduler`` if given (checked with
+    :func:`check_scheduler`), else on a private quiet ``LocalCluster`` of ``jobs``
+    single-threaded processes; closed when the block ends."""
+    with _quiet_distributed():
+        with _client(jobs, scheduler) as client:
+            yield client
+
+
+@contextlib.contextmanager
+def _client(jobs, scheduler):
     from distributed import Client, LocalCluster
 
     if scheduler:
-        client = Client(scheduler, timeout="20s")
+        check_scheduler(scheduler)
+        try:
+            client = Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S}s")
+        except (OSError, asyncio.TimeoutError) as exc:
+            raise SchedulerError(errno.ECONNREFUSED, f"cannot connect to the scheduler: {exc}",
+                                 scheduler) from None
         try:
             yield client
         finally:
-            client.close(timeout=CLOSE_TIMEOUT_S)
+            with contextlib.suppress(Exception):
+                client.close(timeout=CLOSE_TIMEOUT_S)
         return
     cluster = LocalCluster(n_workers=int(jobs), threads_per_worker=1, processes=True,
                            dashboard_address=None, silence_logs=logging.ERROR)
@@ -48,6 +168,49 @@ def dask_client(jobs: int = 1, scheduler: str | None = None):
             client.close(timeout=CLOSE_TIMEOUT_S)
     finally:
         cluster.close(timeout=CLOSE_TIMEOUT_S)
+
+
+#: Seconds between looks at the finished tasks.
+POLL_S = 0.2
+
+
+def _gather(client, futures, tick, address):
+    """The futures' results in order, each wait bounded (see the module docstring)."""
+    import time
+
+    from distributed import as_completed
+
+    index = {f.key: i for i, f in enumerate(futures)}
+    out = [None] * len(futures)
+    finished = as_completed(futures)
+    last = time.monotonic()
+    left = len(futures)
+    while left:
+        batch = finished.next_batch(block=False)
+        if not batch:
+            if time.monotonic() - last > PROGRESS_POLL_S:
+                _alive(client, address)   # no task finished: is the scheduler still there?
+                last = time.monotonic()
+            time.sleep(POLL_S)
+            continue
+        last = time.monotonic()
+        for fut in batch:
+            if fut.status == "cancelled":
+                raise SchedulerError(errno.ECONNRESET, "the scheduler dropped this run's "
+                                     "tasks (did it stop?)", address)
+            out[index[fut.key]] = fut.result()
+            left -= 1
+            tick()
+    return out
+
+
+def _alive(client, address):
+    """Raise :class:`SchedulerError` unless the scheduler answers within the timeout."""
+    try:
+        client.sync(client.scheduler.identity, callback_timeout=REPLY_TIMEOUT_S)
+    except Exception as exc:  # noqa: BLE001 - a timeout, a closed comm: all mean gone
+        raise SchedulerError(errno.ETIMEDOUT, f"the scheduler stopped answering "
+                             f"({type(exc).__name__})", address) from None
 
 
 def run_tasks(func: Callable, shared: Any, args_list: Sequence[tuple], *, jobs: int = 1,
@@ -89,19 +252,23 @@ def run_tasks(func: Callable, shared: Any, args_list: Sequence[tuple], *, jobs: 
             out.append(func(shared, *args))
             tick()
         return out
-    from distributed import as_completed
+    from distributed.comm.core import CommClosedError
 
+    address = scheduler or "the local cluster"
     with dask_client(jobs, scheduler) as client:
         futures = []
         try:
-            remote = client.scatter(shared, broadcast=True)
+            try:
+                remote = client.scatter(shared, broadcast=True, timeout=REPLY_TIMEOUT_S)
+            except (OSError, asyncio.TimeoutError, CommClosedError) as exc:
+                raise SchedulerError(errno.ETIMEDOUT, "cannot send the run's data to the "
+                                     f"cluster ({type(exc).__name__})", address) from None
             futures = [client.submit(func, remote, *args, pure=False) for args in args_list]
-            index = {f.key: i for i, f in enumerate(futures)}
-            out = [None] * len(futures)
-            for fut in as_completed(futures):
-                out[index[fut.key]] = fut.result()
-                tick()
-            return out
+            try:
+                return _gather(client, futures, tick, address)
+            except (CommClosedError, asyncio.CancelledError) as exc:
+                raise SchedulerError(errno.ECONNRESET, f"the scheduler went away "
+                                     f"({type(exc).__name__})", address) from None
         except BaseException:
             # stop this run's tasks at once (a shared cluster keeps running)
             with contextlib.suppress(Exception):

@@ -47,6 +47,16 @@ class OutputError(ValueError):
     parent folder is missing, or another run is writing it).  Raised before any work."""
 
 
+class LimitError(ValueError):
+    """A request beyond what the machine can give: more memory than it has, more worker
+    processes than cores, an input file over the size limit.  Raised before any work."""
+
+
+class SchedulerError(OSError):
+    """A dask.distributed scheduler that cannot be reached, does not answer, or went away
+    during the run; ``filename`` is its address (the CLI's exit 3 names it)."""
+
+
 class Interrupted(KeyboardInterrupt):
     """The run was stopped by a signal (SIGINT or SIGTERM); ``signum`` says which.
 

@@ -43,7 +43,7 @@ sigma multiplies its draw by 0), so one chip seed gives the same normals at ever
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -54,14 +54,17 @@ UM = 1e-6
 #: The five errors, in the order of their draws (columns of the normal arrays).
 ERRORS = ("line_width_um", "thickness_um", "gap_um", "youngs_modulus_pct",
           "natural_frequency_pct")
-#: Relative mismatch between plan.json's recorded m, k, b and the rebuilt nominal
-#: impacter above which the plan is refused (it was not made by these equations).
-REBUILD_RTOL = 1e-6
 
 
 @dataclass(frozen=True)
 class NodeDesign:
-    """One designed impacter pair of a plan (SI)."""
+    """One designed impacter pair of a plan (SI).
+
+    ``stiffness_scale``, ``damping_scale`` and ``gap_shift`` [m] carry a re-planned
+    plan's as-built model: what the chip measured against what its geometry gives (1,
+    1 and 0 for a plan).  A chip's errors act on the geometry as for a plan, and the
+    as-built differences on top, so the chip without errors is the as-built one.
+    """
 
     id: str
     device: str
@@ -72,6 +75,9 @@ class NodeDesign:
     gap: float
     impact_angle: float
     restitution: float
+    stiffness_scale: float = 1.0
+    damping_scale: float = 1.0
+    gap_shift: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -87,42 +93,32 @@ class ChipDesign:
         return [n.id for n in self.nodes]
 
 
-def design_from_plan(data: dict, spec: ArraySpec) -> ChipDesign:
-    """The nominal designs of a ``plan.json`` (its parsed dict) and its validated spec.
-
-    Raises
-    ------
-    ValueError
-        An impacter record lacks its geometry, or its recorded m, k, b do not match
-        eqs. (2)-(4) on its geometry with the spec's process (a plan made otherwise).
+def design_from_plan(record) -> ChipDesign:
+    """The nominal designs of a plan (a :class:`planner.planning.plan_file.PlanRecord`,
+    whose reader has checked that its m, k and b follow from its geometry by these
+    equations); for a re-planned plan, its as-built models (see :class:`NodeDesign`).
     """
+    spec = record.spec
     nodes = []
-    for rec in data.get("impacters", []):
-        g = rec.get("geometry") or {}
-        if any(g.get(k) is None for k in ("area_m2", "width_m", "length_m", "gap_m")):
-            raise ValueError(f"plan.json: impacter {rec.get('id')!r} has no complete geometry "
-                             "(area_m2, width_m, length_m, gap_m)")
-        node = NodeDesign(rec["id"], rec["device"], rec["direction"], g["area_m2"],
-                          g["width_m"], g["length_m"], g["gap_m"], rec["impact_angle_rad"],
-                          rec["restitution"])
-        imp = _impacter(spec, node, np.zeros(len(ERRORS)))
-        for key, got in (("mass_kg", imp.mass), ("stiffness_n_per_m", imp.stiffness),
-                         ("damping_ns_per_m", imp.damping)):
-            want = rec[key]
-            if not math.isclose(got, want, rel_tol=REBUILD_RTOL, abs_tol=1e-300):
-                raise ValueError(f"plan.json: impacter {rec['id']}: {key} {want:.6g} does not "
-                                 f"follow from its geometry ({got:.6g}); was the plan made with "
-                                 "another process section?")
+    for rec in record.impacters:
+        g = rec.geometry
+        node = NodeDesign(rec.id, rec.device, rec.direction, g.area_m2, g.width_m,
+                          g.length_m, g.gap_m, rec.impact_angle_rad, rec.restitution)
+        if record.replanned:
+            built = nominal_impacter(spec, node)
+            node = replace(node, stiffness_scale=rec.stiffness_n_per_m / built.stiffness,
+                           damping_scale=(rec.damping_ns_per_m / built.damping
+                                          if built.damping > 0 else 1.0),
+                           gap_shift=rec.gap_m - built.gap)
         nodes.append(node)
-    if not nodes:
-        raise ValueError("plan.json: no impacters")
     devices = tuple(sorted({n.device for n in nodes}, key=lambda d: (d[0], int(d[1:]))))
     return ChipDesign(spec, tuple(nodes), devices)
 
 
 def nominal_impacter(spec: ArraySpec, node: NodeDesign) -> Impacter:
-    """The impacter a node's geometry makes by eqs. (2)-(4) with the spec's process and
-    environment, no fabrication error: what plan.json records for a designed node."""
+    """The impacter pair ``node`` describes, without fabrication error: its geometry
+    through eqs. (2)-(4) on the spec's process and environment (what plan.json records
+    for a designed node)."""
     return _impacter(spec, node, np.zeros(len(ERRORS)))
 
 
@@ -147,6 +143,13 @@ def _impacter(spec: ArraySpec, node: NodeDesign, err) -> Impacter:
             raise ValueError("natural frequency scaled to <= 0")
         imp = Impacter(imp.mass, imp.stiffness * f * f, imp.damping, imp.gap,
                        imp.impact_angle, imp.restitution, imp.geometry)
+    if (node.stiffness_scale, node.damping_scale, node.gap_shift) != (1.0, 1.0, 0.0):
+        gap = imp.gap + node.gap_shift
+        if gap <= 0:
+            raise ValueError("gap closed")
+        imp = Impacter(imp.mass, imp.stiffness * node.stiffness_scale,
+                       imp.damping * node.damping_scale, gap, imp.impact_angle,
+                       imp.restitution, imp.geometry)
     return imp
 
 

@@ -237,6 +237,19 @@ def tones_from_power(frequencies, power: float = DEFAULT_POWER) -> np.ndarray:
     return amplitude_from_power(f, _positive_float(power, "power"))
 
 
+#: Memory per point of the longest loop searched [bytes]: the candidate loop lengths
+#: (int64), the loop's samples, their copies in an export and its read-back check.
+LOOP_BYTES_PER_POINT = 48
+
+
+def check_loop_memory(points: int, what: str) -> None:
+    """Refuse, before allocating, a loop search or signal of ``points`` samples that the
+    machine's memory cannot hold (:func:`planner._limits.check_memory`)."""
+    from planner._limits import check_memory
+
+    check_memory(LOOP_BYTES_PER_POINT * float(points), f"{what} ({points:.4g} points)")
+
+
 def synthesize(frequencies, amplitudes, sample_rate, duration=None, seed=None, peak_limit=None,
                *, phases=None, frequency_tolerance=None, max_loop_length=MAX_LOOP_LENGTH,
                n_starts=N_STARTS) -> Waveform:
@@ -325,10 +338,13 @@ def synthesize(frequencies, amplitudes, sample_rate, duration=None, seed=None, p
 
     if duration is None:
         max_points = int(math.floor(_positive_float(max_loop_length, "max_loop_length") * fs))
+        check_loop_memory(max_points, f"sample_rate {fs:g} Hz: a loop of up to "
+                                      f"{max_loop_length:g} s")
         candidates = np.arange(1, max_points + 1)
         n_total = None
     else:
         n_total = _whole_samples(_positive_float(duration, "duration"), fs)
+        check_loop_memory(n_total, f"sample_rate {fs:g} Hz for {duration:g} s")
         candidates = _divisors(n_total)
     loop_points, cycles = _choose_loop(f, fs, tol, candidates)
     if loop_points is None:

@@ -7,6 +7,7 @@ where that value (or the nearest enclosing key) was written.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -18,6 +19,22 @@ from planner.errors import SpecError
 T = TypeVar("T", bound=pydantic.BaseModel)
 
 LineMap = dict[tuple, int]
+
+
+class Loader(yaml.SafeLoader):
+    """PyYAML's safe loader with YAML 1.2's floats: ``1.6e5`` and ``1e-6`` are numbers.
+
+    PyYAML follows YAML 1.1, whose floats need a dot and a signed exponent, so it reads
+    ``1.6e5`` as the string "1.6e5".  The configs are validated strictly (a string is
+    never taken for a number: :class:`planner._pydantic.Strict`), so a number written
+    like that must be read as the number it is; a quoted ``"0.05"`` stays a string.
+    """
+
+
+Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."))
 
 
 def _walk(node: yaml.Node, path: tuple, lines: LineMap, source: str | None = None) -> None:
@@ -54,18 +71,21 @@ def load_yaml(text_or_path: str | Path, *, source: str | None = None) -> tuple[A
     Raises
     ------
     SpecError
-        The file is missing, unreadable, not text, not valid YAML (with the line of
-        the fault), empty (only blanks and comments), or repeats a key.
+        The file is missing, unreadable, not a regular file (a device, a FIFO), over
+        the size limit, not text, not valid YAML (with the line of the fault), empty
+        (only blanks and comments), or repeats a key.
     """
     if isinstance(text_or_path, Path) or "\n" not in str(text_or_path):
+        from planner._io import read_input
+
         path = Path(text_or_path)
         source = source or str(path)
         if not path.exists():
             raise SpecError(f"no such file: {path}")
-        if not path.is_file():
-            raise SpecError("not a file", source=source)
         try:
-            raw = path.read_bytes()
+            raw = read_input(path)
+        except SpecError as exc:
+            raise SpecError(exc.message, source=source) from None
         except OSError as exc:
             raise SpecError(f"cannot read the file: {exc.strerror or exc}", source=source) from None
         if b"\0" in raw:
@@ -79,8 +99,8 @@ def load_yaml(text_or_path: str | Path, *, source: str | None = None) -> tuple[A
     else:
         text = str(text_or_path)
     try:
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
-        data = yaml.safe_load(text)
+        node = yaml.compose(text, Loader=Loader)
+        data = yaml.load(text, Loader=Loader)  # noqa: S506 - a SafeLoader
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = mark.line + 1 if mark is not None else None

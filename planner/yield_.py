@@ -34,10 +34,12 @@ z standard normal from the chip's own seed -- re-planned from the measurement wi
 drive is verified with the same checks on the chip's TRUE models (the sampled impacters
 and sliders, not the re-plan's as-built models built from the measurement).
 
-Chip ``i`` at sigma scale index ``j`` draws from
-``numpy.random.SeedSequence([seed, j, i])`` (its measurement noise from that
-sequence's first spawned child): the numbers depend on the seed only, never on the
-number of workers or the order they finish in.
+Chip ``i`` at sigma scale ``s`` draws from :func:`chip_seed` ``(seed, s, i)``: a
+``numpy.random.SeedSequence`` of the seed, the 64 bits of the scale's value and the
+chip's index (its measurement noise from that sequence's first spawned child).  The
+numbers depend on the seed, the scale's value and the chip only: never on the number of
+workers, the order they finish in, or where the scale stands in ``--sigma-scale``
+(and scales 1.0000001 and 1.0000002 are two scales).
 """
 
 from __future__ import annotations
@@ -45,13 +47,15 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from planner.fabrication import ChipDesign, design_from_plan, sample_chip
-from planner.spec import ArraySpec, FabricationSpec, LoadedSpec, Step
+from planner.planning.plan_file import PlanRecord, drives, plan_record
+from planner.spec import ArraySpec, FabricationSpec, LoadedSpec
 
 #: z of the two-sided 95 % normal quantile.
 Z95 = 1.959963984540054
@@ -77,8 +81,30 @@ CARRIED_KINDS = (CARRIED, "travel over limit (carried state)", "still moving (ca
 #: cannot be built.
 REPLAN_CAUSES = ("cannot be told apart", "outside band", "fails on the measured models",
                  "fails only on the true models", "carried state", "unbuildable")
-#: Scale index of the nominal chip's task (its draws are multiplied by 0).
+#: Memory one chip's task and result hold until the end of a run [bytes]: its result
+#: (a few hundred bytes, a few KB with --replan) and, on Dask, the scheduler's and the
+#: client's bookkeeping of its task (~10 KB); an upper estimate.
+CHIP_BYTES = 16 * 1024
+#: Scale index of the nominal chip's task (scale 0: its draws are multiplied by 0).
 NOMINAL_INDEX = 2**31 - 1
+
+
+def chip_seed(seed: int, scale: float, chip: int) -> np.random.SeedSequence:
+    """The seed sequence of chip ``chip`` at sigma scale ``scale``: the run's seed, the
+    scale's exact value (its IEEE 754 bits) and the chip's index.
+
+    >>> chip_seed(0, 1.0000001, 3).entropy != chip_seed(0, 1.0000002, 3).entropy
+    True
+    """
+    bits = struct.unpack("<Q", struct.pack("<d", float(scale) + 0.0))[0]  # -0.0 is 0.0
+    return np.random.SeedSequence([int(seed), bits, int(chip)])
+
+
+def scale_key(scale: float) -> str:
+    """yield.json's key of a sigma scale: its short form (``"1"``, ``"0.5"``) when that
+    reads back as the same number, else its full one (``"1.0000001"``)."""
+    short = f"{scale:g}"
+    return short if float(short) == scale else repr(float(scale))
 
 
 def wilson_interval(passed: int, n: int, z: float = Z95) -> list[float]:
@@ -99,15 +125,6 @@ def wilson_interval(passed: int, n: int, z: float = Z95) -> list[float]:
 
 
 @dataclass(frozen=True)
-class _Tones:
-    """A step's drive as recorded in plan.json (what verify_step reads of a Waveform)."""
-
-    frequencies: np.ndarray
-    amplitudes: np.ndarray
-    phases: np.ndarray
-
-
-@dataclass(frozen=True)
 class Payload:
     """Everything a worker needs to verify chips; sent to each worker once."""
 
@@ -125,56 +142,13 @@ class Payload:
     replan: bool = False
     #: One sigma of the relative measurement noise of a natural frequency [%].
     measure_noise_pct: float = 0.0
-    #: The parsed plan.json the re-plan starts from (only with ``replan``).
-    plan_data: dict | None = None
+    #: The plan the re-plan starts from (only with ``replan``).
+    record: "PlanRecord | None" = None
 
 
-def read_plan(path: str | Path) -> tuple[dict, Path]:
-    """``plan.json`` of a plan folder (or the file itself): (its dict, its path).
-
-    Raises
-    ------
-    FileNotFoundError
-        No plan.json there.
-    ValueError
-        Not a JSON object with the plan's keys.
-    """
-    p = Path(path)
-    if p.is_dir():
-        p = p / "plan.json"
-    if not p.is_file():
-        raise FileNotFoundError(2, "no such file", str(p))
-    try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except ValueError as exc:
-        raise ValueError(f"{p}: not a plan.json ({exc})") from None
-    missing = {"spec", "impacters", "steps"} - set(data if isinstance(data, dict) else ())
-    if missing:
-        raise ValueError(f"{p}: not a plan.json (missing {', '.join(sorted(missing))})")
-    return data, p
-
-
-def _drive_of(data: dict):
-    """(steps, step key -> recorded tones, step key -> settle dwell [s]) of a plan.json.
-
-    The dwell of a step is its recorded ``settle_s`` (``vibroplan plan``); a re-plan
-    records none, and then it is the longest dwell its own verification found.
-    """
-    steps = tuple(Step(s["scene"], s["name"], int(s["index"]), float(s["duration_s"]),
-                       tuple(s["forward"]), tuple(s["backward"])) for s in data["steps"])
-    waveforms, dwells = {}, {}
-    checked = (data.get("verification") or {}).get("steps") or {}
-    for s, st in zip(data["steps"], steps):
-        t = s["tones"]
-        waveforms[st.key] = _Tones(np.array([x["frequency_hz"] for x in t], float),
-                                   np.array([x["amplitude_m"] for x in t], float),
-                                   np.array([x["phase_rad"] for x in t], float))
-        if s.get("settle_s") is not None:
-            dwells[st.key] = float(s["settle_s"])
-        else:
-            dwells[st.key] = max((float(r.get("settle_s") or 0.0)
-                                  for r in (checked.get(st.key) or {}).values()), default=0.0)
-    return steps, waveforms, dwells
+def _drive_of(record: PlanRecord):
+    """(steps, step key -> recorded drive, step key -> settle dwell [s]) of a plan."""
+    return tuple(st.step for st in record.steps), drives(record), dict(record.dwells)
 
 
 def check_noise(pct) -> float:
@@ -194,23 +168,37 @@ def check_noise(pct) -> float:
     return x
 
 
-def make_payload(data: dict, seed: int, fabrication: FabricationSpec | None = None, *,
-                 replan: bool = False, measure_noise_pct: float = 0.0) -> Payload:
-    """The worker payload of a parsed plan.json; ``fabrication`` overrides the plan's.
+def make_payload(record: PlanRecord, seed: int, fabrication: FabricationSpec | None = None, *,
+                 replan: bool = False, measure_noise_pct: float = 0.0,
+                 allow_zero: bool = False) -> Payload:
+    """The worker payload of a plan (:func:`planner.planning.plan_file.read_plan`);
+    ``fabrication`` overrides the plan's.
 
     ``replan``: measure, re-plan and re-verify every chip; ``measure_noise_pct``: one
     sigma of the relative noise of each measured natural frequency [%] (>= 0).
+    ``allow_zero``: accept a tolerance model whose every sigma is 0 (every chip is then
+    the nominal one: the yield is 1 or 0 by construction, not a measurement).
+
+    Raises
+    ------
+    ValueError
+        A zero tolerance model without ``allow_zero``; noise without ``replan``.
     """
     noise = check_noise(measure_noise_pct)
     if noise and not replan:
         raise ValueError("--measure-noise needs --replan (only a re-plan measures the chip)")
-    spec = ArraySpec.model_validate(data["spec"])
-    steps, waveforms, dwells = _drive_of(data)
-    loaded = LoadedSpec(spec, steps, "plan.json")
-    fab = fabrication if fabrication is not None else spec.fabrication
-    return Payload(design_from_plan(data, spec), loaded, waveforms, fab, int(seed),
+    fab = fabrication if fabrication is not None else record.spec.fabrication
+    if fab.zero and not allow_zero:
+        raise ValueError("every fabrication tolerance is 0 (the spec has no fabrication: "
+                         "section, or only zero sigmas): every chip would be the nominal one "
+                         "and the yield 1 or 0 by construction. Give the tolerances with "
+                         "--spec FILE (its fabrication: section), or pass --allow-zero to "
+                         "check the nominal chip alone")
+    steps, waveforms, dwells = _drive_of(record)
+    loaded = LoadedSpec(record.spec, steps, str(record.path or "plan.json"))
+    return Payload(design_from_plan(record), loaded, waveforms, fab, int(seed),
                    dwells=dwells, replan=bool(replan), measure_noise_pct=noise,
-                   plan_data=data if replan else None)
+                   record=record if replan else None)
 
 
 def _kind(cause: str) -> str:
@@ -322,8 +310,7 @@ def verify_chip(payload: Payload, scale_index: int, chip_index: int, scale: floa
         # per thread: every task sets it in the worker thread that runs it
         numba.set_num_threads(min(payload.threads, numba.config.NUMBA_NUM_THREADS))
     t0 = time.perf_counter()
-    rng = np.random.default_rng(np.random.SeedSequence([payload.seed, scale_index,
-                                                        chip_index]))
+    rng = np.random.default_rng(chip_seed(payload.seed, scale, chip_index))
     chip = sample_chip(payload.design, payload.fabrication, rng, scale)
     out = {"scale_index": scale_index, "chip": chip_index}
     if chip.unbuildable:
@@ -345,13 +332,12 @@ def verify_chip(payload: Payload, scale_index: int, chip_index: int, scale: floa
                failures=got["failures"], nodes=sorted(got["nodes"]))
     if payload.replan:
         t1 = time.perf_counter()
-        out["replan"] = replan_chip_on(payload, settings, scale_index, chip_index, chip, got)
+        out["replan"] = replan_chip_on(payload, settings, scale, chip_index, chip, got)
         out["seconds"] = {"nominal": t1 - t0, "replan": time.perf_counter() - t1}
     return out
 
 
-def measured_frequencies(payload: Payload, scale_index: int, chip_index: int,
-                         chip) -> dict:
+def measured_frequencies(payload: Payload, scale: float, chip_index: int, chip) -> dict:
     """Node id -> (true, measured) natural frequency [Hz] of a sampled chip.
 
     measured = true (1 + pct z / 100), z standard normal from the first child of the
@@ -360,7 +346,7 @@ def measured_frequencies(payload: Payload, scale_index: int, chip_index: int,
     true frequency (a measurement never finds a resonance at or below 0 Hz; only a
     noise of tens of per cent reaches the floor).
     """
-    seq = np.random.SeedSequence([payload.seed, scale_index, chip_index]).spawn(1)[0]
+    seq = chip_seed(payload.seed, scale, chip_index).spawn(1)[0]
     z = np.random.default_rng(seq).standard_normal(len(payload.design.nodes))
     out = {}
     for node, zi in zip(payload.design.nodes, z):
@@ -369,18 +355,20 @@ def measured_frequencies(payload: Payload, scale_index: int, chip_index: int,
     return out
 
 
-def replan_chip_on(payload: Payload, settings, scale_index: int, chip_index: int, chip,
+def replan_chip_on(payload: Payload, settings, scale: float, chip_index: int, chip,
                    nominal: dict) -> dict:
     """Measure a sampled chip, re-plan its drive, verify it on the chip's true models.
 
     Parameters
     ----------
     payload : Payload
-        With ``plan_data`` and ``measure_noise_pct``.
+        With ``record`` and ``measure_noise_pct``.
     settings : Settings
         The plan's settings (the checks).
-    scale_index, chip_index : int
-        The chip's indices (its measurement noise is seeded from them).
+    scale : float
+        The chip's sigma scale.
+    chip_index : int
+        The chip's index (its measurement noise is seeded from both, :func:`chip_seed`).
     chip : planner.fabrication.Chip
         The sampled chip (its impacters and sliders are the truth).
     nominal : dict
@@ -401,12 +389,13 @@ def replan_chip_on(payload: Payload, settings, scale_index: int, chip_index: int
     """
     from planner.planning.replan import replan_chip
 
-    freqs = measured_frequencies(payload, scale_index, chip_index, chip)
+    freqs = measured_frequencies(payload, scale, chip_index, chip)
     measured = {n: {"natural_frequency_hz": m} for n, (_, m) in freqs.items()}
-    ok, plan = replan_chip(payload.plan_data, measured,
+    ok, plan = replan_chip(payload.record, measured,
                            original=(nominal["steps_passed"], nominal["rows"]), record=False)
     data = plan.data
-    steps, waveforms, dwells = _drive_of(data)
+    # the re-plan's plan.json, read back as any plan is
+    steps, waveforms, dwells = _drive_of(plan_record(data, source="the chip's re-plan"))
     got = check_drive(settings, steps, waveforms, dwells, chip.impacters, chip.sliders)
     rp = data["replan"]
     collisions = [{"driven": c["driven"], "idle": c["idle"],
@@ -509,6 +498,25 @@ def parse_scales(text: str | None) -> list[float]:
     return out
 
 
+def check_chip_count(chips: int, n_scales: int = 1) -> None:
+    """Refuse, before any work, a Monte Carlo whose chips the memory cannot hold.
+
+    Raises
+    ------
+    ValueError
+        ``chips`` < 1; :class:`planner.errors.LimitError` with the figures when
+        ``chips`` x ``n_scales`` chips (plus the nominal one) need more memory than the
+        machine has (:data:`CHIP_BYTES` each).
+    """
+    from planner._limits import check_memory
+
+    if int(chips) < 1:
+        raise ValueError(f"chips must be >= 1, {chips} was given")
+    n = int(chips) * int(n_scales) + 1
+    check_memory(n * CHIP_BYTES, f"--chips {chips} x {n_scales} sigma scale"
+                                 f"{'s' if n_scales != 1 else ''} ({n} chips in all)")
+
+
 def run_yield(payload: Payload, chips: int, *, scales=(1.0,), jobs: int = 1,
               scheduler: str | None = None, progress=None, timings: dict | None = None
               ) -> dict:
@@ -530,9 +538,8 @@ def run_yield(payload: Payload, chips: int, *, scales=(1.0,), jobs: int = 1,
     from planner.engine import run_tasks
 
     chips = int(chips)
-    if chips < 1:
-        raise ValueError(f"chips must be >= 1, {chips} was given")
     scales = [float(s) for s in scales]
+    check_chip_count(chips, len(scales))
     # the nominal chip (scale 0: every error 0) is task 0; it must reproduce the plan
     tasks = [(NOMINAL_INDEX, 0, 0.0)] + [(j, i, s) for j, s in enumerate(scales) for i in range(chips)]
     # one numba thread per chip everywhere: the chips are the parallelism, and the
@@ -598,7 +605,7 @@ def run_yield(payload: Payload, chips: int, *, scales=(1.0,), jobs: int = 1,
             if payload.replan:
                 entry["replan"] = {k: out_scale[j][0]["replan"][k]
                                    for k in ("yield", "ci95", "passed", "rescued", "causes")}
-            data["by_sigma_scale"][f"{s:g}"] = entry
+            data["by_sigma_scale"][scale_key(s)] = entry
     return data
 
 
@@ -625,7 +632,7 @@ def _figures(data: dict, spec: ArraySpec, folder: Path) -> list[str]:
     folder.mkdir(parents=True, exist_ok=True)
     names = []
     # yield with its CI, against the sigma scale when there are several
-    by = data.get("by_sigma_scale") or {f"{data['sigma_scale']:g}":
+    by = data.get("by_sigma_scale") or {scale_key(data['sigma_scale']):
                                         {"yield": data["yield"], "ci95": data["ci95"]}}
     xs = [float(k) for k in by]
     ys = [v["yield"] for v in by.values()]
@@ -738,7 +745,7 @@ def _report(data: dict, spec: ArraySpec, plan_path: str, figures: list[str],
     lo, hi = data["ci95"]
     lines = [f"# Yield of {spec.name}", "",
              f"Plan: `{plan_path}`; {data['chips']} chips, seed {data['seed']}, "
-             f"sigma scale {data['sigma_scale']:g}.", "",
+             f"sigma scale {scale_key(data['sigma_scale'])}.", "",
              f"**Yield {data['yield']:.3f}** ({data['passed']} of {data['chips']} chips pass "
              f"every check, the carried-state check included, with the plan's drive); "
              f"95 % Wilson interval [{lo:.3f}, {hi:.3f}]."
@@ -752,7 +759,8 @@ def _report(data: dict, spec: ArraySpec, plan_path: str, figures: list[str],
              "## Tolerance model", "",
              "| error | per die (sigma) | per device (sigma) |", "|---|---|---|"]
     for k, v in data["tolerance"].items():
-        lines.append(f"| {k} | {v['die']:g} | {v['device']:g} |")
+        if isinstance(v, dict):   # the tolerances (not target_yield)
+            lines.append(f"| {k} | {v['die']:g} | {v['device']:g} |")
     lines += ["", "![yield](figures/yield.png)", ""]
     if "replan" in data:
         lines += _replan_lines(data, timings)

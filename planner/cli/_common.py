@@ -6,42 +6,58 @@ Exit codes (the same for every command, listed in ``vibroplan --help`` and the R
 0     success
 1     verification failed (the plan or the check was computed and written, but
       some step does not do what it should; the report says which and why)
-2     bad input: a spec, config, CSV or option that cannot be used, or an output
-      folder vibroplan refuses to write (nothing is computed, nothing written)
-3     an OS or I/O error (a permission, a full disk), with the path, no traceback
-130   interrupted by SIGINT (Ctrl-C); 143 by SIGTERM.  Workers are stopped,
-      temporaries removed, nothing written.
+2     bad input: a spec, config, CSV, plan.json or option that cannot be used, a
+      request beyond the machine (memory, cores), or an output vibroplan refuses
+      to write (nothing is computed, nothing written)
+3     an OS, I/O or environment error (a permission, a full disk, a missing
+      package, memory exhausted) or a dask scheduler that cannot be reached or
+      went away, with the path or address, no traceback
+129   interrupted by SIGHUP (the terminal closed); 130 by SIGINT (Ctrl-C); 143 by
+      SIGTERM.  Workers are stopped, temporaries removed, nothing written.
 ====  ==========================================================================
 """
 
 from __future__ import annotations
 
 import functools
+import math
 import signal
 import sys
+from pathlib import Path
 
 import click
 
 from planner._io import (
-    atomic_path,
+    check_not_input,
+    check_output_file,
     check_output_folder,
     check_parent,
+    output_files,
     output_folder,
     version_string,
 )
 from planner.errors import Interrupted, OutputError, PlanningError, SpecError
 
-__all__ = ["EXIT_CODES_HELP", "atomic_path", "check_output_folder", "handle_errors",
-           "output_file", "output_folder", "version_string"]
+__all__ = ["EXIT_CODES_HELP", "FORCE_FILES_HELP", "Finite", "check_output_files",
+           "check_output_folder", "handle_errors", "output_file", "output_files",
+           "output_folder", "version_string"]
 
 EXIT_OK, EXIT_FAILED, EXIT_INPUT, EXIT_OS = 0, 1, 2, 3
 
 #: The exit-code table as shown at the end of ``--help`` (click keeps \b blocks verbatim).
 EXIT_CODES_HELP = """\b
 Exit codes: 0 success; 1 verification failed; 2 bad input or refused
-output folder; 3 OS or I/O error; 130 / 143 interrupted (SIGINT / SIGTERM)."""
+output; 3 OS, I/O, environment or scheduler error; 129 / 130 / 143
+interrupted (SIGHUP / SIGINT / SIGTERM)."""
+
+#: The ``--force`` help of a command with file outputs.
+FORCE_FILES_HELP = ("Write an output file even if it exists and this command did not write "
+                    "it (or it was changed since), or if it lies inside a vibroplan output "
+                    "folder.  An input is never replaced, not even with --force.")
 
 _NAMES = {signal.SIGINT: "SIGINT", signal.SIGTERM: "SIGTERM"}
+if hasattr(signal, "SIGHUP"):
+    _NAMES[signal.SIGHUP] = "SIGHUP"
 
 
 class _SignalGuard:
@@ -89,6 +105,37 @@ def output_file(ctx, param, value):
     return value
 
 
+class Finite(click.FloatRange):
+    """A float option that must be finite (click's FloatRange lets nan and inf through),
+    optionally within a range."""
+
+    name = "finite float"
+
+    def convert(self, value, param, ctx):
+        rv = super().convert(value, param, ctx)
+        if not math.isfinite(rv):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return rv
+
+
+def check_output_files(command: str, outputs, *, inputs=(), force: bool = False):
+    """Check every output file of a command before any work.
+
+    ``outputs``: (label, path or None) pairs, the label naming it in messages
+    (``--out``, ``--plot``); two of them may not name one file.
+    """
+    outputs = [(label, path) for label, path in outputs if path is not None]
+    for label, path in outputs:     # the refusal --force cannot lift comes first
+        check_not_input(path, inputs, label)
+    seen = {}
+    for label, path in outputs:
+        check_output_file(path, command=command, inputs=inputs, force=force, option=label)
+        key = Path(path).absolute().resolve()
+        if key in seen:
+            raise OutputError(f"{label} {path}: {seen[key]} names the same file")
+        seen[key] = label
+
+
 def _fail(code: int, message: str):
     click.echo(message, err=True)
     sys.exit(code)
@@ -99,11 +146,13 @@ def handle_errors(func):
 
     ``SpecError`` (a bad config or spec, with field path and YAML line),
     ``OutputError`` (an output path refused before any work), ``PlanningError`` (a
-    valid spec that cannot be planned, with what would fix it) and ``ValueError``
-    (a bad argument caught by the model's validation) and ``FileNotFoundError`` (a
-    missing input) are the user's to act on: ``error: ...`` and exit 2.  ``OSError``: one line naming the path, exit 3.
-    SIGINT / SIGTERM: ``interrupted``, exit 130 / 143.  Anything else is a bug and
-    propagates with its traceback.
+    valid spec that cannot be planned, with what would fix it), ``ValueError`` (a bad
+    argument caught by the model's validation, a request beyond the machine) and
+    ``FileNotFoundError`` (a missing input) are the user's to act on: ``error: ...``
+    and exit 2.  ``OSError`` (a scheduler's included: its address is the
+    ``filename``), ``MemoryError`` and a missing package: one line, exit 3.
+    SIGHUP / SIGINT / SIGTERM: ``interrupted``, exit 129 / 130 / 143.  Anything else is
+    a bug and propagates with its traceback.
     """
 
     @functools.wraps(func)
@@ -130,6 +179,16 @@ def handle_errors(func):
                 where = exc.filename or ""
                 what = exc.strerror or str(exc)
                 _fail(EXIT_OS, f"error: {where}: {what}" if where else f"error: {what}")
+            except MemoryError:
+                _fail(EXIT_OS, "error: out of memory (the machine could not give this run "
+                               "the memory it needed; ask for less, or free some)")
+            except ModuleNotFoundError as exc:
+                top = (exc.name or "?").split(".")[0]
+                if top in ("model", "planner"):
+                    _fail(EXIT_OS, f"error: this vibroplan installation lacks {exc.name}: "
+                                   "reinstall vibroplan (python -m pip install .)")
+                _fail(EXIT_OS, f"error: the Python package {top!r} is not installed, and "
+                               f"this command needs it: python -m pip install {top}")
             except Exception:
                 if guard.signum is not None:
                     _fail(128 + guard.signum, f"interrupted ({_NAMES[guard.signum]}): "

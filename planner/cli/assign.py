@@ -7,7 +7,8 @@ from pathlib import Path
 
 import click
 
-from planner.cli._common import atomic_path, handle_errors, output_file
+from planner.cli._common import (FORCE_FILES_HELP, Finite, check_output_files, handle_errors,
+                                 output_file, output_files)
 
 
 @click.command("assign")
@@ -18,9 +19,11 @@ from planner.cli._common import atomic_path, handle_errors, output_file
               help="PNG of the array with each device's forward/backward frequencies.")
 @click.option("--method", type=click.Choice(["auto", "dsatur", "milp"]), default="auto",
               show_default=True, help="Colouring strategy.")
-@click.option("--time-limit", type=float, default=None, help="Colouring time limit [s].")
+@click.option("--time-limit", type=Finite(min=0, min_open=True), default=None,
+              help="Colouring time limit [s].")
+@click.option("--force", is_flag=True, help=FORCE_FILES_HELP)
 @handle_errors
-def command(spec, out, plot, method, time_limit):
+def command(spec, out, plot, method, time_limit, force):
     """Assign channels and frequencies to every impacter of an array SPEC.
 
     Builds the conflict graph (impacters that must be told apart), colours it with
@@ -32,7 +35,10 @@ def command(spec, out, plot, method, time_limit):
     from planner.assign import assign, plan_steps, verify_assignment
     from planner.spec import default_spec_path, load_spec
 
-    loaded = load_spec(Path(spec) if spec else default_spec_path())
+    path = Path(spec) if spec else default_spec_path()
+    check_output_files("assign", [("--out", out), ("--plot", plot)], inputs=[path],
+                       force=force)
+    loaded = load_spec(path)
     steps = plan_steps(loaded, 0.01)
     result = assign(loaded, steps, method=method, time_limit=time_limit)
     table = result.table()
@@ -53,7 +59,7 @@ def command(spec, out, plot, method, time_limit):
     else:
         click.echo("guard rules: no harmonic or intermodulation product lands in an idle band")
     if out:
-        with atomic_path(out) as tmp:
+        with output_files([out], command="assign", inputs=[path], force=force) as (tmp,):
             if str(out).endswith(".json"):
                 tmp.write_text(json.dumps({
                     "impacters": table.to_dict(orient="records"),
@@ -68,6 +74,6 @@ def command(spec, out, plot, method, time_limit):
     if plot:
         from planner.report_plots import array_map
 
-        with atomic_path(plot) as tmp:
+        with output_files([plot], command="assign", inputs=[path], force=force) as (tmp,):
             array_map(loaded.spec, table, tmp)
         click.echo(f"wrote {plot}")

@@ -7,9 +7,11 @@ from pathlib import Path
 
 import click
 
-from planner.cli._common import handle_errors
+from planner.cli._common import FORCE_FILES_HELP, check_output_files, handle_errors, output_files
 
 SCRIPT = Path("benchmarks") / "work_precision.py"
+#: The files the benchmark writes into its folder.
+OUTPUTS = ("work_precision.csv", "work_precision.md", "work_precision.png")
 
 
 def _find_script():
@@ -38,12 +40,16 @@ def _load(path):
 
 @click.command("bench")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
-              help="Directory for work_precision.{csv,md,png} "
-                   "[default: benchmarks/results of the source tree].")
+              help="Existing folder for work_precision.{csv,md,png} "
+                   "[default: benchmarks/results of the source tree]. Each file is "
+                   "replaced only if `vibroplan bench` wrote it (see --force).")
 @click.option("--quick", is_flag=True,
               help="Fewer settings and short timings: a smoke run, not for the record.")
+@click.option("--force", is_flag=True,
+              help=FORCE_FILES_HELP + " (The committed results in benchmarks/results need "
+                   "it the first time.)")
 @handle_errors
-def command(out_dir, quick):
+def command(out_dir, quick, force):
     """Work-precision benchmark: the exact solver against RK4 and solve_ivp.
 
     Four cases (the Fig. 7 device at 6.2 and 5.2 kHz, Table II's impacter in air,
@@ -55,6 +61,13 @@ def command(out_dir, quick):
     Example:
       vibroplan bench --quick --out /tmp/bench
     """
-    module = _load(_find_script())
-    module.run(module.RESULTS if out_dir is None else Path(out_dir), quick=quick,
-               echo=click.echo)
+    script = _find_script()
+    folder = script.parent / "results" if out_dir is None else Path(out_dir)
+    targets = [folder / name for name in OUTPUTS]
+    check_output_files("bench", [("--out", t) for t in targets], force=force)
+    module = _load(script)
+    with output_files(targets, command="bench", force=force) as tmps:
+        tmp = tmps[0].parent
+        # the benchmark writes into the temporary folder; say where the files will be
+        module.run(tmp, quick=quick,
+                   echo=lambda text: click.echo(str(text).replace(str(tmp), str(folder))))

@@ -6,20 +6,24 @@ from pathlib import Path
 
 import click
 
-from planner.cli._common import atomic_path, handle_errors, output_file
+from planner.cli._common import (FORCE_FILES_HELP, check_output_files, handle_errors,
+                                 output_file, output_files)
 
 
 @click.command("calibrate")
 @click.argument("sweep_csv", metavar="SWEEP.csv",
-                type=click.Path(exists=True, dir_okay=False, path_type=Path))
+                type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), callback=output_file,
               default=Path("measured.csv"), show_default=True,
-              help="The measured CSV to write (for `vibroplan replan --measured`).")
+              help="The measured CSV to write (for `vibroplan replan --measured`). Never the "
+                   "sweep; an existing file only if `vibroplan calibrate` wrote it (see "
+                   "--force).")
 @click.option("--keep-flagged", is_flag=True,
               help="Write flagged impacters' fits too (by default only fits with status ok "
                    "are written, so a doubtful value never reaches a plan).")
+@click.option("--force", is_flag=True, help=FORCE_FILES_HELP)
 @handle_errors
-def command(sweep_csv, out, keep_flagged):
+def command(sweep_csv, out, keep_flagged, force):
     """Fit each impacter's natural frequency and Q to a measured frequency sweep.
 
     Measure each impacter's vibration amplitude relative to the die (vibrometer,
@@ -64,6 +68,7 @@ def command(sweep_csv, out, keep_flagged):
     """
     from planner.calibrate import calibrate, read_sweep, write_measured
 
+    check_output_files("calibrate", [("--out", out)], inputs=[sweep_csv], force=force)
     sweep = read_sweep(sweep_csv)
     fits = calibrate(sweep)
     # the fitted scale is cos(theta) when |X|/Z was fitted, else Z cos(theta)
@@ -97,6 +102,6 @@ def command(sweep_csv, out, keep_flagged):
     click.echo(summary)
     if keep.empty:
         raise click.ClickException(f"no usable fit: {out} not written")
-    with atomic_path(out) as tmp:
+    with output_files([out], command="calibrate", inputs=[sweep_csv], force=force) as (tmp,):
         write_measured(keep, tmp)
     click.echo(f"wrote {out} ({len(keep)} impacter{'s' if len(keep) != 1 else ''})")

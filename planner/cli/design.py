@@ -8,7 +8,8 @@ from pathlib import Path
 
 import click
 
-from planner.cli._common import atomic_path, handle_errors, output_file
+from planner.cli._common import (FORCE_FILES_HELP, Finite, check_output_files, handle_errors,
+                                 output_file, output_files)
 
 from planner.units import UM  # noqa: E402
 
@@ -62,11 +63,11 @@ def _table(pair):
     return "\n".join(lines)
 
 
-def _write(data, out):
+def _write(data, out, inputs, force):
     suffix = Path(out).suffix.lower()
     if suffix not in (".yaml", ".yml", ".json"):
         raise ValueError(f"--out must end in .yaml, .yml or .json, {out!r} was given")
-    with atomic_path(out) as tmp:
+    with output_files([out], command="design", inputs=inputs, force=force) as (tmp,):
         if suffix == ".json":
             tmp.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
         else:
@@ -77,9 +78,9 @@ def _write(data, out):
 
 @click.command("design")
 @click.argument("config", type=click.Path(dir_okay=False))
-@click.option("--forward", "forward_hz", type=float, default=None,
+@click.option("--forward", "forward_hz", type=Finite(), default=None,
               help="Forward drive frequency nu_f [Hz] (default: the config's design.forward_hz).")
-@click.option("--backward", "backward_hz", type=float, default=None,
+@click.option("--backward", "backward_hz", type=Finite(), default=None,
               help="Backward drive frequency nu_b [Hz] (default: the config's design.backward_hz).")
 @click.option("--seed", type=int, default=None, help="Seed (default: the config's design.seed).")
 @click.option("--budget", type=click.Choice(["full", "fast"]), default=None,
@@ -89,8 +90,9 @@ def _write(data, out):
 @click.option("--plot", type=click.Path(dir_okay=False), callback=output_file, default=None,
               help="Write a Fig. 10-style PNG: both responses against frequency.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.option("--force", is_flag=True, help=FORCE_FILES_HELP)
 @handle_errors
-def command(config, forward_hz, backward_hz, seed, budget, out, plot, quiet):
+def command(config, forward_hz, backward_hz, seed, budget, out, plot, quiet, force):
     """Design a forward/backward impacter pair by the paper's max-min problem.
 
     For each pair: maximise the worst response r (eq. 12) over initial positions
@@ -123,6 +125,8 @@ def command(config, forward_hz, backward_hz, seed, budget, out, plot, quiet):
             raise ValueError(f"{name} must be > 0 Hz, {value!r} was given")
     if out is not None and Path(out).suffix.lower() not in (".yaml", ".yml", ".json"):
         raise ValueError(f"--out must end in .yaml, .yml or .json, {out!r} was given")
+    check_output_files("design", [("--out", out), ("--plot", plot)], inputs=[config],
+                       force=force)
     kwargs = cfg.design_kwargs()
     if budget is not None:
         kwargs["budget"] = budget
@@ -139,12 +143,12 @@ def command(config, forward_hz, backward_hz, seed, budget, out, plot, quiet):
         elif not d.checks.get("long_window_passed", True):
             click.echo(f"warning: {name} design: {d.message}", err=True)
     if out is not None:
-        _write(pair.to_dict(), out)
+        _write(pair.to_dict(), out, [config], force)
         click.echo(f"wrote {out}")
     if plot is not None:
         from planner.design_plots import pair_response
 
-        with atomic_path(plot) as tmp:
+        with output_files([plot], command="design", inputs=[config], force=force) as (tmp,):
             pair_response(pair, tmp, power=kwargs["power"], amplitude=kwargs["amplitude"],
                           window=kwargs["window"],
                           title=f"{cfg.name or Path(config).stem}: forward {forward_hz:g} Hz, "

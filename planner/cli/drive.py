@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import json
-import math
 import warnings
 from pathlib import Path
 
 import click
 
-from planner.cli._common import atomic_path, handle_errors, output_file
+from planner.cli._common import (FORCE_FILES_HELP, Finite, check_output_files, handle_errors,
+                                 output_file, output_files)
 
 #: The exporters' registry names (``planner.exporters.EXPORTERS``), spelled out here so that
 #: ``vibroplan --help`` need not import numpy and scipy; a test keeps the two equal.
@@ -34,10 +33,12 @@ from planner.units import UM  # noqa: E402
                    "arb: Keysight 33500/33600 text file.")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), callback=output_file,
               help="Output file (default SCENE__NAME with the format's suffix, here). "
-                   "A JSON sidecar NAME.json goes next to it.")
+                   "A JSON sidecar NAME.json goes next to it. Neither may replace the plan, "
+                   "lie inside a plan folder, or replace a file this command did not write "
+                   "(exit 2; see --force).")
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path), callback=output_file,
               help="PNG: a few ms of the waveform and its spectrum with the tones marked.")
-@click.option("--sample-rate", type=click.FloatRange(min=0, min_open=True),
+@click.option("--sample-rate", type=Finite(min=0, min_open=True),
               help="Sample rate [Hz] (default: the spec's sample_rate_hz, else 192 kHz for "
                    "WAV and 200 kHz otherwise).")
 @click.option("--seed", type=int, default=0, show_default=True,
@@ -45,21 +46,22 @@ from planner.units import UM  # noqa: E402
 @click.option("--reoptimise", is_flag=True,
               help="Optimise the phases afresh instead of using the plan's (the plan's are the "
                    "ones its verification simulated).")
-@click.option("--peak-limit-um", type=click.FloatRange(min=0, min_open=True),
+@click.option("--peak-limit-um", type=Finite(min=0, min_open=True),
               help="Piezo peak displacement [um] (default: the spec's drive.peak_limit_um).")
 @click.option("--over-limit", type=click.Choice(["scale", "split"]), default=None,
               help="Above the peak limit: scale every tone down, or split the step into "
                    "sub-steps written as NAME.sub1, NAME.sub2, ... (default: the spec's).")
-@click.option("--um-per-v", type=click.FloatRange(min=0, min_open=True),
+@click.option("--um-per-v", type=Finite(min=0, min_open=True),
               help="Piezo displacement per volt [um/V], for volts in the sidecar and .arb levels.")
-@click.option("--amplifier-gain", type=click.FloatRange(min=0, min_open=True),
+@click.option("--amplifier-gain", type=Finite(min=0, min_open=True),
               help="Piezo amplifier voltage gain [V/V].")
 @click.option("--memory-points", type=click.IntRange(min=1),
               help="Instrument memory [points] for the warning (default 1 M, a 33500B; "
                    "16000000 with its memory option).")
+@click.option("--force", is_flag=True, help=FORCE_FILES_HELP)
 @handle_errors
 def command(spec_or_plan, step_name, fmt, out, plot, sample_rate, seed, reoptimise,
-            peak_limit_um, over_limit, um_per_v, amplifier_gain, memory_points):
+            peak_limit_um, over_limit, um_per_v, amplifier_gain, memory_points, force):
     """Synthesise one step's drive and write it for a generator, DAQ or sound card.
 
     SPEC_OR_PLAN is a plan (plan.json, or the folder `vibroplan plan` wrote) or an
@@ -74,45 +76,55 @@ def command(spec_or_plan, step_name, fmt, out, plot, sample_rate, seed, reoptimi
       vibroplan drive plan_out/plan.json --step s1/forward --format arb --out s1.arb
       vibroplan drive plan_out --step forward --format wav --plot forward.png
     """
-    from planner.exporters import EXPORTERS, export, read_sidecar, verify_export
-
-    steps, drive = _load_steps(spec_or_plan)
-    step = _select_step(steps, step_name)
-    key = f"{step['scene']}/{step['name']}"
-    freqs, amps, phases = _step_tones(step, key)
+    from planner.exporters import EXPORTERS, export, read_sidecar, sidecar_path, verify_export
+    from planner.planning.plan_file import step_drive
+    from planner.synthesis import MAX_LOOP_LENGTH, check_loop_memory
 
     exporter = EXPORTERS[fmt]
-    rate = sample_rate or drive.get("sample_rate_hz") or exporter.default_sample_rate
-    limit_um = peak_limit_um or drive.get("peak_limit_um")
-    mode = over_limit or drive.get("over_limit") or "scale"
-    um_per_v = um_per_v or drive.get("piezo_um_per_v")
-    gain = amplifier_gain or drive.get("amplifier_gain")
+    record, inputs = _load_plan(spec_or_plan)
+    step = _select_step(record.steps, step_name)
+    if out is None:
+        out = Path(f"{step.scene}__{step.name}{exporter.suffix}".replace("/", "_"))
+    check_output_files("drive", [("--out", out), ("--out's sidecar", sidecar_path(out)),
+                                 ("--plot", plot)], inputs=inputs, force=force)
+    tones = step_drive(step)
+
+    spec_drive = record.spec.drive
+    rate = sample_rate or spec_drive.sample_rate_hz or exporter.default_sample_rate
+    check_loop_memory(int(rate * MAX_LOOP_LENGTH),
+                      f"--sample-rate {rate:g}: a loop of up to {MAX_LOOP_LENGTH:g} s")
+    limit_um = peak_limit_um or spec_drive.peak_limit_um
+    mode = over_limit or spec_drive.over_limit or "scale"
+    um_per_v = um_per_v or spec_drive.piezo_um_per_v
+    gain = amplifier_gain or spec_drive.amplifier_gain
     if (um_per_v is None) != (gain is None):
         raise ValueError("--um-per-v and --amplifier-gain go together (volts need both)")
     limit = None if limit_um is None else limit_um * UM
 
     notes = []
-    parts = _synthesise(freqs, amps, None if reoptimise else phases, rate, seed, limit, mode,
-                        notes)
-    if out is None:
-        out = Path(f"{step['scene']}__{step['name']}{exporter.suffix}".replace("/", "_"))
+    parts = _synthesise(tones.frequencies, tones.amplitudes,
+                        None if reoptimise else tones.phases, rate, seed, limit, mode, notes)
     written = []
     for i, (idx, wf) in enumerate(parts, 1):
         path = out if len(parts) == 1 else _sub_path(out, exporter.suffix, i)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")   # the sidecar and the summary carry them
-            export(wf, path, fmt, um_per_v=um_per_v, amplifier_gain=gain,
-                   memory_points=memory_points)
-        sidecar = read_sidecar(path)
-        check = verify_export(path)
+        # the file and its sidecar are written, read back and checked beside their
+        # targets, and moved in only then
+        with output_files([path, sidecar_path(path)], command="drive", inputs=inputs,
+                          force=force) as (tmp, _):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")   # the sidecar and the summary carry them
+                export(wf, tmp, fmt, um_per_v=um_per_v, amplifier_gain=gain,
+                       memory_points=memory_points)
+            sidecar = read_sidecar(tmp)
+            check = verify_export(tmp)
         written.append((path, idx, wf, sidecar, check))
 
-    _summary(key, step, written, freqs, limit, notes)
+    _summary(step, written, tones.frequencies, limit, notes)
     if plot is not None:
         from planner.report_plots import waveform_and_spectrum
 
-        with atomic_path(plot) as tmp:
-            waveform_and_spectrum(written[0][2], tmp, key, peak_limit=limit,
+        with output_files([plot], command="drive", inputs=inputs, force=force) as (tmp,):
+            waveform_and_spectrum(written[0][2], tmp, step.key, peak_limit=limit,
                                   stretch=PLOT_STRETCH)
         click.echo(f"plot: {plot}")
     failed = [str(p) for p, *_, check in written if not check.ok]
@@ -123,68 +135,30 @@ def command(spec_or_plan, step_name, fmt, out, plot, sample_rate, seed, reoptimi
 # --------------------------------------------------------------------------- input
 
 
-def _load_steps(path: Path):
-    """The steps and the drive settings of a plan (JSON or its folder) or a spec (YAML)."""
-    if path.is_dir():
-        path = path / "plan.json"
-        if not path.exists():
-            raise ValueError(f"{path.parent}: no plan.json in this folder")
-    if path.suffix.lower() in (".yaml", ".yml"):
-        try:
-            from planner.planning import step_tones
-        except ImportError:
-            raise ValueError(f"{path}: planning from a spec requires `vibroplan plan` first: run "
-                             f"`vibroplan plan {path} --out plan_out` and pass "
-                             f"plan_out/plan.json") from None
-        from planner.spec import load_spec
+def _load_plan(path: Path):
+    """(the plan, the files read) of a plan (plan.json or its folder) or a spec (YAML),
+    which is planned first."""
+    from planner.planning.plan_file import plan_record, read_plan
+
+    if path.is_file() and path.suffix.lower() in (".yaml", ".yml"):
+        from planner.planning import plan
 
         click.echo(f"planning {path} (the whole pipeline; `vibroplan plan` keeps its result)...")
-        drive = load_spec(path).spec.drive.model_dump()
-        return step_tones(path), drive
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not a plan (JSON) nor a spec (.yaml): {exc}") from None
-    if not isinstance(data, dict) or not isinstance(data.get("steps"), list):
-        raise ValueError(f"{path}: a plan needs a 'steps' list")
-    drive = (data.get("spec") or {}).get("drive") or {}
-    return data["steps"], drive
+        return plan_record(plan(path).data, source=f"the plan of {path}"), [path]
+    record = read_plan(path)
+    return record, [record.path]
 
 
 def _select_step(steps, name):
     """The step called NAME or SCENE/NAME; ValueError listing the names if none or several."""
-    keys = [f"{s.get('scene')}/{s.get('name')}" for s in steps]
-    found = [s for s, k in zip(steps, keys) if k == name]
-    if not found:
-        found = [s for s in steps if s.get("name") == name]
+    found = [s for s in steps if s.key == name] or [s for s in steps if s.name == name]
     if len(found) == 1:
         return found[0]
-    if not steps:
-        raise ValueError("the plan has no steps")
     if found:
-        which = ", ".join(f"{s['scene']}/{s['name']}" for s in found)
+        which = ", ".join(s.key for s in found)
         raise ValueError(f"--step {name!r} is in several scenes; give one of: {which}")
-    raise ValueError(f"--step {name!r}: no such step; the plan has: {', '.join(keys)}")
-
-
-def _step_tones(step, key):
-    """Frequencies [Hz], amplitudes [m] and phases [rad] (None if any is missing) of a step."""
-    tones = step.get("tones")
-    if not isinstance(tones, list) or not tones:
-        raise ValueError(f"step {key}: no tones (a step with nothing to move has no drive)")
-    freqs, amps, phases = [], [], []
-    for j, tone in enumerate(tones):
-        for field in ("frequency_hz", "amplitude_m"):
-            value = tone.get(field) if isinstance(tone, dict) else None
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-                raise ValueError(f"step {key}: tones[{j}].{field} must be a positive number, "
-                                 f"{value!r} was given")
-        freqs.append(float(tone["frequency_hz"]))
-        amps.append(float(tone["amplitude_m"]))
-        phases.append(tone.get("phase_rad"))
-    if any(not isinstance(p, (int, float)) for p in phases):
-        phases = None
-    return freqs, amps, phases
+    raise ValueError(f"--step {name!r}: no such step; the plan has: "
+                     f"{', '.join(s.key for s in steps)}")
 
 
 # --------------------------------------------------------------------------- synthesis
@@ -227,11 +201,10 @@ def _sub_path(out: Path, suffix: str, i: int) -> Path:
 # --------------------------------------------------------------------------- output
 
 
-def _summary(key, step, written, freqs, limit, notes):
-    moving = ", ".join([str(d) for d in step.get("forward") or []]
-                       + [f"{d} (back)" for d in step.get("backward") or []])
+def _summary(step, written, freqs, limit, notes):
+    moving = ", ".join([str(d) for d in step.forward] + [f"{d} (back)" for d in step.backward])
     count = f"{len(freqs)} tone{'s' if len(freqs) != 1 else ''}"
-    click.echo(f"step {key}: {count}" + (f"; moves {moving}" if moving else ""))
+    click.echo(f"step {step.key}: {count}" + (f"; moves {moving}" if moving else ""))
     for path, idx, wf, sidecar, check in written:
         if len(written) > 1:
             click.echo(f"\nsub-step {path.name}: tones {', '.join(str(i + 1) for i in idx)}")

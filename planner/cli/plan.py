@@ -39,15 +39,20 @@ class _Bars:
 @click.argument("spec", required=False, type=click.Path(dir_okay=False))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default="plan_out",
               show_default=True,
-              help="Output folder: a new or empty folder, or one a previous vibroplan run "
-                   "wrote (it is replaced atomically when the plan is complete). Never the "
-                   "current directory or a folder holding the spec.")
+              help="Output folder: a new or empty folder, or one an earlier `vibroplan plan` "
+                   "wrote and nothing else was added to (a folder with files it did not "
+                   "write is refused, not emptied); replaced atomically when the plan is "
+                   "complete. Never the current directory, a folder holding the spec, or "
+                   "another command's output folder.")
 @click.option("--force", is_flag=True,
-              help="Replace --out even if it is a non-empty folder vibroplan did not write.")
+              help="Replace --out even if vibroplan did not write it, another command "
+                   "wrote it, or it holds files `vibroplan plan` did not write (they are "
+                   "deleted).")
 @click.option("--seed", type=int, default=None, help="Seed (default: the spec's design.seed).")
 @click.option("--jobs", type=int, default=None,
               help="Worker processes for the designs and threads for the simulation "
-                   "kernels (default: all cores). The plan does not depend on it.")
+                   "kernels, at most the cores (default: all cores). The plan does not "
+                   "depend on it.")
 @click.option("--no-figures", is_flag=True, help="Skip the PNG figures (faster).")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @click.option("--dry-run", is_flag=True,
@@ -57,7 +62,9 @@ class _Bars:
 @click.option("--scheduler", metavar="ADDRESS", default=None,
               help="Run the designs and the verification steps on an existing "
                    "dask.distributed cluster at ADDRESS (tcp://host:8786; its workers "
-                   "need vibroplan installed) instead of --jobs local worker processes.")
+                   "need vibroplan installed) instead of --jobs local worker processes. "
+                   "Checked before any work; a scheduler that stops answering ends the "
+                   "run (exit 3).")
 @click.option("--cache-dir", type=click.Path(file_okay=False), default=None,
               help="Folder of the design cache: a design already computed for the same "
                    "inputs and code is read from it, not recomputed (the plan is "
@@ -88,6 +95,8 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
     """
     import numba
 
+    from planner._limits import check_jobs
+    from planner.engine import check_scheduler
     from planner.planning import plan
     from planner.planning.design_store import default_cache_dir
     from planner.spec import default_spec_path, load_spec
@@ -97,9 +106,8 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
     cache = None if no_cache else Path(cache_dir) if cache_dir else default_cache_dir()
 
     if jobs is not None:
-        if not 1 <= jobs <= numba.config.NUMBA_NUM_THREADS:
-            raise ValueError(f"--jobs must be between 1 and {numba.config.NUMBA_NUM_THREADS}")
-        numba.set_num_threads(jobs)
+        check_jobs(jobs)
+        numba.set_num_threads(min(jobs, numba.config.NUMBA_NUM_THREADS))
     else:
         jobs = numba.config.NUMBA_NUM_THREADS
     path = Path(spec) if spec else default_spec_path()
@@ -107,8 +115,11 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
     if dry_run:
         _dry_run(loaded, seed, jobs)
         return
-    # refuse the output folder before any work (the plan takes a minute)
-    check_output_folder(out_dir, inputs=[path], force=force)
+    # refuse the output folder and an unusable scheduler before any work (the plan
+    # takes a minute)
+    check_output_folder(out_dir, command="plan", inputs=[path], force=force)
+    if scheduler:
+        check_scheduler(scheduler)
     bars = _Bars(quiet)
 
     def announce(settings, steps, assignment):

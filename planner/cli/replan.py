@@ -19,9 +19,14 @@ from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_err
                    "(e.g. from `vibroplan calibrate`).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default="replan_out",
               show_default=True,
-              help="Output folder (the same rules as `vibroplan plan --out`).")
+              help="Output folder: a new or empty folder, or one an earlier `vibroplan "
+                   "replan` wrote and nothing else was added to (a folder with files it did "
+                   "not write is refused, not emptied). Never the current directory, the "
+                   "plan's folder or another command's output folder.")
 @click.option("--force", is_flag=True,
-              help="Replace --out even if it is a non-empty folder vibroplan did not write.")
+              help="Replace --out even if vibroplan did not write it, another command "
+                   "wrote it, or it holds files `vibroplan replan` did not write (they are "
+                   "deleted).")
 @click.option("--seed", type=int, default=None, help="Drive phases' seed (default: the plan's).")
 @click.option("--no-figures", is_flag=True, help="Skip the PNG figures (faster).")
 @click.option("--quiet", is_flag=True, help="No progress output.")
@@ -29,7 +34,10 @@ from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_err
 def command(plan_path, measured_path, out_dir, force, seed, no_figures, quiet):
     """Re-plan the drive of a fabricated chip from its measured resonances.
 
-    PLAN is a `vibroplan plan` output folder or its plan.json.  Each impacter's
+    PLAN is a `vibroplan plan` (or `vibroplan replan`) output folder or its plan.json,
+    checked as a whole first: a missing or mistyped key, a plan of another format, or
+    numbers that contradict each other (an edited natural frequency) are refused
+    naming the key (exit 2).  Each impacter's
     as-built model keeps its design's mass (and damping and gap unless measured);
     k = m (2 pi nu_n)^2 from the measured natural frequency; a quality factor sets
     b = m 2 pi nu_n / Q.  The designs are fixed: each impacter's tone moves with its
@@ -54,26 +62,26 @@ def command(plan_path, measured_path, out_dir, force, seed, no_figures, quiet):
 
     {EXIT}
     """
-    from planner.planning.replan import load_plan, read_measured, replan, write_replan_outputs
-
     from planner._io import output_folder
+    from planner.planning.plan_file import read_plan
+    from planner.planning.replan import read_measured, replan, write_replan_outputs
 
-    plan_data = load_plan(plan_path)
-    measured = read_measured(measured_path, [r["id"] for r in plan_data["impacters"]])
-    check_output_folder(out_dir, inputs=[plan_path, measured_path], force=force)
+    plan = read_plan(plan_path)
+    measured = read_measured(measured_path, plan.impacter_ids)
+    inputs = [plan.path, measured_path]
+    check_output_folder(out_dir, command="replan", inputs=inputs, force=force)
 
     def progress(stage, item=None, total=None):
         if total is not None and not quiet:
             click.echo(f"{stage}...", err=True)
 
-    with output_folder(out_dir, command="replan", inputs=[plan_path, measured_path],
-                       force=force) as tmp:
-        result = replan(plan_data, measured, seed=seed, progress=progress)
+    with output_folder(out_dir, command="replan", inputs=inputs, force=force) as tmp:
+        result = replan(plan, measured, seed=seed, progress=progress)
         write_replan_outputs(result, tmp, figures=not no_figures)
     d = result.data
     rp = d["replan"]
     od = rp["original_drive"]
-    missing = sorted(set(r["id"] for r in plan_data["impacters"]) - set(measured))
+    missing = sorted(set(plan.impacter_ids) - set(measured))
     if missing:
         click.echo(f"warning: not measured, taken as designed: {', '.join(missing)}", err=True)
     big = max(rp["moved"], key=lambda m: abs(m["tone_shift"]))

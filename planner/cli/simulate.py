@@ -6,30 +6,33 @@ import json
 
 import click
 
-from planner.cli._common import atomic_path, handle_errors, output_file
+from planner.cli._common import (FORCE_FILES_HELP, Finite, check_output_files, handle_errors,
+                                 output_file, output_files)
 
 from planner.units import UM  # noqa: E402
 
 
 @click.command("simulate")
 @click.argument("config", type=click.Path(dir_okay=False))
-@click.option("--freq", "freqs", type=float, multiple=True, required=True,
+@click.option("--freq", "freqs", type=Finite(min=0, min_open=True), multiple=True, required=True,
               help="Drive frequency [Hz]; repeat to compare several (as in Fig. 7).")
-@click.option("--x0", "x0_um", type=float, default=None,
+@click.option("--x0", "x0_um", type=Finite(), default=None,
               help="Initial impacter position [um] (default: the config's, 0).")
-@click.option("--duration", "duration_ms", type=float, default=None,
+@click.option("--duration", "duration_ms", type=Finite(min=0, min_open=True), default=None,
               help="Simulated time [ms] (default: the config's, 3 ms as in the paper).")
 @click.option("--pair", type=click.Choice(["forward", "backward"]), default="forward",
               show_default=True, help="Which impacter pair to drive.")
-@click.option("--amplitude-um", type=float, default=None,
+@click.option("--amplitude-um", type=Finite(min=0, min_open=True), default=None,
               help="Drive amplitude Z0 [um], instead of the config's power convention.")
 @click.option("--method", type=click.Choice(["exact", "rk4"]), default="exact", show_default=True,
               help="exact: closed-form event-driven solver; rk4: the paper's fixed-step RK4.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
 @click.option("--plot", type=click.Path(dir_okay=False), callback=output_file, default=None,
               help="Write a Fig. 7-style PNG: slider and impacter position against time.")
+@click.option("--force", is_flag=True, help=FORCE_FILES_HELP)
 @handle_errors
-def command(config, freqs, x0_um, duration_ms, pair, amplitude_um, method, as_json, plot):
+def command(config, freqs, x0_um, duration_ms, pair, amplitude_um, method, as_json, plot,
+            force):
     """Simulate a device's impacter and slider under a one-tone drive.
 
     Reports every impact (time and velocity v- just before it), the response r
@@ -43,6 +46,7 @@ def command(config, freqs, x0_um, duration_ms, pair, amplitude_um, method, as_js
     from model import Drive, simulate_slider
     from planner.config import load_device
 
+    check_output_files("simulate", [("--plot", plot)], inputs=[config], force=force)
     device = load_device(config)
     sim = device.config.simulation
     x0 = (sim.x0_um if x0_um is None else x0_um) * UM
@@ -78,7 +82,7 @@ def command(config, freqs, x0_um, duration_ms, pair, amplitude_um, method, as_js
     if plot:
         from planner.plots import time_response
 
-        with atomic_path(plot) as tmp:
+        with output_files([plot], command="simulate", inputs=[config], force=force) as (tmp,):
             time_response(runs, tmp, title=f"{device.config.name or config}: {pair} pair, "
                           f"nu_n = {impacter.natural_frequency:.4g} Hz")
     if as_json:

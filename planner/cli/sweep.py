@@ -2,20 +2,30 @@
 
 from __future__ import annotations
 
+import math
+
 import click
 
-from planner.cli._common import atomic_path, handle_errors, output_file
+from planner.cli._common import (FORCE_FILES_HELP, Finite, check_output_files, handle_errors,
+                                 output_file, output_files)
 
 from planner.units import UM  # noqa: E402
 #: Frequencies per parallel batch; the progress bar advances once per batch.
 CHUNK = 64
+#: Memory per cell of the response table [bytes]: the float64 table, the DataFrame's copy
+#: and its CSV text (an upper estimate).
+SWEEP_BYTES_PER_CELL = 64
 
 
 def _floats(text):
     try:
-        return [float(v) for v in text.split(",") if v.strip()]
+        values = [float(v) for v in text.split(",") if v.strip()]
     except ValueError:
-        raise click.BadParameter(f"expected comma-separated numbers, got {text!r}") from None
+        values = []
+    if not values or not all(math.isfinite(v) for v in values):
+        raise click.BadParameter(f"expected comma-separated finite numbers, got {text!r}",
+                                 param_hint="'--x0'")
+    return values
 
 
 #: The response has collapsed (Fig. 9's bifurcation) where r falls below this fraction
@@ -71,22 +81,29 @@ def _describe(freqs, col):
 
 @click.command("sweep", short_help="Sweep the response r (eq. 12) over frequency and initial position.")
 @click.argument("config", type=click.Path(dir_okay=False))
-@click.option("--from", "f_from", type=float, required=True, help="First frequency [Hz].")
-@click.option("--to", "f_to", type=float, required=True, help="Last frequency [Hz] (included).")
-@click.option("--step", "f_step", type=float, required=True, help="Frequency step [Hz].")
+@click.option("--from", "f_from", type=Finite(min=0, min_open=True), required=True,
+              help="First frequency [Hz].")
+@click.option("--to", "f_to", type=Finite(min=0, min_open=True), required=True,
+              help="Last frequency [Hz] (included).")
+@click.option("--step", "f_step", type=Finite(min=0, min_open=True), required=True,
+              help="Frequency step [Hz]. A sweep whose response table would not fit in "
+                   "memory is refused before any work, with the figure.")
 @click.option("--x0", "x0_text", default="0", show_default=True,
               help="Initial positions [um], comma-separated, e.g. 0,1,2,3 (v0 = 0).")
-@click.option("--duration", "duration_ms", type=float, default=None,
+@click.option("--duration", "duration_ms", type=Finite(min=0, min_open=True), default=None,
               help="Window [ms] (default: the config's, 3 ms).")
 @click.option("--pair", type=click.Choice(["forward", "backward"]), default="forward",
               show_default=True)
 @click.option("--out", type=click.Path(dir_okay=False), callback=output_file, required=True,
-              help="CSV to write: frequency_hz and one r column [N] per x0.")
+              help="CSV to write: frequency_hz and one r column [N] per x0. Never the "
+                   "config; an existing file only if `vibroplan sweep` wrote it (see "
+                   "--force).")
 @click.option("--plot", type=click.Path(dir_okay=False), callback=output_file, default=None,
               help="Write a Fig. 9-style PNG of r against frequency.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.option("--force", is_flag=True, help=FORCE_FILES_HELP)
 @handle_errors
-def command(config, f_from, f_to, f_step, x0_text, duration_ms, pair, out, plot, quiet):
+def command(config, f_from, f_to, f_step, x0_text, duration_ms, pair, out, plot, quiet, force):
     """Sweep the response r of eq. (12) over frequency and initial position.
 
     \b
@@ -99,21 +116,24 @@ def command(config, f_from, f_to, f_step, x0_text, duration_ms, pair, out, plot,
     from tqdm import tqdm
 
     from model import sweep
+    from planner._limits import check_memory
     from planner.config import load_device
 
-    if f_step <= 0:
-        raise ValueError(f"--step must be > 0, {f_step!r} was given")
     if f_to < f_from:
         raise ValueError(f"--to ({f_to}) must be >= --from ({f_from})")
-    if f_from <= 0:
-        raise ValueError(f"--from must be > 0, {f_from!r} was given")
+    check_output_files("sweep", [("--out", out), ("--plot", plot)], inputs=[config],
+                       force=force)
+    n = int(np.floor((f_to - f_from) / f_step + 1e-9)) + 1
     x0_um = _floats(x0_text)
+    # the response table, its CSV and the frame behind it: a few copies of n x (x0 + 1)
+    check_memory(SWEEP_BYTES_PER_CELL * n * (len(x0_um) + 1),
+                 f"--from {f_from:g} --to {f_to:g} --step {f_step:g}: {n:.4g} frequencies x "
+                 f"{len(x0_um)} initial positions")
     device = load_device(config)
     impacter = device.impacter(pair)
     if max(x0_um) * UM > impacter.gap:
         raise ValueError(f"--x0 values must be <= the gap, {impacter.gap / UM:g} um")
     duration = (device.config.simulation.duration_ms if duration_ms is None else duration_ms) * 1e-3
-    n = int(np.floor((f_to - f_from) / f_step + 1e-9)) + 1
     freqs = f_from + f_step * np.arange(n)
     x0s = np.array(x0_um) * UM
     power = device.config.drive.power_m2_s3
@@ -129,12 +149,12 @@ def command(config, f_from, f_to, f_step, x0_text, duration_ms, pair, out, plot,
     frame = pd.DataFrame({"frequency_hz": freqs})
     for j, x in enumerate(x0_um):
         frame[f"r_n_x0_{x:g}um"] = r[:, j]
-    with atomic_path(out) as tmp:
+    with output_files([out], command="sweep", inputs=[config], force=force) as (tmp,):
         frame.to_csv(tmp, index=False, float_format="%.10g")
     if plot:
         from planner.plots import frequency_response
 
-        with atomic_path(plot) as tmp:
+        with output_files([plot], command="sweep", inputs=[config], force=force) as (tmp,):
             frequency_response(freqs, r, x0s, tmp, natural_frequency=impacter.natural_frequency,
                                title=f"{device.config.name or config}: {pair} pair")
     click.echo(f"{n} frequencies x {x0s.size} initial positions -> {out}")

@@ -15,19 +15,25 @@ from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_err
 @click.option("--chips", type=click.IntRange(min=1), default=100, show_default=True,
               help="Chips sampled per sigma scale.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
-              help="Seed of the Monte Carlo: chip i at scale index j draws from "
-                   "SeedSequence([seed, j, i]), whatever --jobs or --scheduler.")
+              help="Seed of the Monte Carlo: chip i at sigma scale s draws from the "
+                   "SeedSequence of (seed, s's exact value, i), whatever --jobs, "
+                   "--scheduler or the order of --sigma-scale.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True,
-              help="Output folder (yield.json, report.md, figures/); replaced atomically "
-                   "when the run is complete. Never the current directory or the plan's folder.")
+              help="Output folder (yield.json, report.md, figures/): a new or empty folder, "
+                   "or one an earlier `vibroplan yield` wrote and nothing else was added "
+                   "to (a folder with files it did not write is refused, not emptied); "
+                   "replaced atomically when the run is complete. Never the current "
+                   "directory, the plan's folder or another command's output folder.")
 @click.option("--spec", "spec_file", type=click.Path(dir_okay=False), default=None,
               help="Take the fabrication: tolerance model from this spec instead of the "
                    "plan's own spec (everything else still comes from the plan).")
-@click.option("--jobs", type=click.IntRange(min=1), default=1, show_default=True,
-              help="Local Dask worker processes (1: run in this process, no Dask).")
+@click.option("--jobs", type=int, default=1, show_default=True,
+              help="Local Dask worker processes, at most the cores (1: run in this "
+                   "process, no Dask).")
 @click.option("--scheduler", default=None, metavar="ADDRESS",
               help="Run the chips on an existing dask.distributed scheduler, e.g. "
-                   "tcp://10.0.0.5:8786 (overrides --jobs).")
+                   "tcp://10.0.0.5:8786 (overrides --jobs). Checked before any work; "
+                   "a scheduler that stops answering ends the run (exit 3).")
 @click.option("--sigma-scale", "sigma_scale", default=None, metavar="LIST",
               help="Comma-separated factors on every sigma, e.g. 0.5,1,2: the yield against "
                    "the tolerance scale (chips per scale: --chips).")
@@ -39,15 +45,23 @@ from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_err
 @click.option("--measure-noise", "measure_noise", default=None, metavar="PCT",
               help="With --replan: one sigma of the Gaussian noise of each measured "
                    "natural frequency [%], seeded per chip.  [default: 0]")
+@click.option("--allow-zero", is_flag=True,
+              help="Run even when every fabrication tolerance is 0 (no fabrication: "
+                   "section in the plan's spec or --spec): every chip is then the nominal "
+                   "one and the yield 1 or 0 by construction. Refused without it.")
 @click.option("--force", is_flag=True,
-              help="Replace --out even if it is a non-empty folder vibroplan did not write.")
+              help="Replace --out even if vibroplan did not write it, another command "
+                   "wrote it, or it holds files `vibroplan yield` did not write (they are "
+                   "deleted).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @handle_errors
 def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_scale, replan,
-            measure_noise, force, quiet):
+            measure_noise, allow_zero, force, quiet):
     """Yield of a plan under fabrication variation (Monte Carlo over sampled chips).
 
-    PLAN is a plan folder written by ``vibroplan plan`` or its plan.json.  Each chip
+    PLAN is a plan folder written by ``vibroplan plan`` or ``vibroplan replan``, or its
+    plan.json (a re-planned plan's chips are its as-built chip with the errors on top).
+    Each chip
     rebuilds every designed impacter pair and slider from the plan's geometry with
     sampled errors of line width, thickness, gap, Young's modulus and natural
     frequency (the spec's fabrication: section: a per-die part shared by the chip and
@@ -68,12 +82,16 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
     """
     from tqdm import tqdm
 
+    from planner._limits import check_jobs
+    from planner.engine import check_scheduler
+    from planner.planning.plan_file import read_plan
     from planner.spec import load_spec
-    from planner.yield_ import make_payload, parse_scales, read_plan, run_yield, write_outputs
-
-    from planner.yield_ import check_noise
+    from planner.yield_ import (check_chip_count, check_noise, make_payload, parse_scales,
+                                run_yield, scale_key, write_outputs)
 
     scales = parse_scales(sigma_scale)
+    check_jobs(jobs)
+    check_chip_count(chips, len(scales))
     if measure_noise is not None and not replan:
         raise click.UsageError("--measure-noise needs --replan (only a re-plan measures "
                                "the chip)")
@@ -82,11 +100,15 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
     except ValueError as exc:
         raise click.BadParameter(str(exc).split(": ", 1)[-1],
                                  param_hint="'--measure-noise'") from None
-    data, plan_file = read_plan(plan_path)
+    record = read_plan(plan_path)
+    plan_file = record.path
     fab = load_spec(Path(spec_file)).spec.fabrication if spec_file else None
     inputs = [plan_file] + ([spec_file] if spec_file else [])
-    check_output_folder(out_dir, inputs=inputs, force=force)
-    payload = make_payload(data, seed, fab, replan=replan, measure_noise_pct=noise)
+    check_output_folder(out_dir, command="yield", inputs=inputs, force=force)
+    payload = make_payload(record, seed, fab, replan=replan, measure_noise_pct=noise,
+                           allow_zero=allow_zero)
+    if scheduler:
+        check_scheduler(scheduler)
     total = 1 + chips * len(scales)
     bar = tqdm(total=total, desc="  chips" + (" (re-planned)" if replan else ""),
                unit="chip", disable=quiet, file=sys.stderr)
@@ -101,7 +123,7 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
         write_outputs(result, payload.loaded.spec, tmp, str(plan_file), timings=timings)
     lo, hi = result["ci95"]
     click.echo(f"yield {result['yield']:.3f} ({result['passed']}/{result['chips']} chips, "
-               f"95 % CI [{lo:.3f}, {hi:.3f}], sigma scale {result['sigma_scale']:g})")
+               f"95 % CI [{lo:.3f}, {hi:.3f}], sigma scale {scale_key(result['sigma_scale'])})")
     for s, v in result.get("by_sigma_scale", {}).items():
         click.echo(f"  scale {s}: yield {v['yield']:.3f} [{v['ci95'][0]:.3f}, {v['ci95'][1]:.3f}]"
                    + (f", re-planned {v['replan']['yield']:.3f}" if "replan" in v else ""))

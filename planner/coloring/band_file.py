@@ -7,6 +7,12 @@ from pathlib import Path
 import networkx as nx
 
 
+#: Memory of one vertex and one edge of the graph and the colouring's arrays [bytes]:
+#: networkx keeps a dict per vertex and two dict entries per edge (upper estimates).
+NODE_BYTES = 1024
+EDGE_BYTES = 512
+
+
 def read_band(path) -> nx.Graph:
     """Read a bandwidth-colouring instance in the DIMACS-like ``band`` format.
 
@@ -34,64 +40,70 @@ def read_band(path) -> nx.Graph:
     FileNotFoundError
         ``path`` does not exist.
     """
+    from planner._io import read_input
+    from planner._limits import check_memory
+
     path = Path(path)
     graph = None
     declared = 0
     n_edges = 0
-    with path.open(encoding="utf-8", errors="replace") as fh:
-        for lineno, raw in enumerate(fh, start=1):
-            parts = raw.split()
-            if not parts or parts[0].startswith("c"):
+    text = read_input(path).decode("utf-8", errors="replace")
+    for lineno, raw in enumerate(text.splitlines(), start=1):
+        parts = raw.split()
+        if not parts or parts[0].startswith("c"):
+            continue
+
+        def fail(why):
+            raise ValueError(f"{path.name}: line {lineno}: {why}: {raw.strip()!r}")
+
+        def ints(tokens):
+            try:
+                return [int(t) for t in tokens]
+            except ValueError:
+                fail("expected integers")
+
+        kind = parts[0]
+        if kind == "p":
+            if graph is not None:
+                fail("second 'p' line")
+            if len(parts) != 4 or parts[1] not in ("band", "edge", "col"):
+                fail("expected 'p band <vertices> <edges>'")
+            n, declared = ints(parts[2:])
+            if n < 0 or declared < 0:
+                fail("negative count")
+            check_memory(n * NODE_BYTES + declared * EDGE_BYTES,
+                         f"{path.name}: line {lineno}: a graph of {n} vertices and "
+                         f"{declared} edges")
+            graph = nx.Graph()
+            graph.add_nodes_from(range(1, n + 1))
+        elif kind == "e":
+            if graph is None:
+                fail("edge before the 'p' line")
+            if len(parts) not in (3, 4):
+                fail("expected 'e <i> <j> <separation>'")
+            i, j, *rest = ints(parts[1:])
+            d = rest[0] if rest else 1
+            n = graph.number_of_nodes()
+            if not (1 <= i <= n and 1 <= j <= n):
+                fail(f"vertex out of range 1..{n}")
+            if d < 0:
+                fail("negative separation")
+            n_edges += 1
+            if i == j:
                 continue
-
-            def fail(why):
-                raise ValueError(f"{path.name}: line {lineno}: {why}: {raw.strip()!r}")
-
-            def ints(tokens):
-                try:
-                    return [int(t) for t in tokens]
-                except ValueError:
-                    fail("expected integers")
-
-            kind = parts[0]
-            if kind == "p":
-                if graph is not None:
-                    fail("second 'p' line")
-                if len(parts) != 4 or parts[1] not in ("band", "edge", "col"):
-                    fail("expected 'p band <vertices> <edges>'")
-                n, declared = ints(parts[2:])
-                if n < 0 or declared < 0:
-                    fail("negative count")
-                graph = nx.Graph()
-                graph.add_nodes_from(range(1, n + 1))
-            elif kind == "e":
-                if graph is None:
-                    fail("edge before the 'p' line")
-                if len(parts) not in (3, 4):
-                    fail("expected 'e <i> <j> <separation>'")
-                i, j, *rest = ints(parts[1:])
-                d = rest[0] if rest else 1
-                n = graph.number_of_nodes()
-                if not (1 <= i <= n and 1 <= j <= n):
-                    fail(f"vertex out of range 1..{n}")
-                if d < 0:
-                    fail("negative separation")
-                n_edges += 1
-                if i == j:
-                    continue
-                if graph.has_edge(i, j):
-                    d = max(d, graph[i][j]["sep"])
-                graph.add_edge(i, j, sep=d)
-            elif kind == "n":
-                if graph is None:
-                    fail("node line before the 'p' line")
-                if len(parts) != 3:
-                    fail("expected 'n <i> <weight>'")
-                i, _ = ints(parts[1:])
-                if not 1 <= i <= graph.number_of_nodes():
-                    fail(f"vertex out of range 1..{graph.number_of_nodes()}")
-            else:
-                fail(f"unknown line type {kind!r}")
+            if graph.has_edge(i, j):
+                d = max(d, graph[i][j]["sep"])
+            graph.add_edge(i, j, sep=d)
+        elif kind == "n":
+            if graph is None:
+                fail("node line before the 'p' line")
+            if len(parts) != 3:
+                fail("expected 'n <i> <weight>'")
+            i, _ = ints(parts[1:])
+            if not 1 <= i <= graph.number_of_nodes():
+                fail(f"vertex out of range 1..{graph.number_of_nodes()}")
+        else:
+            fail(f"unknown line type {kind!r}")
     if graph is None:
         raise ValueError(f"{path.name}: no 'p band <vertices> <edges>' line")
     if n_edges != declared:

@@ -10,7 +10,13 @@ the strategies that call these kernels.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+# before the kernels are decorated: an installed copy caches outside site-packages
+from model._numba_cache import cache_outside_installed_copy
+
+cache_outside_installed_copy()
+
+from numba import njit  # noqa: E402
 
 
 # --------------------------------------------------------------------------

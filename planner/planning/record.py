@@ -1,4 +1,8 @@
-"""The plan.json record: deterministic, rounded to 12 significant digits."""
+"""The plan.json record: deterministic, rounded to 12 significant digits.
+
+Read back by :mod:`planner.planning.plan_file` (its ``format_version`` is that module's
+:data:`~planner.planning.plan_file.FORMAT_VERSION`).
+"""
 
 from __future__ import annotations
 
@@ -10,6 +14,7 @@ from planner._io import version_string
 from planner.assign import verify_assignment
 from planner.exporters import EXPORTERS
 from planner.planning.motion import PROBE_S
+from planner.planning.plan_file import FORMAT_VERSION
 from planner.nodes import Node, device_key, node_key
 
 #: Standard gravity [m/s^2].
@@ -118,6 +123,7 @@ def build_record(settings, steps, assignment, designs, sliders, waveforms, ver_r
         per_step.setdefault(f"{r['scene']}/{r['step']}", {})[r["device"]] = {
             k: r[k] for k in r if k not in ("scene", "step", "index", "device")}
     data = {
+        "format_version": FORMAT_VERSION,
         "vibroplan_version": version_string(),
         "seed": settings.seed,
         "spec": settings.spec_record,

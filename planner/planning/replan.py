@@ -34,7 +34,6 @@ point for a yield study.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import asdict, dataclass, field, replace
@@ -47,17 +46,17 @@ import pandas as pd
 import model
 from model import Drive
 from planner.assign import Assignment, conflict_graph, guard_violations
-from planner.errors import SpecError
 from planner.nodes import Node, device_key, node_key
 from planner.planning.drives import limit_acceleration, synthesize_steps
 from planner.planning.record import build_record, round_floats
 from planner.planning.repair import settle_by_step
 from planner.planning.result import Plan
 from planner.planning.scenes import simulate_scenes
-from planner.planning.settings import DESIGNED_FIELDS, resolve_settings, tone_amplitudes
+from planner.planning.plan_file import PlanRecord, drives
+from planner.planning.settings import resolve_settings, tone_amplitudes
 from planner.planning.verify import (IDLE_MOVES, IDLE_RESPONSE, TOO_SLOW, check_step,
                                      coupling_matrix, x0_grid)
-from planner.spec import Step, channel_grid, load_spec
+from planner.spec import Step, channel_grid
 from planner.units import UM
 
 #: Columns of measured.csv: required, optional, and ignored (calibrate's uncertainties).
@@ -81,46 +80,6 @@ INDEPENDENT = "independent"
 
 
 # --------------------------------------------------------------------------- inputs
-
-def load_plan(path) -> dict:
-    """Read a plan: a folder holding plan.json, or the plan.json file itself.
-
-    Raises
-    ------
-    FileNotFoundError
-        If neither exists.
-    planner.errors.SpecError
-        If the file is not a vibroplan plan.json (not JSON, or no spec/impacters/steps).
-    """
-    path = Path(path)
-    file = path / "plan.json" if path.is_dir() else path
-    if not file.exists():
-        raise FileNotFoundError(2, "no such file", str(file))
-    try:
-        data = json.loads(file.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise SpecError(f"not a plan.json (JSON): {exc}", source=str(file)) from None
-    missing = [k for k in ("spec", "impacters", "steps", "seed") if not isinstance(data, dict)
-               or k not in data]
-    if missing:
-        raise SpecError(f"not a vibroplan plan.json: missing {', '.join(missing)}",
-                        source=str(file))
-    return data
-
-
-def _spec_of(plan_data):
-    """The plan's spec, re-validated from its record (designed fields left out: the
-    record holds the defaults the planner refuses in a spec)."""
-    spec = json.loads(json.dumps(plan_data["spec"]))
-    sections = [spec.get("device") or {}] + list((spec.get("devices") or {}).values())
-    for sec in sections:
-        for key in ("impacter", "forward", "backward"):
-            cfg = sec.get(key) if isinstance(sec, dict) else None
-            if isinstance(cfg, dict):
-                for name in DESIGNED_FIELDS:
-                    cfg.pop(name, None)
-    return load_spec(json.dumps(spec, indent=1), source="plan.json spec")
-
 
 def read_measured(path, impacter_ids) -> dict:
     """Read and check a lab's measured.csv.
@@ -193,7 +152,7 @@ def read_measured(path, impacter_ids) -> dict:
     return out
 
 
-def as_built_parameters(plan_data, measured) -> dict:
+def as_built_parameters(plan: PlanRecord, measured) -> dict:
     """Impacter id -> ``{natural_frequency_hz, stiffness_n_per_m, damping_ns_per_m,
     gap_m}`` of the as-built model (plan.json's ``as_built``).
 
@@ -202,32 +161,32 @@ def as_built_parameters(plan_data, measured) -> dict:
     quality factor is given) and ``gap_m`` [m]; an impacter not in it keeps its design.
     """
     out = {}
-    for rec in plan_data["impacters"]:
-        n = rec["id"]
-        m = float(rec["mass_kg"])
+    for rec in plan.impacters:
+        n = rec.id
+        m = rec.mass_kg
         meas = measured.get(n) or {}
-        nu = meas.get("natural_frequency_hz") or rec["natural_frequency_hz"]
+        nu = meas.get("natural_frequency_hz") or rec.natural_frequency_hz
         w = 2.0 * math.pi * float(nu)
         if meas.get("quality_factor"):
             b = m * w / float(meas["quality_factor"])
         elif meas.get("damping_ns_per_m") is not None:
             b = float(meas["damping_ns_per_m"])
         else:
-            b = float(rec["damping_ns_per_m"])
-        gap = meas.get("gap_m") or rec["gap_m"]
+            b = rec.damping_ns_per_m
+        gap = meas.get("gap_m") or rec.gap_m
         out[n] = {"natural_frequency_hz": float(nu), "stiffness_n_per_m": m * w * w,
                   "damping_ns_per_m": b, "gap_m": float(gap)}
     return out
 
 
 def _impacter(rec, params=None):
-    """model.Impacter of a plan.json impacter record, with as-built ``params``."""
+    """model.Impacter of a plan's impacter record, with as-built ``params``."""
     p = params or {}
-    return model.Impacter(float(rec["mass_kg"]),
-                          float(p.get("stiffness_n_per_m", rec["stiffness_n_per_m"])),
-                          float(p.get("damping_ns_per_m", rec["damping_ns_per_m"])),
-                          float(p.get("gap_m", rec["gap_m"])),
-                          float(rec["impact_angle_rad"]), float(rec["restitution"]))
+    return model.Impacter(rec.mass_kg,
+                          float(p.get("stiffness_n_per_m", rec.stiffness_n_per_m)),
+                          float(p.get("damping_ns_per_m", rec.damping_ns_per_m)),
+                          float(p.get("gap_m", rec.gap_m)),
+                          rec.impact_angle_rad, rec.restitution)
 
 
 # --------------------------------------------------------------------------- records
@@ -330,7 +289,7 @@ def choose_tones(settings, steps, plan_imps, nu_new, tones: _Tones, grid):
     cands, fallback, blockers = {}, {}, {}
     for n in nodes:
         rec = plan_imps[n]
-        target = rec["frequency_hz"] * nu_new[n] / rec["natural_frequency_hz"]
+        target = rec.frequency_hz * nu_new[n] / rec.natural_frequency_hz
         dist = np.abs(np.log(grid / target))
         near = [float(t) for t in grid[np.argsort(dist, kind="stable")]
                 if abs(math.log(t / target)) <= TONE_WINDOW]
@@ -464,31 +423,14 @@ def _share_tones(steps, cands, chosen):
                 chosen[m] = common[0]
 
 
-def _original_waveforms(plan_data):
-    """Step key -> the original plan's drive (its recorded tones)."""
-    out = {}
-    for rec in plan_data["steps"]:
-        tones = rec["tones"]
-        out[f"{rec['scene']}/{rec['name']}"] = SimpleNamespace(
-            frequencies=np.array([t["frequency_hz"] for t in tones], dtype=float),
-            amplitudes=np.array([t["amplitude_m"] for t in tones], dtype=float),
-            phases=np.array([t["phase_rad"] for t in tones], dtype=float))
-    return out
-
-
-def _recorded_steps(plan_data):
-    """The plan's steps as recorded (a re-plan may have merged single steps)."""
-    return [Step(r["scene"], r["name"], int(r["index"]), float(r["duration_s"]),
-                 tuple(r["forward"]), tuple(r["backward"])) for r in plan_data["steps"]]
-
-
-def verify_drive(plan_data, as_built: dict, settings=None):
+def verify_drive(plan: PlanRecord, as_built: dict, settings=None):
     """Verify a plan's recorded drive on as-built impacter models.
 
     Parameters
     ----------
-    plan_data : dict
-        A plan.json (its steps' tones are the drive).
+    plan : PlanRecord
+        A plan (:func:`planner.planning.plan_file.read_plan`; its steps' tones are the
+        drive).
     as_built : dict
         Impacter id -> as-built parameters, as :func:`as_built_parameters` takes them
         (``natural_frequency_hz`` and optionally ``quality_factor``,
@@ -503,15 +445,15 @@ def verify_drive(plan_data, as_built: dict, settings=None):
         The verification rows (as plan.json's), one per step and device.
     """
     if settings is None:
-        settings = resolve_settings(_spec_of(plan_data), plan_data["seed"])
-    params = as_built_parameters(plan_data, as_built)
-    models = {r["id"]: _impacter(r, params[r["id"]]) for r in plan_data["impacters"]}
+        settings = resolve_settings(plan.loaded, plan.seed)
+    params = as_built_parameters(plan, as_built)
+    models = {r.id: _impacter(r, params[r.id]) for r in plan.impacters}
     devices = sorted({Node.parse(n).device for n in models}, key=device_key)
     sliders = {d: settings.sliders[d] for d in devices}
-    waves = _original_waveforms(plan_data)
+    waves = drives(plan)
     rows = []
-    for st in _recorded_steps(plan_data):
-        rows += check_step(settings, st, waves[st.key], models, sliders)[0]
+    for st in plan.steps:
+        rows += check_step(settings, st.step, waves[st.key], models, sliders)[0]
     return bool(rows) and all(r["passed"] for r in rows), rows
 
 
@@ -522,8 +464,8 @@ def _design_like(rec, imp, tone, r_own):
     coupling read it like a design)."""
     from planner.designer.result import DesignResult
 
-    g = rec["geometry"]
-    geometry = model.Geometry(g["area_m2"], g["width_m"], g["length_m"], imp.gap)
+    g = rec.geometry
+    geometry = model.Geometry(g.area_m2, g.width_m, g.length_m, imp.gap)
     imp = model.Impacter(imp.mass, imp.stiffness, imp.damping, imp.gap, imp.impact_angle,
                          imp.restitution, geometry)
     x0s = x0_grid(imp, len(r_own))
@@ -534,19 +476,21 @@ def _design_like(rec, imp, tone, r_own):
         impact_angle_rad=imp.impact_angle, restitution=imp.restitution, geometry=geometry,
         worst_x0_m=float(x0s[int(np.argmin(r_own))]), r_min_n=float(np.min(r_own)),
         r_max_forbidden_n=(), margins_hz=(),
-        predicted_slider_speed_m_s=rec.get("predicted_slider_speed_m_s") or math.nan,
+        predicted_slider_speed_m_s=rec.predicted_slider_speed_m_s or math.nan,
         feasible=bool(np.min(r_own) > 0), evaluations=0, seconds=0.0,
         status="as-built", message="as-built model: the design's mass and geometry, the "
                                    "measured resonance")
 
 
-def replan(plan_data, measured, *, seed=None, progress=None, original=None, record=True):
+def replan(plan: PlanRecord, measured, *, seed=None, progress=None, original=None,
+           record=True):
     """Re-plan the drive of a fabricated chip from its measured resonances.
 
     Parameters
     ----------
-    plan_data : dict
-        The original plan.json (:func:`load_plan`).
+    plan : PlanRecord
+        The original plan (:func:`planner.planning.plan_file.read_plan`; a re-planned
+        plan is a plan too).
     measured : dict
         Impacter id -> ``natural_frequency_hz`` [Hz] and optionally
         ``quality_factor`` [-], ``damping_ns_per_m`` [N s/m], ``gap_m`` [m]
@@ -575,11 +519,11 @@ def replan(plan_data, measured, *, seed=None, progress=None, original=None, reco
     tick = progress or (lambda stage, item=None, total=None: None)
     t0 = time.perf_counter()
     timings = {}
-    seed = plan_data["seed"] if seed is None else int(seed)
-    loaded = _spec_of(plan_data)
+    seed = plan.seed if seed is None else int(seed)
+    loaded = plan.loaded
     settings = resolve_settings(loaded, seed)
-    plan_imps = {r["id"]: r for r in plan_data["impacters"]}
-    params = as_built_parameters(plan_data, measured)
+    plan_imps = {r.id: r for r in plan.impacters}
+    params = as_built_parameters(plan, measured)
     models = {n: _impacter(plan_imps[n], params[n]) for n in plan_imps}
     nu_new = {n: params[n]["natural_frequency_hz"] for n in plan_imps}
     devices = sorted({Node.parse(n).device for n in models}, key=device_key)
@@ -589,7 +533,7 @@ def replan(plan_data, measured, *, seed=None, progress=None, original=None, reco
     ts = time.perf_counter()
     tick("original", total=1)
     if original is None:
-        orig_passed, orig_rows = verify_drive(plan_data, measured, settings)
+        orig_passed, orig_rows = verify_drive(plan, measured, settings)
     else:
         orig_passed, orig_rows = bool(original[0]), list(original[1])
     timings["original_drive"] = time.perf_counter() - ts
@@ -601,8 +545,7 @@ def replan(plan_data, measured, *, seed=None, progress=None, original=None, reco
     # the plan's bursts as it sized and repaired them: a travel_um step's duration in
     # the spec is only its cap (60 ms for the default 5 x 5's position step, where the
     # plan runs 5.2 ms: with the cap every slider travels beyond max_travel_um)
-    recorded = {f"{r['scene']}/{r['name']}": float(r["duration_s"])
-                for r in plan_data["steps"]}
+    recorded = {st.key: st.duration_s for st in plan.steps}
     base_steps = tuple(replace(st, duration_s=recorded.get(st.key, st.duration_s))
                        for st in settings.steps)
     steps = base_steps
@@ -623,7 +566,7 @@ def replan(plan_data, measured, *, seed=None, progress=None, original=None, reco
     rounds = []
     ts = time.perf_counter()
     for round_ in range(REPAIR_ROUNDS + 1):
-        assignment = _assignment(loaded, steps, settings, chosen, grid, plan_data)
+        assignment = _assignment(loaded, steps, settings, chosen, grid, plan.lower_bound)
         # drive.max_acceleration_g holds for the re-planned drive as for the plan's
         waveforms, drive_notes = limit_acceleration(settings, synthesize_steps(settings, steps,
                                                                                assignment))
@@ -700,13 +643,13 @@ def replan(plan_data, measured, *, seed=None, progress=None, original=None, reco
         settings, steps, assignment, designs, sliders, waveforms, ver_rows, passed, rounds,
         scene_rows, motion)
     data["as_built"] = round_floats(params)
-    data["replan"] = round_floats(_replan_record(plan_data, plan_imps, params, assignment,
+    data["replan"] = round_floats(_replan_record(plan, plan_imps, params, assignment,
                                                  orig_passed, orig_rows, conflicts, steps))
     lo, hi = settings.band_hz
     data["replan"]["outside_band"] = [
         n for n in sorted(plan_imps, key=node_key)
-        if not lo <= plan_imps[n]["frequency_hz"] * nu_new[n]
-        / plan_imps[n]["natural_frequency_hz"] <= hi]
+        if not lo <= plan_imps[n].frequency_hz * nu_new[n]
+        / plan_imps[n].natural_frequency_hz <= hi]
     timings["total"] = time.perf_counter() - t0
     return Plan(
         impacters=pd.DataFrame(impacter_recs), devices=pd.DataFrame(device_recs),
@@ -716,7 +659,7 @@ def replan(plan_data, measured, *, seed=None, progress=None, original=None, reco
         failures=tuple(failures))
 
 
-def _assignment(loaded, steps, settings, chosen, grid, plan_data):
+def _assignment(loaded, steps, settings, chosen, grid, lower_bound):
     """An :class:`~planner.assign.Assignment` of the chosen tones (the conflict graph as
     before; each impacter's channel is the grid channel of its tone)."""
     graph, groups = conflict_graph(steps, settings.separation_channels, None,
@@ -727,8 +670,7 @@ def _assignment(loaded, steps, settings, chosen, grid, plan_data):
     lo = min(channels.values())
     coloring = {g: channels[members[0]] - lo for g, members in groups.items()}
     span = max(channels.values()) - lo + 1
-    orig = plan_data.get("assignment") or {}
-    return Assignment(graph, groups, coloring, span, int(orig.get("lower_bound") or 0), False,
+    return Assignment(graph, groups, coloring, span, int(lower_bound), False,
                       "as-built", 0.0, 1, lo, channels, freqs,
                       guard_violations(steps, freqs, loaded.spec.drive.guard))
 
@@ -816,17 +758,18 @@ def _worst_speed(settings, step, chosen, node, tone, models, sliders):
     return float(min(speeds))
 
 
-def _replan_record(plan_data, plan_imps, params, assignment, orig_passed, orig_rows,
+def _replan_record(plan, plan_imps, params, assignment, orig_passed, orig_rows,
                    conflicts, steps):
     moved = []
     for n in sorted(plan_imps, key=node_key):
         rec = plan_imps[n]
-        nu0, nu1 = rec["natural_frequency_hz"], params[n]["natural_frequency_hz"]
-        f0, f1 = rec["frequency_hz"], assignment.frequencies[n]
+        # the design's resonance (a re-planned plan's impacters are as built already)
+        nu0, nu1 = plan.design_natural_frequency_hz[n], params[n]["natural_frequency_hz"]
+        f0, f1 = rec.frequency_hz, assignment.frequencies[n]
         moved.append({"id": n, "design_natural_frequency_hz": nu0,
                       "natural_frequency_hz": nu1, "natural_frequency_shift": nu1 / nu0 - 1,
                       "original_frequency_hz": f0, "frequency_hz": f1,
-                      "original_channel": rec.get("channel"),
+                      "original_channel": rec.channel,
                       "channel": assignment.channels[n], "tone_shift": f1 / f0 - 1})
     fails = [r for r in orig_rows if not r["passed"]]
     return {
@@ -843,13 +786,13 @@ def _replan_record(plan_data, plan_imps, params, assignment, orig_passed, orig_r
     }
 
 
-def replan_chip(plan_data, as_built: dict, seed=None, *, original=None, record=True):
+def replan_chip(plan: PlanRecord, as_built: dict, seed=None, *, original=None, record=True):
     """Re-plan one chip for a yield study: ``(passed, plan)``.
 
     Parameters
     ----------
-    plan_data : dict
-        The nominal plan.json.
+    plan : PlanRecord
+        The nominal plan.
     as_built : dict
         Impacter id -> what was measured of it: ``natural_frequency_hz`` [Hz] and
         optionally ``quality_factor`` [-], ``damping_ns_per_m`` [N s/m], ``gap_m`` [m].
@@ -866,10 +809,11 @@ def replan_chip(plan_data, as_built: dict, seed=None, *, original=None, record=T
         The re-planned drive verifies on the given models and no impacters collide.
     plan : Plan
         The re-plan (``plan.data`` is its plan.json).  To check it on a chip's TRUE
-        models when ``as_built`` was a noisy measurement, pass ``plan.data`` and the
-        true parameters to :func:`verify_drive`.
+        models when ``as_built`` was a noisy measurement, read ``plan.data`` back
+        (:func:`planner.planning.plan_file.plan_record`) and pass it and the true
+        parameters to :func:`verify_drive`.
     """
-    result = replan(plan_data, as_built, seed=seed, original=original, record=record)
+    result = replan(plan, as_built, seed=seed, original=original, record=record)
     return result.passed, result
 
 

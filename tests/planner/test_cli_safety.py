@@ -80,14 +80,23 @@ def test_output_folder_swaps_in_and_replaces_only_its_own(tmp_path):
     with output_folder(out) as tmp:
         (tmp / "a.txt").write_text("first")
     assert (out / "a.txt").read_text() == "first"
-    assert json.loads((out / MARKER).read_text())["written_by"] == "vibroplan"
+    marker = json.loads((out / MARKER).read_text())
+    assert marker["written_by"] == "vibroplan" and marker["command"] == "plan"
+    assert set(marker["files"]) == {"a.txt"}
     assert oct(out.stat().st_mode & 0o777) != oct(0o700)  # not mkdtemp's private mode
-    (out / "user-note.txt").write_text("kept?")
-    # a folder vibroplan wrote is replaced whole, atomically
+    # a folder vibroplan wrote, holding only its own files, is replaced whole, atomically
     with output_folder(out) as tmp:
         (tmp / "b.txt").write_text("second")
     assert sorted(p.name for p in out.iterdir()) == [MARKER, "b.txt"]
     assert [p.name for p in tmp_path.iterdir()] == ["plan_out"]  # no temporaries, no lock
+    # a user's file added to it is never deleted silently: refused, or replaced on --force
+    (out / "user-note.txt").write_text("mine")
+    with pytest.raises(OutputError, match="user-note.txt"), output_folder(out):
+        pass
+    assert (out / "user-note.txt").read_text() == "mine"
+    with output_folder(out, force=True) as tmp:
+        (tmp / "c.txt").write_text("third")
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "c.txt"]
 
 
 def test_output_folder_failure_leaves_target_untouched(tmp_path):

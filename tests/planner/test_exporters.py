@@ -209,21 +209,21 @@ def test_measure_tones_separates_tones_over_part_of_a_loop():
 # --------------------------------------------------------------------------- the CLI
 
 
-def write_plan(tmp_path, *, phases=True, extra_step=False):
+def write_plan(tmp_path, plan_dir, *, extra_step=False):
+    """The tiny plan's plan.json with one step of four known tones (on a 1 ms grid at
+    FS), written to ``tmp_path``: a real plan, read by the one plan.json reader."""
     f = [3100.0, 4650.0, 6200.0, 9300.0]
     z = tones_from_power(f)
     ph = [0.3, -1.1, 2.0, -2.9]
-    steps = [{
-        "scene": "demo", "name": "forward", "index": 0, "duration_s": 0.02,
-        "forward": ["d1"], "backward": [], "crest_factor": None,
-        "tones": [{"frequency_hz": fi, "amplitude_m": float(zi),
-                   "phase_rad": (pi if phases else None)} for fi, zi, pi in zip(f, z, ph)],
-    }]
-    if extra_step:
-        steps.append({**steps[0], "scene": "other", "index": 1})
-    plan = {"spec": {"drive": {"peak_limit_um": 10.0, "sample_rate_hz": FS}}, "steps": steps}
+    data = json.loads((plan_dir / "plan.json").read_text())
+    step = {**data["steps"][0], "scene": "demo", "name": "forward", "index": 0,
+            "forward": ["A1"], "backward": [],
+            "tones": [{"frequency_hz": fi, "amplitude_m": float(zi), "phase_rad": pi}
+                      for fi, zi, pi in zip(f, z, ph)]}
+    data["steps"] = [step] + ([{**step, "scene": "other", "index": 1}] if extra_step else [])
+    data["spec"]["drive"].update(peak_limit_um=10.0, sample_rate_hz=FS)
     path = tmp_path / "plan.json"
-    path.write_text(json.dumps(plan))
+    path.write_text(json.dumps(data))
     return path, np.array(f), np.array(ph)
 
 
@@ -240,8 +240,8 @@ def test_cli_formats_match_the_registry():
 
 
 @pytest.mark.parametrize("fmt", FORMATS)
-def test_cli_writes_a_verified_file(tmp_path, fmt):
-    plan, f, ph = write_plan(tmp_path)
+def test_cli_writes_a_verified_file(tmp_path, tiny_plan_dir, fmt):
+    plan, f, ph = write_plan(tmp_path, tiny_plan_dir)
     out = tmp_path / "out" / f"fwd{EXPORTERS[fmt].suffix}"
     out.parent.mkdir()  # vibroplan creates no missing parent folders (issue 13)
     res = run(plan, "--step", "forward", "--format", fmt, "--out", out)
@@ -257,25 +257,26 @@ def test_cli_writes_a_verified_file(tmp_path, fmt):
     assert np.max(np.abs(np.angle(np.exp(1j * (measured - ph))))) <= 1e-3
 
 
-def test_cli_plot_and_folder_argument(tmp_path, monkeypatch):
-    plan, *_ = write_plan(tmp_path, phases=False)
+def test_cli_plot_and_folder_argument(tmp_path, tiny_plan_dir, monkeypatch):
+    plan, *_ = write_plan(tmp_path, tiny_plan_dir)
     monkeypatch.chdir(tmp_path)
-    res = run(tmp_path, "--step", "demo/forward", "--format", "csv", "--plot", "p.png")
+    res = run(tmp_path, "--step", "demo/forward", "--format", "csv", "--plot", "p.png",
+              "--reoptimise")
     assert res.exit_code == 0, res.output
     assert (tmp_path / "demo__forward.csv").exists()
     assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_cli_bad_step_exits_2_without_traceback(tmp_path):
-    plan, *_ = write_plan(tmp_path)
+def test_cli_bad_step_exits_2_without_traceback(tmp_path, tiny_plan_dir):
+    plan, *_ = write_plan(tmp_path, tiny_plan_dir)
     res = run(plan, "--step", "sideways")
     assert res.exit_code == 2
     assert "error: --step 'sideways': no such step" in res.output
     assert "demo/forward" in res.output and "Traceback" not in res.output
 
 
-def test_cli_ambiguous_step_lists_the_scenes(tmp_path):
-    plan, *_ = write_plan(tmp_path, extra_step=True)
+def test_cli_ambiguous_step_lists_the_scenes(tmp_path, tiny_plan_dir):
+    plan, *_ = write_plan(tmp_path, tiny_plan_dir, extra_step=True)
     res = run(plan, "--step", "forward")
     assert res.exit_code == 2
     assert "demo/forward" in res.output and "other/forward" in res.output
@@ -288,8 +289,8 @@ def test_cli_rejects_a_file_that_is_not_a_plan(tmp_path):
     assert res.exit_code == 2 and "steps" in res.output and "Traceback" not in res.output
 
 
-def test_cli_split_keeps_every_sub_step_within_the_limit(tmp_path):
-    plan, f, _ = write_plan(tmp_path)
+def test_cli_split_keeps_every_sub_step_within_the_limit(tmp_path, tiny_plan_dir):
+    plan, f, _ = write_plan(tmp_path, tiny_plan_dir)
     out = tmp_path / "s.csv"
     res = run(plan, "--step", "forward", "--format", "csv", "--out", out,
               "--peak-limit-um", "3", "--over-limit", "split", "--reoptimise")

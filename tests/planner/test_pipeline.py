@@ -8,19 +8,8 @@ from pathlib import Path
 
 import pytest
 
-TINY = """\
-name: tiny
-array: {rows: 1, cols: 2}
-independent: false
-drive:
-  band_hz: [5000, 14000]
-  channels: {count: 60}
-verification: {repair_rounds: 0, x0_points: 5}
-scenes:
-  s:
-    - {name: push, duration_ms: 5, forward: [A1]}
-    - {name: pull, duration_ms: 5, backward: [A2]}
-"""
+#: The 1 x 2 spec every plan test uses, the file CI plans with the installed wheel.
+TINY = (Path(__file__).resolve().parents[2] / "configs" / "tiny_1x2.yaml").read_text()
 
 IMPACTER_KEYS = {"id", "device", "direction", "channel", "frequency_hz", "mass_kg",
                  "stiffness_n_per_m", "damping_ns_per_m", "gap_m", "impact_angle_rad",

@@ -14,9 +14,16 @@ from click.testing import CliRunner
 
 @pytest.fixture(scope="module")
 def plan_data(tiny_plan_dir):
-    from planner.planning.replan import load_plan
+    """The tiny plan's plan.json as a dict (tests edit copies of it)."""
+    return json.loads((tiny_plan_dir / "plan.json").read_text())
 
-    return load_plan(tiny_plan_dir)
+
+@pytest.fixture(scope="module")
+def plan(tiny_plan_dir):
+    """The tiny plan read back (the record the re-plan takes)."""
+    from planner.planning.plan_file import read_plan
+
+    return read_plan(tiny_plan_dir)
 
 
 def _write(path, text):
@@ -36,12 +43,12 @@ def _run(*args):
     return CliRunner().invoke(main, ["replan", *map(str, args)], catch_exceptions=False)
 
 
-def test_as_built_parameters_follow_the_measurement(plan_data):
+def test_as_built_parameters_follow_the_measurement(plan_data, plan):
     from planner.planning.replan import as_built_parameters
 
     rec = plan_data["impacters"][0]
     nu = 1.03 * rec["natural_frequency_hz"]
-    p = as_built_parameters(plan_data, {rec["id"]: {"natural_frequency_hz": nu,
+    p = as_built_parameters(plan, {rec["id"]: {"natural_frequency_hz": nu,
                                                     "quality_factor": 12.0,
                                                     "gap_m": 2.5e-6}})[rec["id"]]
     m = rec["mass_kg"]
@@ -49,7 +56,7 @@ def test_as_built_parameters_follow_the_measurement(plan_data):
     assert p["damping_ns_per_m"] == pytest.approx(m * 2 * math.pi * nu / 12.0, rel=1e-12)
     assert p["gap_m"] == 2.5e-6
     other = plan_data["impacters"][1]
-    q = as_built_parameters(plan_data, {})[other["id"]]
+    q = as_built_parameters(plan, {})[other["id"]]
     # not measured: the design's damping and gap, and its own resonance
     assert q["damping_ns_per_m"] == other["damping_ns_per_m"]
     assert q["gap_m"] == other["gap_m"]
@@ -93,7 +100,7 @@ def _replan_verified(plan_data, tmp_path, freqs):
     return res, d, out
 
 
-def test_shifted_chip_is_rescued(plan_data, tmp_path):
+def test_shifted_chip_is_rescued(plan_data, plan, tmp_path):
     # every impacter a few percent off its design, in opposite directions
     shifts = [1.04, 0.96]
     freqs = {r["id"]: s * r["natural_frequency_hz"]
@@ -105,22 +112,23 @@ def test_shifted_chip_is_rescued(plan_data, tmp_path):
     for m in d["replan"]["moved"]:
         assert (m["tone_shift"] > 0) == (m["natural_frequency_shift"] > 0)
     # and the re-planned drive, checked independently on the same models, passes
+    from planner.planning.plan_file import plan_record
     from planner.planning.replan import verify_drive
 
-    passed, rows = verify_drive(d, {n: {"natural_frequency_hz": f} for n, f in freqs.items()})
+    passed, rows = verify_drive(plan_record(d), {n: {"natural_frequency_hz": f}
+                                                 for n, f in freqs.items()})
     assert passed and len(rows) == 4
     # while the original drive does not
-    passed, _ = verify_drive(plan_data, {n: {"natural_frequency_hz": f}
-                                         for n, f in freqs.items()})
+    passed, _ = verify_drive(plan, {n: {"natural_frequency_hz": f} for n, f in freqs.items()})
     assert not passed
 
 
-def test_replan_chip_api(plan_data):
+def test_replan_chip_api(plan):
     from planner.planning.replan import replan_chip
 
-    chip = {r["id"]: {"natural_frequency_hz": 1.02 * r["natural_frequency_hz"]}
-            for r in plan_data["impacters"]}
-    passed, result = replan_chip(plan_data, chip, seed=1)
+    chip = {r.id: {"natural_frequency_hz": 1.02 * r.natural_frequency_hz}
+            for r in plan.impacters}
+    passed, result = replan_chip(plan, chip, seed=1)
     assert passed is result.passed
     assert result.data["seed"] == 1
     assert set(result.data["as_built"]) == set(chip)
@@ -208,6 +216,7 @@ def test_replanned_drive_meets_the_acceleration_limit(plan_data):
     acceleration is at most the limit (before the fix the re-plan played full power)."""
     import copy
 
+    from planner.planning.plan_file import plan_record
     from planner.planning.replan import replan_chip
 
     peak = max(st["peak_acceleration_m_s2"] for st in plan_data["steps"])
@@ -216,7 +225,7 @@ def test_replanned_drive_meets_the_acceleration_limit(plan_data):
     data["spec"]["drive"]["max_acceleration_g"] = limit_g
     chip = {r["id"]: {"natural_frequency_hz": r["natural_frequency_hz"]}
             for r in data["impacters"]}
-    _, result = replan_chip(data, chip)
+    _, result = replan_chip(plan_record(data), chip)
     peaks = [st["peak_acceleration_m_s2"] for st in result.data["steps"]]
     assert peaks and max(peaks) <= limit_g * 9.80665 * (1 + 1e-6)
     assert max(peaks) > 0.9 * limit_g * 9.80665     # lowered to the limit, not below

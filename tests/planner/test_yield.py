@@ -33,9 +33,16 @@ def _read(out):
     return json.loads((out / "yield.json").read_text())
 
 
-def test_zero_tolerance_gives_full_yield(tiny_plan_dir, tmp_path):
+def test_zero_tolerance_is_refused_unless_allowed(tiny_plan_dir, tmp_path):
+    """A plan without fabrication tolerances used to print "yield 1.000" as if measured;
+    it is refused (exit 2, nothing written), and with --allow-zero every chip is the
+    nominal one."""
     out = tmp_path / "y"
     res = _yield([tiny_plan_dir, "--chips", 4, "--seed", 3, "--out", out])
+    assert res.exit_code == 2, res.output
+    assert "--allow-zero" in res.output and "tolerance" in res.output
+    assert not out.exists()
+    res = _yield([tiny_plan_dir, "--chips", 4, "--seed", 3, "--out", out, "--allow-zero"])
     assert res.exit_code == 0, res.output
     d = _read(out)
     assert {"chips", "passed", "yield", "ci95", "seed", "tolerance", "failures",
@@ -44,7 +51,8 @@ def test_zero_tolerance_gives_full_yield(tiny_plan_dir, tmp_path):
     assert d["failures"] == {} and d["nominal"]["passed"] is True
     assert set(d["impacters"]) == {"A1.forward", "A2.backward"}
     assert all(r == 0.0 for r in d["impacters"].values())
-    assert all(v == {"die": 0.0, "device": 0.0} for v in d["tolerance"].values())
+    assert all(v == {"die": 0.0, "device": 0.0} for v in d["tolerance"].values()
+               if isinstance(v, dict))
     lo, hi = d["ci95"]
     assert 0 < lo < 1 and hi == 1.0
     assert "by_sigma_scale" not in d
@@ -73,14 +81,14 @@ def test_huge_tolerance_fails_chips_and_names_checks(tiny_plan_dir, tmp_path):
 
 
 def test_chip_results_depend_on_seed_and_index_only(tiny_plan_dir):
-    """A chip's outcome is a function of (seed, scale index, chip index): verifying
-    chips in another order, or fewer of them, gives each the same result."""
+    """A chip's outcome is a function of (seed, scale, chip index): verifying chips in
+    another order, or fewer of them, gives each the same result."""
+    from planner.planning.plan_file import read_plan
     from planner.spec import load_spec
-    from planner.yield_ import make_payload, read_plan, verify_chip
+    from planner.yield_ import make_payload, verify_chip
 
-    data, _ = read_plan(tiny_plan_dir)
     fab = load_spec(HUGE).spec.fabrication
-    payload = make_payload(data, 5, fab)
+    payload = make_payload(read_plan(tiny_plan_dir), 5, fab)
     forward = [verify_chip(payload, 0, i, 1.0) for i in range(4)]
     backward = [verify_chip(payload, 0, i, 1.0) for i in reversed(range(4))][::-1]
     assert forward == backward
@@ -88,11 +96,12 @@ def test_chip_results_depend_on_seed_and_index_only(tiny_plan_dir):
 
 def test_as_built_geometry_follows_the_documented_mapping(tiny_plan_dir):
     from planner.fabrication import ERRORS, _impacter, sample_chip
+    from planner.planning.plan_file import read_plan
     from planner.spec import FabricationSpec
-    from planner.yield_ import make_payload, read_plan
+    from planner.yield_ import make_payload
 
-    data, _ = read_plan(tiny_plan_dir)
-    payload = make_payload(data, 0)
+    data = json.loads((tiny_plan_dir / "plan.json").read_text())
+    payload = make_payload(read_plan(tiny_plan_dir), 0, allow_zero=True)
     # the nominal chip is the plan's impacters exactly
     chip = sample_chip(payload.design, FabricationSpec(), np.random.default_rng(0))
     for rec in data["impacters"]:
@@ -212,7 +221,8 @@ def test_sigint_with_local_cluster_leaves_nothing(tiny_plan_dir, tmp_path):
     out = tmp_path / "y"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
     proc = subprocess.Popen([sys.executable, "-m", "planner.cli", "yield", str(tiny_plan_dir),
-                             "--chips", "5000", "--jobs", "2", "--out", str(out), "--quiet"],
+                             "--chips", "5000", "--jobs", "2", "--out", str(out), "--quiet",
+                             "--allow-zero"],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(12)
     assert proc.poll() is None, proc.communicate()

@@ -1,0 +1,539 @@
+"""plan.json read back: its declared schema, its one reader, and the drive it records.
+
+:mod:`planner.planning.record` writes plan.json; this module reads it, once, into a
+frozen :class:`PlanRecord`, and every command that takes a plan (``vibroplan yield``,
+``replan``, ``drive``) reads it through :func:`read_plan` -- never the dict.  The record
+declares the part of plan.json those commands use, with units in the field names as in
+the file; the rest of the file (verification rows, scenes, figures' data) is the
+report's and is not read back.
+
+Validated once, here, with the key named on any fault (:class:`PlanFileError`, a
+:class:`~planner.errors.SpecError`: exit 2 in the CLI):
+
+- the JSON itself, and ``format_version`` (plans from before format versions are
+  format 1; another version is refused);
+- every declared key present with its type (no bool or string read as a number, no NaN);
+- the spec, as an :class:`~planner.spec.ArraySpec` with its steps resolved;
+- numbers that contradict each other: an impacter's ``natural_frequency_hz`` against its
+  ``mass_kg`` and ``stiffness_n_per_m`` (nu = sqrt(k/m) / 2 pi); its mass, stiffness and
+  damping against its ``geometry`` through the fabrication equations
+  (:func:`planner.fabrication.nominal_impacter`, eqs. (2)-(4)) on the spec's process; ids against
+  devices and directions; steps against the impacters they drive.
+
+A re-planned plan (``vibroplan replan``) is a plan: its impacters carry the as-built
+stiffness, damping and gap (its ``as_built`` section, which must agree), and its
+``replan.moved`` entries the designed natural frequency, which must follow from the
+geometry as a plan's does.
+
+:func:`step_drive` rebuilds a step's drive (its tones) from the record.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+from pydantic import ConfigDict, Field, TypeAdapter, ValidationError
+
+from planner.errors import SpecError
+from planner.nodes import DIRECTIONS, Node
+from planner.spec import ArraySpec, LoadedSpec, Step, resolve_steps
+from planner.yamlio import format_loc, validate
+
+#: The plan.json format this version writes and reads (``format_version``).  Raise it
+#: when a key that a reader needs changes meaning or shape.
+FORMAT_VERSION = 1
+#: Relative tolerance of numbers that must agree (plan.json holds 12 significant digits).
+AGREE_RTOL = 1e-6
+#: Impacter fields the planner designs: left out of the spec read back (the record holds
+#: their defaults, which a spec may not set).
+DESIGNED_FIELDS = ("area_um2", "width_um", "length_um", "gap_um", "natural_frequency_hz")
+
+Number = Annotated[float, Field(strict=True, allow_inf_nan=False)]
+Positive = Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False)]
+NonNegative = Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)]
+Int = Annotated[int, Field(strict=True)]
+Text = Annotated[str, Field(strict=True, min_length=1)]
+
+
+class PlanFileError(SpecError):
+    """A plan.json that cannot be used, naming the file and the key (``path``)."""
+
+
+# ----------------------------------------------------------------------------- schema
+
+
+@dataclass(frozen=True)
+class Tone:
+    """One tone of a step's drive."""
+
+    frequency_hz: Positive
+    amplitude_m: Positive
+    phase_rad: Number
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """One step of the drive: who moves, for how long, with which tones.
+
+    ``settle_s`` is the dwell after the step [s] as recorded (None in plans from before
+    it was recorded: then :attr:`PlanRecord.dwells` takes the longest its verification
+    found).
+    """
+
+    scene: Text
+    name: Text
+    index: Int
+    duration_s: Positive
+    forward: tuple[Text, ...]
+    backward: tuple[Text, ...]
+    tones: tuple[Tone, ...]
+    settle_s: NonNegative | None = None
+
+    @property
+    def key(self) -> str:
+        """``scene/name``."""
+        return f"{self.scene}/{self.name}"
+
+    @property
+    def step(self) -> Step:
+        """The step as the planner's stages take it."""
+        return Step(self.scene, self.name, self.index, self.duration_s, self.forward,
+                    self.backward)
+
+
+@dataclass(frozen=True)
+class GeometryRecord:
+    """An impacter's designed geometry (A, w, l, c) [m^2, m, m, m]."""
+
+    area_m2: Positive
+    width_m: Positive
+    length_m: Positive
+    gap_m: Positive
+
+
+@dataclass(frozen=True)
+class ImpacterRecord:
+    """One designed impacter pair (SI; as built, in a re-planned plan)."""
+
+    id: Text
+    device: Text
+    direction: Text
+    channel: Int
+    frequency_hz: Positive
+    mass_kg: Positive
+    stiffness_n_per_m: Positive
+    damping_ns_per_m: NonNegative
+    gap_m: Positive
+    impact_angle_rad: NonNegative
+    restitution: NonNegative
+    natural_frequency_hz: Positive
+    geometry: GeometryRecord
+    predicted_slider_speed_m_s: Number | None = None
+
+    @property
+    def node(self) -> Node:
+        return Node(self.device, self.direction)
+
+    def impacter(self):
+        """The :class:`model.Impacter` this record describes (with its geometry)."""
+        import model
+
+        g = self.geometry
+        return model.Impacter(self.mass_kg, self.stiffness_n_per_m, self.damping_ns_per_m,
+                              self.gap_m, self.impact_angle_rad, self.restitution,
+                              model.Geometry(g.area_m2, g.width_m, g.length_m, self.gap_m))
+
+
+@dataclass(frozen=True)
+class DeviceRecord:
+    """One device's slider as planned."""
+
+    id: Text
+    slider_mass_kg: Positive
+    slider_damping_ns_per_m: NonNegative
+    static_friction_n: NonNegative
+    dynamic_friction_n: NonNegative
+
+
+@dataclass(frozen=True)
+class AsBuilt:
+    """A re-planned impacter's as-built model (plan.json's ``as_built``)."""
+
+    natural_frequency_hz: Positive
+    stiffness_n_per_m: Positive
+    damping_ns_per_m: NonNegative
+    gap_m: Positive
+
+
+@dataclass(frozen=True)
+class _Moved:
+    id: Text
+    design_natural_frequency_hz: Positive
+
+
+@dataclass(frozen=True)
+class _Replan:
+    moved: tuple[_Moved, ...]
+
+
+@dataclass(frozen=True)
+class _Assignment:
+    lower_bound: Int = 0
+
+
+@dataclass(frozen=True)
+class _Verification:
+    passed: Annotated[bool, Field(strict=True)]
+    steps: dict[str, dict[str, dict]] | None = None
+
+
+@dataclass(frozen=True)
+class _PlanFile:
+    """The keys of plan.json that are read back (others are the report's)."""
+
+    __pydantic_config__ = ConfigDict(extra="ignore")
+
+    seed: Int
+    spec: dict
+    impacters: tuple[ImpacterRecord, ...]
+    devices: tuple[DeviceRecord, ...]
+    steps: tuple[StepRecord, ...]
+    verification: _Verification
+    format_version: Int = FORMAT_VERSION
+    vibroplan_version: str = "unknown"
+    assignment: _Assignment = _Assignment()
+    as_built: dict[str, AsBuilt] | None = None
+    replan: _Replan | None = None
+
+
+_SCHEMA = TypeAdapter(_PlanFile)
+
+
+# ----------------------------------------------------------------------------- record
+
+
+@dataclass(frozen=True)
+class PlanRecord:
+    """A plan.json read and checked (see the module docstring).
+
+    Attributes
+    ----------
+    path : Path or None
+        The file read (None for a record made from a dict in memory).
+    format_version : int
+    vibroplan_version : str
+        The version that wrote it.
+    seed : int
+        The plan's seed (designs and drive phases).
+    spec : ArraySpec
+        Its spec, validated (designed impacter fields left to their defaults).
+    loaded : LoadedSpec
+        The spec with its steps resolved (the steps the spec asks for; a re-plan may
+        have merged some: :attr:`steps` are the ones recorded).
+    impacters : tuple of ImpacterRecord
+        In the file's order.
+    devices : tuple of DeviceRecord
+    steps : tuple of StepRecord
+        The recorded steps, in order, each with its tones.
+    lower_bound : int
+        The assignment's lower bound on the span [channels].
+    verified : bool
+        Whether the plan passed its own verification.
+    dwells : dict
+        Step key -> settle dwell after it [s] (recorded, else the longest its
+        verification found, else 0).
+    as_built : dict or None
+        Impacter id -> :class:`AsBuilt` of a re-planned plan; None for a plan.
+    design_natural_frequency_hz : dict
+        Impacter id -> its designed natural frequency [Hz] (a re-plan's impacters are
+        as built; this is what their geometry was designed for).
+    """
+
+    path: Path | None
+    format_version: int
+    vibroplan_version: str
+    seed: int
+    spec: ArraySpec
+    loaded: LoadedSpec
+    impacters: tuple
+    devices: tuple
+    steps: tuple
+    lower_bound: int
+    verified: bool
+    dwells: dict
+    as_built: dict | None
+    design_natural_frequency_hz: dict
+
+    @property
+    def replanned(self) -> bool:
+        """Whether this is the output of ``vibroplan replan``."""
+        return self.as_built is not None
+
+    @property
+    def impacter_ids(self) -> list[str]:
+        return [r.id for r in self.impacters]
+
+    def impacter(self, node_id: str) -> ImpacterRecord:
+        """The record of impacter ``node_id`` (KeyError naming it if the plan has none)."""
+        for rec in self.impacters:
+            if rec.id == node_id:
+                return rec
+        raise KeyError(f"the plan has no impacter {node_id!r}")
+
+    def step(self, key: str) -> StepRecord:
+        for st in self.steps:
+            if st.key == key:
+                return st
+        raise KeyError(f"the plan has no step {key!r}")
+
+
+@dataclass(frozen=True)
+class RecordedDrive:
+    """A step's drive as plan.json records it: what the verification reads of a
+    :class:`planner.synthesis.Waveform` (its tones), in SI."""
+
+    frequencies: np.ndarray
+    amplitudes: np.ndarray
+    phases: np.ndarray
+
+
+def step_drive(step: StepRecord) -> RecordedDrive:
+    """The drive of a recorded step: its tones' frequencies [Hz], amplitudes [m] and
+    phases [rad], shape (n_tones,) each."""
+    return RecordedDrive(np.array([t.frequency_hz for t in step.tones], dtype=float),
+                         np.array([t.amplitude_m for t in step.tones], dtype=float),
+                         np.array([t.phase_rad for t in step.tones], dtype=float))
+
+
+def drives(record: PlanRecord) -> dict:
+    """Step key -> :func:`step_drive` of every recorded step."""
+    return {st.key: step_drive(st) for st in record.steps}
+
+
+# ----------------------------------------------------------------------------- reading
+
+
+def read_plan(path) -> PlanRecord:
+    """Read a plan: a folder holding plan.json, or the plan.json file itself.
+
+    Raises
+    ------
+    FileNotFoundError
+        No plan.json there.
+    PlanFileError
+        Not JSON, of another format version, a declared key missing or of the wrong
+        type, or numbers that contradict each other; the message names the file and the
+        key (``impacters[0] (A1.forward).natural_frequency_hz: ...``).
+    """
+    from planner._io import read_input
+
+    path = Path(path)
+    file = path / "plan.json" if path.is_dir() else path
+    if path.is_dir() and not file.exists():
+        raise FileNotFoundError(2, f"no plan.json in the folder {path}", str(file))
+    raw = read_input(file)
+    try:
+        data = json.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise PlanFileError(f"not a plan.json: not UTF-8 text (byte {exc.start})",
+                            source=str(file)) from None
+    except ValueError as exc:
+        raise PlanFileError(f"not a plan.json: not JSON ({exc})", source=str(file)) from None
+    return plan_record(data, source=str(file), path=file)
+
+
+def plan_record(data, *, source: str = "plan.json", path: Path | None = None) -> PlanRecord:
+    """A :class:`PlanRecord` of a plan.json's parsed content (``data``), checked as
+    :func:`read_plan` checks a file; ``source`` names it in errors."""
+    if not isinstance(data, dict):
+        raise PlanFileError("not a plan.json: a plan is a JSON object", source=source)
+    version = data.get("format_version", FORMAT_VERSION)
+    if version != FORMAT_VERSION or isinstance(version, bool):
+        raise PlanFileError(
+            f"this plan is in format {version!r} (written by vibroplan "
+            f"{data.get('vibroplan_version', '?')}); this vibroplan reads format "
+            f"{FORMAT_VERSION}: plan again with it, or read the plan with the version that "
+            "wrote it", path="format_version", source=source)
+    missing = [k for k in ("spec", "impacters", "steps") if k not in data]
+    if missing:
+        raise PlanFileError(f"not a plan.json: no {', '.join(missing)}", path=missing[0],
+                            source=source)
+    try:
+        raw = _SCHEMA.validate_python(data)
+    except ValidationError as exc:
+        raise _schema_error(exc, data, source) from None
+    spec = _spec(raw.spec, source)
+    loaded = LoadedSpec(spec, resolve_steps(spec, None, f"{source} spec"), source)
+    record = PlanRecord(
+        path=path, format_version=raw.format_version, vibroplan_version=raw.vibroplan_version,
+        seed=raw.seed, spec=spec, loaded=loaded, impacters=raw.impacters,
+        devices=raw.devices, steps=raw.steps, lower_bound=raw.assignment.lower_bound,
+        verified=raw.verification.passed, dwells=_dwells(raw),
+        as_built=dict(raw.as_built) if raw.as_built is not None else None,
+        design_natural_frequency_hz=_design_frequencies(raw, source))
+    _check(record, source)
+    return record
+
+
+def _schema_error(exc: ValidationError, data: dict, source: str) -> PlanFileError:
+    """The first schema fault, its key named (with the impacter's or step's name)."""
+    err = exc.errors()[0]
+    loc = tuple(p for p in err["loc"] if not (isinstance(p, str) and "[" in p))
+    where = format_loc(loc)
+    if len(loc) >= 2 and loc[0] in ("impacters", "steps", "devices") and isinstance(loc[1], int):
+        items = data.get(loc[0])
+        item = items[loc[1]] if isinstance(items, list) and loc[1] < len(items) else None
+        name = None
+        if isinstance(item, dict):
+            name = item.get("id") if loc[0] != "steps" else f"{item.get('scene')}/{item.get('name')}"
+        tail = format_loc(loc[2:])
+        where = (format_loc(loc[:2]) + (f" ({name})" if isinstance(name, str) else "")
+                 + (tail if not tail or tail.startswith("[") else "." + tail))
+    msg = err["msg"]
+    if err["type"] == "missing":
+        msg = "missing (a key every plan.json has)"
+    elif "input" in err and err["type"] not in ("missing",):
+        msg += f", {json.dumps(err['input'])[:60]} was given"
+    return PlanFileError(msg, path=where, source=source)
+
+
+def _spec(spec_data: dict, source: str) -> ArraySpec:
+    """The plan's spec, validated; the designed impacter fields left out."""
+    spec = json.loads(json.dumps(spec_data))
+    sections = [spec.get("device") or {}] + list((spec.get("devices") or {}).values())
+    for sec in sections:
+        for key in ("impacter", "forward", "backward"):
+            cfg = sec.get(key) if isinstance(sec, dict) else None
+            if isinstance(cfg, dict):
+                for name in DESIGNED_FIELDS:
+                    cfg.pop(name, None)
+    return validate(ArraySpec, spec, source=source, prefix=("spec",))
+
+
+def _dwells(raw: _PlanFile) -> dict:
+    checked = raw.verification.steps or {}
+    out = {}
+    for st in raw.steps:
+        if st.settle_s is not None:
+            out[st.key] = st.settle_s
+        else:
+            rows = (checked.get(st.key) or {}).values()
+            out[st.key] = max((float(r.get("settle_s") or 0.0) for r in rows
+                               if isinstance(r, dict)), default=0.0)
+    return out
+
+
+def _design_frequencies(raw: _PlanFile, source: str) -> dict:
+    if raw.replan is None:
+        if raw.as_built is not None:
+            raise PlanFileError("a re-planned plan needs its replan section (the designed "
+                                "natural frequencies)", path="replan", source=source)
+        return {r.id: r.natural_frequency_hz for r in raw.impacters}
+    if raw.as_built is None:
+        raise PlanFileError("a re-planned plan needs its as_built section", path="as_built",
+                            source=source)
+    return {m.id: m.design_natural_frequency_hz for m in raw.replan.moved}
+
+
+# ----------------------------------------------------------------------------- checks
+
+
+def _agree(got: float, want: float) -> bool:
+    return math.isclose(got, want, rel_tol=AGREE_RTOL, abs_tol=0.0)
+
+
+def _check(record: PlanRecord, source: str) -> None:
+    """Numbers that must agree, ids that must exist (see the module docstring)."""
+    from planner.fabrication import NodeDesign, nominal_impacter
+
+    def fail(where, message):
+        raise PlanFileError(message, path=where, source=source)
+
+    devices = set(record.spec.array.device_ids())
+    if not record.impacters:
+        fail("impacters", "a plan has at least one impacter")
+    if not record.steps:
+        fail("steps", "a plan has at least one step (a drive with nothing to play moves "
+                      "nothing: there is nothing to verify)")
+    seen = set()
+    for i, rec in enumerate(record.impacters):
+        where = f"impacters[{i}] ({rec.id})"
+        if rec.direction not in DIRECTIONS:
+            fail(f"{where}.direction", f"must be forward or backward, {rec.direction!r} "
+                                       "was given")
+        if rec.device not in devices:
+            fail(f"{where}.device", f"{rec.device!r} is not a device of the spec's "
+                                    f"{record.spec.array.rows} x {record.spec.array.cols} array")
+        if rec.id != f"{rec.device}.{rec.direction}":
+            fail(f"{where}.id", f"must be {rec.device}.{rec.direction} (device.direction)")
+        if rec.id in seen:
+            fail(f"{where}.id", f"{rec.id} is listed twice")
+        seen.add(rec.id)
+        nu = math.sqrt(rec.stiffness_n_per_m / rec.mass_kg) / (2 * math.pi)
+        if not _agree(rec.natural_frequency_hz, nu):
+            fail(f"{where}.natural_frequency_hz",
+                 f"{rec.natural_frequency_hz:.6g} Hz does not follow from mass_kg and "
+                 f"stiffness_n_per_m (sqrt(k/m) / 2 pi = {nu:.6g} Hz): the numbers contradict "
+                 "each other (was the file edited?)")
+        g = rec.geometry
+        nominal = nominal_impacter(record.spec, NodeDesign(rec.id, rec.device, rec.direction,
+                                                  g.area_m2, g.width_m, g.length_m, g.gap_m,
+                                                  rec.impact_angle_rad, rec.restitution))
+        checks = [("mass_kg", rec.mass_kg, nominal.mass)]
+        if record.as_built is None:
+            checks += [("stiffness_n_per_m", rec.stiffness_n_per_m, nominal.stiffness),
+                       ("damping_ns_per_m", rec.damping_ns_per_m, nominal.damping)]
+            if not _agree(rec.gap_m, g.gap_m):
+                fail(f"{where}.gap_m", f"{rec.gap_m:.6g} m is not its geometry's gap_m "
+                                       f"{g.gap_m:.6g} m")
+        else:
+            # as built: the stiffness is the measured one; the design's follows from the
+            # geometry as a plan's does
+            design_nu = record.design_natural_frequency_hz.get(rec.id)
+            if design_nu is None:
+                fail("replan.moved", f"{rec.id} has no entry (its designed natural frequency)")
+            if not _agree(design_nu, nominal.natural_frequency):
+                fail(f"replan.moved ({rec.id}).design_natural_frequency_hz",
+                     f"{design_nu:.6g} Hz does not follow from its geometry "
+                     f"({nominal.natural_frequency:.6g} Hz through the fabrication equations): "
+                     "the numbers contradict each other (was the file edited?)")
+            ab = record.as_built.get(rec.id)
+            if ab is None:
+                fail(f"as_built.{rec.id}", "missing: a re-planned impacter has its as-built "
+                                          "model")
+            for key in ("natural_frequency_hz", "stiffness_n_per_m", "damping_ns_per_m",
+                        "gap_m"):
+                if not _agree(getattr(rec, key), getattr(ab, key)):
+                    fail(f"{where}.{key}", f"{getattr(rec, key):.6g} differs from "
+                                           f"as_built.{rec.id}.{key} {getattr(ab, key):.6g}")
+        for key, got, want in checks:
+            if not _agree(got, want):
+                fail(f"{where}.{key}",
+                     f"{got:.6g} does not follow from its geometry through the fabrication "
+                     f"equations on the spec's process ({want:.6g}): the numbers contradict "
+                     "each other (was the file edited, or the plan made with another "
+                     "process section?)")
+    keys = set()
+    for j, st in enumerate(record.steps):
+        where = f"steps[{j}] ({st.key})"
+        if st.key in keys:
+            fail(f"{where}.name", f"step {st.key} is listed twice")
+        keys.add(st.key)
+        if not st.tones:
+            fail(f"{where}.tones", "a step has at least one tone")
+        both = set(st.forward) & set(st.backward)
+        if both:
+            fail(f"{where}.backward", f"{', '.join(sorted(both))} cannot move both ways")
+        if not st.forward and not st.backward:
+            fail(f"{where}.forward", "a step moves at least one device")
+        for key, devs, direction in (("forward", st.forward, "forward"),
+                                     ("backward", st.backward, "backward")):
+            for d in devs:
+                if f"{d}.{direction}" not in seen:
+                    fail(f"{where}.{key}", f"drives {d}.{direction}, which is not among the "
+                                           "plan's impacters")
