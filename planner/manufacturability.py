@@ -61,6 +61,8 @@ SCAN_SPAN_REL = 0.15
 EDGE_TOL_HZ = 0.5
 #: Pairs listed as limiting the yield.
 LIMITING_PAIRS = 10
+#: Die-level common shifts (sigmas) the channel grid keeps from the band's ends [-].
+DIE_SHIFT_SIGMAS = 3.0
 #: Chips x pairs evaluated at once by the Monte Carlo (memory of its tables) [-].
 MC_CELLS = 2_000_000
 #: The reference beam of a matched array: its width [um] when the spec gives none, and
@@ -205,10 +207,26 @@ def told_apart_count(spec) -> int:
     return max(len(set(activity(plan_steps(loaded, 0.01)).values())), 1)
 
 
+def die_shift_rel(spec) -> float:
+    """Relative sigma of the common shift a die-level error gives every resonance [-]:
+    sqrt(sum_i (s_i sigma_die_i)^2), the predicted sensitivities."""
+    s, _ = predicted_sigmas(spec)
+    die = np.array([getattr(spec.fabrication, k).die for k in ERRORS])
+    return float(math.sqrt(np.sum((s * die) ** 2)))
+
+
 def spec_tolerance_grid(spec) -> np.ndarray:
-    """The channel grid of a spec with ``drive.channels.spacing: tolerance`` [Hz]."""
+    """The channel grid of a spec with ``drive.channels.spacing: tolerance`` [Hz].
+
+    The channels keep :data:`DIE_SHIFT_SIGMAS` sigmas of the die-level common shift
+    from either end of ``drive.band_hz``: a chip whose resonances all came out high
+    (or low) is re-planned with every tone moved by that factor, which must still be
+    in the band the piezo drives.
+    """
     z = z_for(spec.fabrication.target_yield, told_apart_count(spec) - 1)
-    return tolerance_grid(spec.drive.band_hz, spec.drive.channels.resonance_separation_hz,
+    lo, hi = spec.drive.band_hz
+    m = 1.0 + DIE_SHIFT_SIGMAS * die_shift_rel(spec)
+    return tolerance_grid((lo * m, hi / m), spec.drive.channels.resonance_separation_hz,
                           pair_sigma_rel(spec), z, spec.drive.guard.separation_channels)
 
 

@@ -338,20 +338,38 @@ def verify_chip(payload: Payload, scale_index: int, chip_index: int, scale: floa
 
 
 def measured_frequencies(payload: Payload, scale: float, chip_index: int, chip) -> dict:
-    """Node id -> (true, measured) natural frequency [Hz] of a sampled chip.
+    """Node id -> (true, measured) natural frequency [Hz] of a sampled chip; for a pair
+    of unequal halves each is a tuple (half a, half b).
 
     measured = true (1 + pct z / 100), z standard normal from the first child of the
-    chip's SeedSequence (one draw per node in the design's order, whatever pct, so the
-    same chip gets the same normals at every noise level), floored at a tenth of the
-    true frequency (a measurement never finds a resonance at or below 0 Hz; only a
-    noise of tens of per cent reaches the floor).
+    chip's SeedSequence (two draws per node in the design's order, the second for its
+    second half, whatever pct, so the same chip gets the same normals at every noise
+    level), floored at a tenth of the true frequency (a measurement never finds a
+    resonance at or below 0 Hz; only a noise of tens of per cent reaches the floor).
     """
+    from model import halves
+
     seq = chip_seed(payload.seed, scale, chip_index).spawn(1)[0]
-    z = np.random.default_rng(seq).standard_normal(len(payload.design.nodes))
+    z = np.random.default_rng(seq).standard_normal((len(payload.design.nodes), 2))
     out = {}
     for node, zi in zip(payload.design.nodes, z):
-        nu = float(chip.impacters[node.id].natural_frequency)
-        out[node.id] = (nu, nu * max(1.0 + payload.measure_noise_pct / 100.0 * float(zi), 0.1))
+        parts = halves(chip.impacters[node.id])
+        true = [float(h.natural_frequency) for h, _ in parts]
+        meas = [nu * max(1.0 + payload.measure_noise_pct / 100.0 * float(zk), 0.1)
+                for nu, zk in zip(true, zi)]
+        out[node.id] = ((true[0], meas[0]) if len(parts) == 1 else
+                        (tuple(true), tuple(meas)))
+    return out
+
+
+def _as_measured(freqs: dict) -> dict:
+    """The re-plan's ``measured`` of :func:`measured_frequencies`' pairs."""
+    out = {}
+    for n, (_, m) in freqs.items():
+        if isinstance(m, tuple):
+            out[n] = {"natural_frequency_hz": float(np.mean(m)), "halves_hz": m}
+        else:
+            out[n] = {"natural_frequency_hz": m}
     return out
 
 
@@ -381,46 +399,49 @@ def replan_chip_on(payload: Payload, settings, scale: float, chip_index: int, ch
         ``passed`` (the re-planned drive passes every check on the true models),
         ``measured_passed`` (the re-plan verified on the models it was made from),
         ``causes`` (:data:`REPLAN_CAUSES` that apply when it fails), ``failures``
-        (kind -> rows on the true models), ``collisions`` (unresolved pairs:
-        ``driven``, ``idle``, their as-built and measured natural frequencies [Hz],
-        ``steps`` separating them), ``outside_band`` (impacters whose scaled tone fell
-        beyond the band), ``merged_steps``, ``tones_moved`` (impacters whose channel
-        changed).
+        (kind -> rows on the true models), ``collisions`` (pairs no drive tells apart:
+        ``pair``, their measured resonances ``as_built_hz``, ``apart_hz`` and the
+        ``needs_hz`` they would need), ``outside_band`` (impacters whose tone fell
+        beyond the band), ``split_steps`` (steps played as sub-steps),
+        ``tones_moved``.
     """
+    freqs = measured_frequencies(payload, scale, chip_index, chip)
+    return _replan_and_check(payload, settings, _as_measured(freqs), chip.impacters,
+                             chip.sliders, (nominal["steps_passed"], nominal["rows"]))
+
+
+def _replan_and_check(payload, settings, measured, impacters, sliders, original):
+    """Re-plan from ``measured`` and verify the drive on the true models (a yield's
+    re-plan and its trim's)."""
     from planner.planning.replan import replan_chip
 
-    freqs = measured_frequencies(payload, scale, chip_index, chip)
-    measured = {n: {"natural_frequency_hz": m} for n, (_, m) in freqs.items()}
-    ok, plan = replan_chip(payload.record, measured,
-                           original=(nominal["steps_passed"], nominal["rows"]), record=False)
+    ok, plan = replan_chip(payload.record, measured, original=original, record=False)
     data = plan.data
+    rp = data["replan"]
+    collisions = [{k: c[k] for k in ("pair", "as_built_hz", "apart_hz", "needs_hz")}
+                  for c in rp["inseparable"]]
+    if collisions:      # no drive can pass: not simulated on the true models
+        return {"passed": False, "measured_passed": False,
+                "causes": ["cannot be told apart"], "failures": {}, "collisions": collisions,
+                "outside_band": list(rp["outside_band"]),
+                "split_steps": sorted(rp["split_steps"]), "tones_moved": len(rp["moved"])}
     # the re-plan's plan.json, read back as any plan is
     steps, waveforms, dwells = _drive_of(plan_record(data, source="the chip's re-plan"))
-    got = check_drive(settings, steps, waveforms, dwells, chip.impacters, chip.sliders)
-    rp = data["replan"]
-    collisions = [{"driven": c["driven"], "idle": c["idle"],
-                   "as_built_hz": [round(freqs[c["driven"]][0], 3),
-                                   round(freqs[c["idle"]][0], 3)],
-                   "measured_hz": [round(freqs[c["driven"]][1], 3),
-                                   round(freqs[c["idle"]][1], 3)],
-                   "steps": list(c["steps"])}
-                  for c in rp["inseparable"] if not c["resolved"]]
+    got = check_drive(settings, steps, waveforms, dwells, impacters, sliders)
     causes = []
     if not got["passed"]:
-        if collisions:
-            causes.append("cannot be told apart")
         if rp["outside_band"]:
             causes.append("outside band")
-        if not ok and not collisions:
+        if not ok:
             causes.append("fails on the measured models")
-        if ok and got["steps_passed"]:
-            # the re-plan itself never runs the scenes with carried state
+        elif got["steps_passed"]:
             causes.append("carried state")
-        elif ok:
+        else:
             causes.append("fails only on the true models")
     return {"passed": got["passed"], "measured_passed": bool(ok), "causes": causes,
             "failures": got["failures"], "collisions": collisions,
-            "outside_band": list(rp["outside_band"]), "merged_steps": list(rp["merged_steps"]),
+            "outside_band": list(rp["outside_band"]),
+            "split_steps": sorted(rp["split_steps"]),
             "tones_moved": sum(1 for m in rp["moved"]
                                if m["frequency_hz"] != m["original_frequency_hz"])}
 
@@ -470,7 +491,7 @@ def _chip_record(r) -> dict:
     return {"chip": r["chip"], "nominal_passed": r["passed"], "replan_passed": rp["passed"],
             "measured_passed": rp["measured_passed"], "causes": rp["causes"],
             "failures": _ordered(rp["failures"], KINDS), "collisions": rp["collisions"],
-            "outside_band": rp["outside_band"], "merged_steps": rp.get("merged_steps", []),
+            "outside_band": rp["outside_band"], "split_steps": rp.get("split_steps", []),
             "tones_moved": rp.get("tones_moved", 0)}
 
 
@@ -728,8 +749,9 @@ def _replan_lines(data: dict, timings: dict | None) -> list[str]:
                   "| chip | nominal drive | causes | colliding resonances (as built) |",
                   "|---|---|---|---|"]
         for c in bad[:50]:
-            pairs = "; ".join(f"{x['driven']} {x['as_built_hz'][0]:.0f} Hz / {x['idle']} "
-                              f"{x['as_built_hz'][1]:.0f} Hz" for x in c["collisions"][:4])
+            pairs = "; ".join(f"{x['pair'][0]} {x['as_built_hz'][0]:.0f} Hz / {x['pair'][1]} "
+                              f"{x['as_built_hz'][1]:.0f} Hz (need {x['needs_hz']:.0f} Hz "
+                              "apart)" for x in c["collisions"][:4])
             if len(c["collisions"]) > 4:
                 pairs += f"; ... {len(c['collisions']) - 4} more"
             lines.append(f"| {c['chip']} | {'passes' if c['nominal_passed'] else 'fails'} | "

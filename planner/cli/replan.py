@@ -41,8 +41,12 @@ def command(plan_path, measured_path, out_dir, force, seed, no_figures, quiet):
     as-built model keeps its design's mass (and damping and gap unless measured);
     k = m (2 pi nu_n)^2 from the measured natural frequency; a quality factor sets
     b = m 2 pi nu_n / Q.  The designs are fixed: each impacter's tone moves with its
-    resonance (scaled by measured / designed nu_n, snapped to the channel grid) and
-    is repaired by local search until every step verifies on the as-built models.
+    resonance (scaled by measured / designed nu_n).  Every pair the steps must tell
+    apart is checked against the plan's measured silent bands and tone windows; a
+    multi-tone step that drive.max_acceleration_g would weaken beyond the plan's
+    verified drive is split into sub-steps of neighbouring tones; bursts asked as a
+    travel are sized for the as-built speeds; the drive is verified on the as-built
+    models and its motion repaired (shorter bursts, longer dwells) as a plan's.
 
     \b
     measured.csv: header, then one row per impacter (any column order):
@@ -50,15 +54,17 @@ def command(plan_path, measured_path, out_dir, force, seed, no_figures, quiet):
       natural_frequency_hz  measured nu_n [Hz], > 0
       quality_factor        optional, Q [-], > 0
       gap_um                optional, measured gap [um], > 0
+      half                  optional, a or b: one row per half of a pair whose two
+                            cantilevers were measured apart (both rows then)
     Columns ending in _std (calibrate's uncertainties) are ignored; an impacter
     without a row keeps its design.  A malformed file is an error naming its row
     and column (exit 2, nothing written).
 
     Writes OUT/ as `vibroplan plan` does (plan.json with `as_built` and `replan`,
     report.md, waveforms/, CSVs, figures/).  The report says what moved and whether
-    the ORIGINAL drive would have failed on this chip.  Impacters whose as-built
-    resonances collide are named; they are driven together when only the implicit
-    single-impacter steps separate them, otherwise the plan fails (exit 1).
+    the ORIGINAL drive would have failed on this chip.  Impacters no drive can tell
+    apart are named with their as-built resonances and the separation they would
+    need, and the re-plan fails (exit 1): trim one of them (vibroplan trim).
 
     {EXIT}
     """
@@ -93,9 +99,11 @@ def command(plan_path, measured_path, out_dir, force, seed, no_figures, quiet):
         click.echo("warning: the as-built resonance moved the tone of "
                    f"{', '.join(rp['outside_band'])} outside the drive band "
                    f"{d['spec']['drive']['band_hz']} Hz: driven at the band edge", err=True)
+    for key, subs in rp.get("split_steps", {}).items():
+        click.echo(f"note: {key} plays as {len(subs)} sub-steps ({', '.join(subs)}): the "
+                   "acceleration limit would have weakened its tones", err=True)
     for c in rp["inseparable"]:
-        click.echo(f"{'note' if c['resolved'] else 'error'}: {c['message']}",
-                   err=not c["resolved"])
+        click.echo(f"error: {c['message']}", err=True)
     ver = result.verification
     click.echo(f"re-planned drive: {'PASSED' if result.passed else 'FAILED'} "
                f"({int(ver['passed'].sum())}/{len(ver)} checks); wrote {out_dir}/ "

@@ -10,15 +10,18 @@ from planner.planning.settings import Settings, tone_amplitudes
 def synthesize_steps(settings: Settings, steps, assignment, seed=None):
     """Waveform of every step (the sum of its active impacters' tones), by step key.
 
-    Step ``i`` is seeded with ``seed + i`` (``seed`` default ``settings.seed``).
+    ``assignment``: an :class:`~planner.assign.Assignment`, or a mapping impacter id ->
+    tone [Hz] (a re-plan's tones).  Step ``i`` is seeded with ``seed + i`` (``seed``
+    default ``settings.seed``).
     """
     from planner.synthesis import synthesize
 
     seed = settings.seed if seed is None else seed
+    frequencies = getattr(assignment, "frequencies", assignment)
     out = {}
     for st in steps:
         nodes = sorted(Node(d, dr).text for d, dr in st.active_nodes())
-        freqs = sorted({assignment.frequencies[n] for n in nodes})
+        freqs = sorted({frequencies[n] for n in nodes})
         amps = tone_amplitudes(settings, freqs)
         out[st.key] = synthesize(freqs, amps, settings.sample_rate_hz, seed=seed + st.index,
                                  peak_limit=settings.peak_limit_m)

@@ -21,10 +21,9 @@ from planner.planning.drives import drive_of, limit_acceleration, synthesize_ste
 from planner.planning.manufacture import assess
 from planner.planning.motion import size_bursts
 from planner.planning.record import build_record
-from planner.planning.repair import (merge_carried, repair_motion, reseed_idle, reseed_slow,
-                                     settle_by_step, widen_separations)
+from planner.planning.repair import (reseed_idle, reseed_slow, scenes_and_motion,
+                                     widen_separations)
 from planner.planning.result import Plan
-from planner.planning.scenes import scene_failures, simulate_scenes
 from planner.planning.settings import Settings, resolve_settings
 from planner.planning.verify import TRAVEL_OVER, UNSETTLED, check_steps, coupling_matrix
 
@@ -159,26 +158,9 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     # the scenes carry every impacter's and slider's state from step to step, each step
     # followed by its settle dwell; what they find counts in the verification, and the
     # motion repair acts on it (shorter bursts, longer dwells)
-    motion_repairs, longer_dwells = [], {}
-    for mround in range(settings.repair_rounds + 1):
-        dwells = settle_by_step(ver_rows, longer_dwells)
-        scene_rows = simulate_scenes(settings, run_steps, waveforms, impacters, sliders, dwells)
-        carried = scene_failures(settings, run_steps, scene_rows)
-        if mround == settings.repair_rounds:
-            break
-        fixed = repair_motion(settings, run_steps, failures + carried, dwells, longer_dwells)
-        if fixed is None:
-            break
-        run_steps, actions, redo = fixed
-        motion_repairs.append({"round": mround + 1, "actions": actions})
-        again = [st for st in run_steps if st.index in redo]
-        for st, (rows, fails) in zip(again, check_steps(settings, again, waveforms, impacters,
-                                                         sliders, scheduler=scheduler)):
-            ver_rows = [r for r in ver_rows if r["index"] != st.index] + rows
-            failures = [f for f in failures if f.step != st.index] + fails
-        ver_rows.sort(key=lambda r: r["index"])
-    ver_rows, step_settle = merge_carried(ver_rows, carried, run_steps, scene_rows, dwells)
-    failures = failures + carried
+    (run_steps, ver_rows, failures, scene_rows, motion_repairs,
+     step_settle) = scenes_and_motion(settings, run_steps, waveforms, impacters, sliders,
+                                      ver_rows, failures, scheduler=scheduler)
     tones = sorted(set(assignment.frequencies.values()))
     coupling = coupling_matrix(impacters, tones, settings, settings.single_step_s)
     timings["scenes_coupling"] = time.perf_counter() - ts

@@ -93,6 +93,9 @@ class StepRecord:
     backward: tuple[Text, ...]
     tones: tuple[Tone, ...]
     settle_s: NonNegative | None = None
+    #: The factor the acceleration limit lowered the step's tones by (1: none; None in
+    #: plans from before the limit).
+    acceleration_scale: Positive | None = None
 
     @property
     def key(self) -> str:
@@ -209,6 +212,7 @@ class _PlanFile:
     assignment: _Assignment = _Assignment()
     as_built: dict[str, AsBuilt] | None = None
     replan: _Replan | None = None
+    manufacturability: dict | None = None
 
 
 _SCHEMA = TypeAdapter(_PlanFile)
@@ -252,6 +256,10 @@ class PlanRecord:
     design_natural_frequency_hz : dict
         Impacter id -> its designed natural frequency [Hz] (a re-plan's impacters are
         as built; this is what their geometry was designed for).
+    manufacturability : dict or None
+        plan.json's ``manufacturability`` block as written (sensitivities, separations,
+        the predicted yield; :func:`planner.planning.manufacture.assess`), None in plans
+        from before it.
     """
 
     path: Path | None
@@ -268,6 +276,7 @@ class PlanRecord:
     dwells: dict
     as_built: dict | None
     design_natural_frequency_hz: dict
+    manufacturability: dict | None = None
 
     @property
     def replanned(self) -> bool:
@@ -375,7 +384,8 @@ def plan_record(data, *, source: str = "plan.json", path: Path | None = None) ->
         devices=raw.devices, steps=raw.steps, lower_bound=raw.assignment.lower_bound,
         verified=raw.verification.passed, dwells=_dwells(raw),
         as_built=dict(raw.as_built) if raw.as_built is not None else None,
-        design_natural_frequency_hz=_design_frequencies(raw, source))
+        design_natural_frequency_hz=_design_frequencies(raw, source),
+        manufacturability=raw.manufacturability)
     _check(record, source)
     return record
 

@@ -207,3 +207,57 @@ def merge_carried(ver_rows, carried, steps, scene_rows, dwells):
     settle = settle_by_step([r for r in scene_rows if r["driven"]],
                             {st.key: float(dwells.get(st.key, 0.0)) for st in steps})
     return rows, settle
+
+
+def scenes_and_motion(settings, run_steps, waveforms, impacters, sliders, ver_rows, failures,
+                      *, scheduler=None, dwell_floor=None):
+    """The scenes with the state carried across steps, and the motion repair.
+
+    Each scene is simulated in order, every step followed by its settle dwell; a step
+    that travels too far or does not settle, in its own check or with the carried
+    state, gets a shorter burst or a longer dwell (:func:`repair_motion`) and is checked
+    again, up to ``settings.repair_rounds`` times.  The plan and the re-plan both end
+    this way.
+
+    Parameters
+    ----------
+    run_steps : sequence of Step
+    waveforms : dict
+        Step key -> Waveform.
+    impacters, sliders : dict
+        The models the drive is verified on.
+    ver_rows, failures : list
+        The per-step checks so far (:func:`planner.planning.verify.check_steps`).
+    dwell_floor : dict, optional
+        Step key -> a dwell [s] the step keeps at least (a re-plan keeps the plan's).
+
+    Returns
+    -------
+    (run_steps, ver_rows, failures, scene_rows, motion_repairs, step_settle)
+        The steps as repaired, the checks with the carried-state rows merged in, every
+        failure (the carried-state ones included), the scene rows, the repairs made and
+        the settle dwell of every step [s].
+    """
+    from planner.planning.scenes import scene_failures, simulate_scenes
+    from planner.planning.verify import check_steps
+
+    motion_repairs, longer_dwells = [], dict(dwell_floor or {})
+    for mround in range(settings.repair_rounds + 1):
+        dwells = settle_by_step(ver_rows, longer_dwells)
+        scene_rows = simulate_scenes(settings, run_steps, waveforms, impacters, sliders, dwells)
+        carried = scene_failures(settings, run_steps, scene_rows)
+        if mround == settings.repair_rounds:
+            break
+        fixed = repair_motion(settings, run_steps, failures + carried, dwells, longer_dwells)
+        if fixed is None:
+            break
+        run_steps, actions, redo = fixed
+        motion_repairs.append({"round": mround + 1, "actions": actions})
+        again = [st for st in run_steps if st.index in redo]
+        for st, (rows, fails) in zip(again, check_steps(settings, again, waveforms, impacters,
+                                                         sliders, scheduler=scheduler)):
+            ver_rows = [r for r in ver_rows if r["index"] != st.index] + rows
+            failures = [f for f in failures if f.step != st.index] + fails
+        ver_rows.sort(key=lambda r: r["index"])
+    ver_rows, step_settle = merge_carried(ver_rows, carried, run_steps, scene_rows, dwells)
+    return run_steps, ver_rows, failures + carried, scene_rows, motion_repairs, step_settle

@@ -14,10 +14,11 @@ module re-plans the drive without searching by simulation:
    impacters the plan's steps must tell apart is checked; a pair that cannot be is named
    with its as-built resonances and the separation it would need.  No drive can tell
    such a pair apart: a trim can (:mod:`planner.trim`).
-3. **steps** (:func:`split_steps`): each multi-tone step is synthesised with the new tones
+3. **steps** (:func:`split_weak`): each multi-tone step is synthesised with the new tones
    and held to ``drive.max_acceleration_g`` as the plan's; when the limit lowers its tones
-   further than the plan's verified drive did, the step is split into sub-steps of
-   neighbouring tones (played one after the other), each strong enough again.
+   further than the plan's verified drive did and the step then fails by a slow slider,
+   it is split into sub-steps of neighbouring tones (played one after the other), each
+   strong enough again, and kept split where that passes more checks.
 4. **bursts** (:func:`planner.planning.motion.size_bursts`): steps that ask for a travel
    get their burst from the as-built speeds.
 
@@ -41,9 +42,12 @@ from planner.trim import Separations
 #: Sub-steps a multi-tone step may be split into at most (each a run of neighbouring
 #: tones); further would make it a sequence of single-tone steps.
 MAX_SPLIT = 8
-#: A split stops when every sub-step keeps at least this fraction of the acceleration
-#: scale the plan's own drive of the step was verified at [-].
-SPLIT_SCALE_MARGIN = 0.999
+#: A step is split when the acceleration limit lowers its tones below this fraction of
+#: the scale the plan's own drive of the step was verified at, and its sub-steps until
+#: each keeps at least that [-].  Small changes (the tones' new crest factor) are left:
+#: every impacter of another run is idle beside a run's edge, a new exposure the
+#: designs were not made for, so a split is the last resort (the verification decides).
+SPLIT_SCALE_MARGIN = 0.95
 
 
 def measured_frequency(value) -> float:
@@ -53,23 +57,31 @@ def measured_frequency(value) -> float:
     return float(value)
 
 
-def rescaled_tones(plan_data: dict, measured: dict) -> dict:
+def rescaled_tones(plan, measured: dict, seps: Separations | None = None) -> dict:
     """Impacter id -> its tone [Hz] moved with its measured resonance (t nu' / nu).
 
     Parameters
     ----------
-    plan_data : dict
-        The plan (plan.json).
+    plan : PlanRecord
+        The plan (:func:`planner.planning.plan_file.read_plan`).
     measured : dict
         Impacter id -> measured resonance [Hz] (or the two halves' (a, b)); an impacter
         not in it keeps its tone.
+    seps : Separations, optional
+        With the plan's tone windows, each tone moves to the middle of its window
+        first: the designer leaves a tone just below the frequency where the response
+        collapses (the max-min optimum), with 10 Hz of room above it and 100 below;
+        the middle keeps the most room for what the model does not know (measurement
+        noise, the amplitude's change with the frequency).
     """
+    centre = {}
+    if seps is not None:
+        centre = {n: 0.5 * (seps.hi[k] - seps.lo[k]) for k, n in enumerate(seps.ids)}
     out = {}
-    for rec in plan_data["impacters"]:
-        n = rec["id"]
-        ratio = (measured_frequency(measured[n]) / rec["natural_frequency_hz"]
-                 if n in measured else 1.0)
-        out[n] = rec["frequency_hz"] * ratio
+    for rec in plan.impacters:
+        ratio = (measured_frequency(measured[rec.id]) / rec.natural_frequency_hz
+                 if rec.id in measured else 1.0)
+        out[rec.id] = (rec.frequency_hz + centre.get(rec.id, 0.0)) * ratio
     return out
 
 
@@ -112,57 +124,42 @@ def _sub_steps(step, groups):
     return out
 
 
-def split_steps(settings, steps, tones, plan_scales, synthesize_and_limit):
-    """Steps whose tones the acceleration limit would weaken beyond the plan's, split.
-
-    Parameters
-    ----------
-    settings : Settings
-    steps : sequence of Step
-    tones : dict
-        Impacter id -> tone [Hz].
-    plan_scales : dict
-        Step key -> the acceleration scale the plan verified the step at (plan.json's
-        ``acceleration_scale``; 1 when none).
-    synthesize_and_limit : callable
-        ``(steps, tones) -> (waveforms, notes)``: synthesis of the steps and the
-        acceleration limit (:func:`planner.planning.drives.limit_acceleration`).
+def split_step(step, tones, need, synthesize_and_limit):
+    """``step`` as 2, 3, ... :data:`MAX_SPLIT` sub-steps of neighbouring tones, the
+    fewest whose every sub-step keeps an acceleration scale of at least ``need``.
 
     Returns
     -------
-    (steps, waveforms, notes, splits)
-        ``splits``: original step key -> the sub-step keys it became.
+    (sub-steps, waveforms, notes)
+        Their indices are the step's (renumber them when placing them).
     """
-    waveforms, notes = synthesize_and_limit(steps, tones)
-    out, splits = [], {}
+    nodes = sorted((Node(d, r).text for d, r in step.active_nodes()), key=lambda n: tones[n])
+    chosen = None
+    for k in range(2, min(MAX_SPLIT, len(nodes)) + 1):
+        # k runs of neighbouring tones: an impacter of another run is idle next to a
+        # run's edge only, never between its tones (the verification decides)
+        groups = [set(g) for g in np.array_split(np.array(nodes, dtype=object), k)]
+        subs = _sub_steps(step, groups)
+        w, nt = synthesize_and_limit(subs, tones)
+        chosen = (subs, w, nt)
+        if all(nt[s.key]["acceleration_scale"] >= need for s in subs):
+            break
+    return chosen
+
+
+def weakened(steps, notes, plan_scales):
+    """The multi-tone steps whose tones the acceleration limit lowers below
+    :data:`SPLIT_SCALE_MARGIN` of the scale the plan verified them at: step key ->
+    the scale a split must keep."""
+    out = {}
     for st in steps:
         need = plan_scales.get(st.key, 1.0) * SPLIT_SCALE_MARGIN
-        if notes[st.key]["acceleration_scale"] >= need:
-            out.append(st)
-            continue
-        nodes = sorted((Node(d, r).text for d, r in st.active_nodes()),
-                       key=lambda n: tones[n])
-        chosen = None
-        for k in range(2, min(MAX_SPLIT, len(nodes)) + 1):
-            # k runs of neighbouring tones: an impacter of another run is idle next to a
-            # run's edge only, never between its tones (the verification decides)
-            groups = [set(g) for g in np.array_split(np.array(nodes, dtype=object), k)]
-            subs = _sub_steps(st, groups)
-            w, nt = synthesize_and_limit(subs, tones)
-            chosen = (subs, w, nt)
-            if all(nt[s.key]["acceleration_scale"] >= need for s in subs):
-                break
-        subs, w, nt = chosen
-        out += subs
-        waveforms.update(w)
-        notes.update(nt)
-        splits[st.key] = [s.key for s in subs]
-    # the sub-steps are numbered in play order
-    out = [dataclasses.replace(st, index=i) for i, st in enumerate(out)]
-    return tuple(out), waveforms, notes, splits
+        if len(st.active_nodes()) > 1 and notes[st.key]["acceleration_scale"] < need:
+            out[st.key] = need
+    return out
 
 
-def as_built_models(plan_data: dict, measured: dict, *, quality=None):
+def as_built_models(plan, measured: dict, *, quality=None):
     """Node id -> the as-built model of a measured chip: the design's mass, damping and
     gap, its stiffness from the measured resonance (k = m (2 pi nu)^2); a pair measured
     half by half is a :class:`model.PairHalves` of two such models.
@@ -173,20 +170,19 @@ def as_built_models(plan_data: dict, measured: dict, *, quality=None):
     import model
 
     out = {}
-    for rec in plan_data["impacters"]:
-        n = rec["id"]
-        m = float(rec["mass_kg"])
-        value = measured.get(n, rec["natural_frequency_hz"])
+    for rec in plan.impacters:
+        n = rec.id
+        m = rec.mass_kg
+        value = measured.get(n, rec.natural_frequency_hz)
         freqs = value if isinstance(value, (tuple, list)) else (value,)
         qs = (quality or {}).get(n)
         qs = qs if isinstance(qs, (tuple, list)) else (qs,) * len(freqs)
         parts = []
         for nu, q in zip(freqs, qs):
             w = 2.0 * math.pi * float(nu)
-            b = m * w / float(q) if q else float(rec["damping_ns_per_m"])
-            parts.append(model.Impacter(m, m * w * w, b, float(rec["gap_m"]),
-                                        float(rec["impact_angle_rad"]),
-                                        float(rec["restitution"])))
+            b = m * w / float(q) if q else rec.damping_ns_per_m
+            parts.append(model.Impacter(m, m * w * w, b, rec.gap_m, rec.impact_angle_rad,
+                                        rec.restitution))
         out[n] = parts[0] if len(parts) == 1 else model.pair_of(*parts)
     return out
 
@@ -200,3 +196,170 @@ def natural_frequencies(impacters: dict) -> dict:
         out[n] = (float(parts[0][0].natural_frequency) if len(parts) == 1 else
                   tuple(float(h.natural_frequency) for h, _ in parts))
     return out
+
+
+def separations_of(plan, settings) -> Separations:
+    """The plan's :class:`planner.trim.Separations`: from its ``manufacturability`` block,
+    or, for a plan from before it, measured now on its designs (a few seconds)."""
+    from planner.manufacturability import measure_separation
+
+    ids = tuple(sorted(r.id for r in plan.impacters))
+    recs = {r.id: r for r in plan.impacters}
+    block = (plan.manufacturability or {}).get("separation_hz")
+    if block and set(block) >= set(ids):
+        seps = [block[n] for n in ids]
+    else:
+        seps = [measure_separation(recs[n].impacter(), recs[n].frequency_hz,
+                                   power=settings.power_m2_s3, amplitude=settings.amplitude_m,
+                                   window=settings.window_s).to_dict() for n in ids]
+    rho = np.array([recs[n].frequency_hz / plan.design_natural_frequency_hz[n]
+                    if not plan.replanned else recs[n].frequency_hz
+                    / recs[n].natural_frequency_hz for n in ids])
+    return Separations(ids, rho, np.array([s["silent_below"] for s in seps]),
+                       np.array([s["silent_above"] for s in seps]),
+                       np.array([s["responds_below"] for s in seps]),
+                       np.array([s["responds_above"] for s in seps]))
+
+
+@dataclasses.dataclass
+class RescuedDrive:
+    """A chip's re-planned drive before its verification.
+
+    Attributes
+    ----------
+    steps : tuple of Step
+        The steps to play (multi-tone steps split where needed), bursts sized.
+    waveforms, notes : dict
+        Step key -> Waveform, and -> the acceleration limit's notes.
+    dwells : dict
+        Step key -> settle dwell after it [s] (the plan's; a sub-step takes its step's).
+    tones : dict
+        Impacter id -> tone [Hz].
+    inseparable : list of dict
+        :func:`inseparable`'s pairs (no drive tells them apart).
+    splits : dict
+        Original step key -> its sub-step keys (:func:`split_weak`).
+    sizing : dict
+        :func:`planner.planning.motion.size_bursts`'s notes.
+    weak : dict
+        Step key -> the acceleration scale a split must keep (:func:`weakened`).
+    synthesize_and_limit : callable
+        ``(steps, tones) -> (waveforms, notes)`` under the plan's settings.
+    """
+
+    steps: tuple
+    waveforms: dict
+    notes: dict
+    dwells: dict
+    tones: dict
+    inseparable: list
+    splits: dict
+    sizing: dict
+    weak: dict = dataclasses.field(default_factory=dict)
+    synthesize_and_limit: object = None
+
+
+def rescue(plan, measured: dict, settings, models: dict, sliders: dict) -> RescuedDrive:
+    """Re-plan a chip's drive from its measured resonances (steps 1-4 of the module
+    notes); no simulation but the burst sizing's short probes.
+
+    Parameters
+    ----------
+    plan : PlanRecord
+    measured : dict
+        Impacter id -> measured resonance [Hz] (or the halves' (a, b)).
+    settings : Settings
+        The plan's.
+    models, sliders : dict
+        The chip's models as measured (:func:`as_built_models`) and its sliders: the
+        bursts are sized for their speeds.
+    """
+    from planner.planning.drives import drive_of, limit_acceleration, synthesize_steps
+    from planner.planning.motion import size_bursts
+
+    measured = {n: measured.get(n, plan.design_natural_frequency_hz[n])
+                for n in (r.id for r in plan.impacters)}
+    seps = separations_of(plan, settings)
+    tones = rescaled_tones(plan, measured, seps)
+    bad = inseparable(seps, measured, must_differ(settings.steps))
+    # the plan's steps as it played them: its sized and repaired bursts and dwells
+    recorded = {st.key: st for st in plan.steps}
+    base = []
+    for st in settings.steps:
+        rec = recorded.get(st.key)
+        base.append(st if rec is None else dataclasses.replace(st, duration_s=rec.duration_s))
+    scales = {st.key: (st.acceleration_scale or 1.0) for st in plan.steps}
+
+    def synthesize_and_limit(steps, freqs):
+        return limit_acceleration(settings, synthesize_steps(settings, steps, freqs))
+
+    waveforms, notes = synthesize_and_limit(tuple(base), tones)
+    steps, sizing = size_bursts(settings, tuple(base), waveforms, models, sliders, drive_of)
+    dwells = {st.key: plan.dwells.get(st.key, 0.0) for st in steps}
+    return RescuedDrive(steps, waveforms, notes, dwells, tones, bad, {}, sizing,
+                        weakened(steps, notes, scales), synthesize_and_limit)
+
+
+def split_weak(settings, drive: RescuedDrive, rows, failures, models, sliders, check):
+    """Split the weakened steps that fail by a slow slider, where that passes more checks.
+
+    Parameters
+    ----------
+    drive : RescuedDrive
+        Its steps verified: ``rows`` and ``failures`` of ``check(steps)``.
+    check : callable
+        ``(steps, waveforms) -> (rows, failures)`` on the models the drive is verified on.
+
+    Returns
+    -------
+    (drive, rows, failures)
+        The drive with its kept splits (steps renumbered in play order), and the checks
+        of every step as it now stands.
+    """
+    from planner.planning.drives import drive_of
+    from planner.planning.motion import size_bursts
+    from planner.planning.verify import TOO_SLOW
+
+    slow = {f.step for f in failures if f.kind == TOO_SLOW}
+    tries = [st for st in drive.steps if st.key in drive.weak and st.index in slow]
+    if not tries:
+        return drive, rows, failures
+    keep = {}
+    for st in tries:
+        subs, w, nt = split_step(st, drive.tones, drive.weak[st.key],
+                                 drive.synthesize_and_limit)
+        subs, _ = size_bursts(settings, tuple(subs), w, models, sliders, drive_of)
+        checked = [check([sub], w) for sub in subs]          # per sub-step
+        before = sum(1 for r in rows if r["index"] == st.index and not r["passed"])
+        after = sum(1 for sub_rows, _ in checked for r in sub_rows if not r["passed"])
+        if after < before:
+            keep[st.key] = (subs, w, nt, checked)
+    if not keep:
+        return drive, rows, failures
+    # renumber the steps in play order; the checks follow their steps
+    steps, new_rows, new_failures, index = [], [], [], {}
+    for st in drive.steps:
+        if st.key not in keep:
+            index[st.index] = len(steps)
+            steps.append(dataclasses.replace(st, index=len(steps)))
+            continue
+        subs, _, _, checked = keep[st.key]
+        for sub, (sub_rows, sub_fails) in zip(subs, checked):
+            k = len(steps)
+            steps.append(dataclasses.replace(sub, index=k))
+            new_rows += [{**r, "index": k} for r in sub_rows]
+            new_failures += [dataclasses.replace(f, step=k) for f in sub_fails]
+    waveforms, notes = dict(drive.waveforms), dict(drive.notes)
+    for _, w, nt, _ in keep.values():
+        waveforms.update(w)
+        notes.update(nt)
+    rows = sorted([{**r, "index": index[r["index"]]} for r in rows if r["index"] in index]
+                  + new_rows, key=lambda r: r["index"])
+    failures = ([dataclasses.replace(f, step=index[f.step]) for f in failures
+                 if f.step in index] + new_failures)
+    splits = {key: [s.key for s in subs] for key, (subs, _, _, _) in keep.items()}
+    parent = {sub: key for key, subs in splits.items() for sub in subs}
+    dwells = {st.key: drive.dwells.get(parent.get(st.key, st.key), 0.0) for st in steps}
+    return (dataclasses.replace(drive, steps=tuple(steps), waveforms=waveforms, notes=notes,
+                                dwells=dwells, splits=splits),
+            rows, failures)

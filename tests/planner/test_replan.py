@@ -4,6 +4,7 @@ A tiny 1 x 2 plan is made once (real designer, real verification); the chips are
 impacters with their natural frequencies moved, re-planned and verified by simulation.
 """
 
+import dataclasses
 import json
 import math
 
@@ -152,33 +153,45 @@ def test_colliding_resonances_fail_naming_both(plan_data, tmp_path):
     d = json.loads((out / "plan.json").read_text())
     assert d["verification"]["passed"] is False
     (c,) = d["replan"]["inseparable"]
-    assert {c["driven"], c["idle"]} == {"A1.forward", "A2.backward"}
-    assert not c["resolved"]
+    assert set(c["pair"]) == {"A1.forward", "A2.backward"}
+    # named with their as-built resonances and the separation they would need
+    assert c["apart_hz"] < c["needs_hz"]
+    assert c["as_built_hz"][1] - c["as_built_hz"][0] == pytest.approx(c["apart_hz"])
+    assert f"they need {c['needs_hz']:.0f} Hz" in res.output
 
 
-def test_single_steps_merge_when_only_they_separate_a_pair():
-    from planner.planning.replan import _merge_independent, _resolve_conflicts
+def test_a_weakened_multi_tone_step_splits_into_runs_that_keep_the_scale(plan_data):
+    """The synthesis and acceleration limit of the re-plan: a two-device step whose summed
+    drive the limit lowers below the plan's scale splits into sub-steps of neighbouring
+    tones, each synthesised and limited again and keeping at least the scale asked."""
+    from planner.planning.drives import limit_acceleration, synthesize_steps
+    from planner.planning.plan_file import plan_record
+    from planner.planning.rescue import split_step, weakened
+    from planner.planning.settings import resolve_settings
     from planner.spec import Step
 
-    steps = (Step("s", "all", 0, 0.005, ("A1", "A2"), ()),
-             Step("independent", "A1.forward", 1, 0.01, ("A1",), ()),
-             Step("independent", "A2.forward", 2, 0.01, ("A2",), ()),
-             Step("independent", "A1.backward", 3, 0.01, (), ("A1",)))
-    nu = {"A1.forward": 5000.0, "A2.forward": 5001.0, "A1.backward": 5002.0}
-    blockers = {"A1.forward": {"A2.forward": ("independent/A1.forward",),
-                               "A1.backward": ("independent/A1.forward",)}}
-    pairs, conflicts = _resolve_conflicts(steps, blockers, nu)
-    assert pairs == [("A1.forward", "A2.forward")]
-    by_idle = {c.idle: c for c in conflicts}
-    assert by_idle["A2.forward"].resolved
-    assert not by_idle["A1.backward"].resolved       # one device's two impacters
-    merged = _merge_independent(steps, pairs)
-    assert [s.key for s in merged] == ["s/all", "independent/A1.forward+A2.forward",
-                                       "independent/A1.backward"]
-    assert merged[1].forward == ("A1", "A2") and [s.index for s in merged] == [0, 1, 2]
-    # a scene step that separates them forbids the fallback
-    pairs, (c,) = _resolve_conflicts(steps, {"A1.forward": {"A2.forward": ("s/one",)}}, nu)
-    assert pairs == [] and not c.resolved and "s/one" in c.reason
+    record = plan_record(plan_data)
+    settings = resolve_settings(record.loaded)
+    tones = {r.id: r.frequency_hz for r in record.impacters}
+    both = Step("s", "both", 0, 0.005, ("A1",), ("A2",))
+    single = Step("s", "one", 1, 0.005, ("A1",), ())
+
+    def synth(steps, freqs, limit):
+        s = dataclasses.replace(settings, max_acceleration_m_s2=limit)
+        return limit_acceleration(s, synthesize_steps(s, steps, freqs))
+
+    _, free = synth([both], tones, None)
+    peak = free["s/both"]["peak_acceleration_m_s2"]
+    _, notes = synth([both, single], tones, 0.6 * peak)
+    assert notes["s/both"]["acceleration_scale"] == pytest.approx(0.6, rel=1e-3)
+    need = weakened([both, single], notes, {"s/both": 1.0, "s/one": 1.0})
+    assert list(need) == ["s/both"]            # a single tone is never split
+    subs, w, nt = split_step(both, tones, need["s/both"],
+                             lambda st, f: synth(st, f, 0.6 * peak))
+    assert [s.key for s in subs] == ["s/both.1", "s/both.2"]
+    assert sorted(d for s in subs for d in s.forward + s.backward) == ["A1", "A2"]
+    assert all(nt[s.key]["acceleration_scale"] >= need["s/both"] for s in subs)
+    assert all(len(w[s.key].frequencies) == 1 for s in subs)
 
 
 @pytest.mark.parametrize("text, row, column", [
@@ -196,6 +209,29 @@ def test_malformed_csv_exit_2_nothing_written(plan_data, tmp_path, text, row, co
     assert f"row {row}, column {column}" in res.output
     assert not out.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["measured.csv", "orig_plan.json"]
+
+
+def test_pair_halves_are_read_from_the_half_column(plan_data, tmp_path):
+    """measured.csv may give each half of a pair (``half`` a/b): both halves are kept,
+    the pair's resonance is their mean; half a pair, or a pair measured both ways, is
+    refused naming the row."""
+    from planner.errors import SpecError
+    from planner.planning.replan import read_measured
+
+    ids = [r["id"] for r in plan_data["impacters"]]
+    csv = _write(tmp_path / "m.csv", "impacter,half,natural_frequency_hz\n"
+                 "A1.forward,a,6100\nA1.forward,b,6140\nA2.backward,,9000\n")
+    got = read_measured(csv, ids)
+    assert got["A1.forward"]["halves_hz"] == (6100.0, 6140.0)
+    assert got["A1.forward"]["natural_frequency_hz"] == 6120.0
+    assert "halves_hz" not in got["A2.backward"]
+    for text, row in (("A1.forward,a,6100\n", 2),
+                      ("A1.forward,a,6100\nA1.forward,,6100\n", 3),
+                      ("A1.forward,c,6100\n", 2)):
+        with pytest.raises(SpecError) as err:
+            read_measured(_write(tmp_path / "bad.csv",
+                                 "impacter,half,natural_frequency_hz\n" + text), ids)
+        assert f"row {row}" in str(err.value)
 
 
 def test_calibrate_output_is_accepted(plan_data, tmp_path):

@@ -51,7 +51,7 @@ def test_zero_tolerance_is_refused_unless_allowed(tiny_plan_dir, tmp_path):
     assert d["failures"] == {} and d["nominal"]["passed"] is True
     assert set(d["impacters"]) == {"A1.forward", "A2.backward"}
     assert all(r == 0.0 for r in d["impacters"].values())
-    assert all(v == {"die": 0.0, "device": 0.0} for v in d["tolerance"].values()
+    assert all(v == {"die": 0.0, "device": 0.0, "pair": 0.0} for v in d["tolerance"].values()
                if isinstance(v, dict))
     lo, hi = d["ci95"]
     assert 0 < lo < 1 and hi == 1.0
