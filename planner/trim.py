@@ -274,3 +274,49 @@ def cut_for(record: dict, measured_hz: float, target_hz: float, process, directi
         return 0.0, 0.0
     dl = optimize.brentq(lambda x: nu_rel(x) - ratio, 0.0, l, xtol=1e-15)
     return 0.0, dl
+
+
+#: trim.csv's columns (pinned by issue 26).
+TRIM_COLUMNS = ("impacter", "measured_hz", "target_hz", "change_pct", "cut_area_um2",
+                "cut_length_um")
+
+
+def trim_rows(plan, tp: TrimPlan, direction: str) -> list:
+    """trim.csv's rows, one per impacter in the plan's order: what to cut to move its
+    measured resonance to its target (zeros where it stays)."""
+    process = plan.spec.process
+    rows = []
+    for rec in plan.impacters:
+        n = rec.id
+        meas, target = tp.measured[n], tp.target[n]
+        area = length = 0.0
+        if n in tp.moved:
+            record = {"mass_kg": rec.mass_kg,
+                      "geometry": {"area_m2": rec.geometry.area_m2,
+                                   "width_m": rec.geometry.width_m,
+                                   "length_m": rec.geometry.length_m}}
+            area, length = cut_for(record, meas, target, process, direction)
+        rows.append({"impacter": n, "measured_hz": meas, "target_hz": target,
+                     "change_pct": tp.change_pct(n), "cut_area_um2": area * 1e12,
+                     "cut_length_um": length * 1e6})
+    return rows
+
+
+def write_trim_csv(rows, path) -> None:
+    """trim.csv (:data:`TRIM_COLUMNS`), 9 significant digits."""
+    with open(path, "w", encoding="utf-8", newline="") as fh:
+        fh.write(",".join(TRIM_COLUMNS) + "\n")
+        for r in rows:
+            fh.write(",".join(r["impacter"] if c == "impacter" else f"{r[c]:.9g}"
+                              for c in TRIM_COLUMNS) + "\n")
+
+
+def trimmed_resonances(tp: TrimPlan, precision_pct: float, rng) -> dict:
+    """Impacter id -> its resonance after the trims [Hz]: each moved one lands at its
+    target times (1 + precision z / 100), z standard normal from ``rng`` (one draw per
+    impacter in id order, moved or not, so the same seed gives the same errors whatever
+    moves); the others stay as measured."""
+    ids = sorted(tp.target)
+    z = rng.standard_normal(len(ids))
+    return {n: (tp.target[n] * (1.0 + precision_pct / 100.0 * float(zi)) if n in tp.moved
+                else tp.measured[n]) for n, zi in zip(ids, z)}

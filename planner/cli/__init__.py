@@ -27,6 +27,7 @@ COMMANDS = {
     "drive": "drive",
     "calibrate": "calibrate",
     "replan": "replan",
+    "trim": "trim",
     "bench": "bench",
     "yield": "yield_",
     "layout": "layout",
