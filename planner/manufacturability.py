@@ -59,6 +59,12 @@ SCAN_QUIET = 3
 SCAN_SPAN_REL = 0.15
 #: Edge tolerance of the bisection [Hz].
 EDGE_TOL_HZ = 0.5
+#: Every use of a silent band (the Monte Carlo's collision rule, the re-plan's tones, the
+#: trim's targets) widens it by this fraction of its reach: measured on the nominal
+#: design, its edge moves by a few per cent of its reach when the resonance moves by
+#: ~2 % (the tone amplitude follows the power convention, ~f^-1.5): a tone 6 Hz below
+#: a measured edge made a close pair answer on a chip 2 % off its design [-].
+BAND_MARGIN = 0.1
 #: Pairs listed as limiting the yield.
 LIMITING_PAIRS = 10
 #: Die-level common shifts (sigmas) the channel grid keeps from the band's ends [-].
@@ -311,7 +317,7 @@ def _reach(pred, start, direction, step, limit, tol):
 
 
 def measure_separation(impacter, tone_hz, *, power=50.0, amplitude=None, tone_amplitude=None,
-                       x0s=None, window=3e-3) -> Separation:
+                       x0s=None, window=3e-3, silent_window=None) -> Separation:
     """Silent band and tone window of one design (see :class:`Separation`).
 
     Parameters
@@ -330,7 +336,11 @@ def measure_separation(impacter, tone_hz, *, power=50.0, amplitude=None, tone_am
     x0s : array_like, optional
         Initial positions [m]; default the designer's grid over [-c, c].
     window : float
-        Simulated time [s] (the designer's window).
+        Simulated time of the tone window's responses [s] (the designer's window).
+    silent_window : float, optional
+        Simulated time of the silent band's checks [s]: the longest an impacter sits
+        idle under one tone (a single-impacter step, 10 ms in an array plan; a slow beat
+        can bring an idle impacter to its wall late).  Default ``window``.
 
     Returns
     -------
@@ -344,9 +354,12 @@ def measure_separation(impacter, tone_hz, *, power=50.0, amplitude=None, tone_am
     nu = float(impacter.natural_frequency)
     tone_hz = float(tone_hz)
 
-    def r_of(f, z0):
+    silent_window = window if silent_window is None else float(silent_window)
+
+    def r_of(f, z0, duration=window, stop=False):
         drive = Drive(np.array([f]), np.array([z0]), np.zeros(1))
-        return responses(impacter, drive, x0s, duration=window, check_input=False)
+        return responses(impacter, drive, x0s, duration=duration, stop_at_first=stop,
+                         check_input=False)
 
     def z_at(f):
         return amplitude if amplitude is not None else float(amplitude_from_power(f, power))
@@ -355,7 +368,7 @@ def measure_separation(impacter, tone_hz, *, power=50.0, amplitude=None, tone_am
         warnings.simplefilter("ignore", SolverWarning)
 
         def answers(f):
-            return bool(np.any(r_of(f, z_at(f)) > 0))
+            return bool(np.any(r_of(f, z_at(f), silent_window, True) > 0))
 
         step = max(SCAN_STEP_REL * nu, SCAN_STEP_MIN_HZ)
         limit = SCAN_SPAN_REL * nu

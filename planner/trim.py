@@ -63,6 +63,20 @@ class Separations:
     hi: np.ndarray
 
     @classmethod
+    def of(cls, ids, rho, separations) -> "Separations":
+        """From the separations of plan.json's ``manufacturability.separation_hz`` (one
+        dict per impacter of ``ids``), every silent band widened by
+        :data:`planner.manufacturability.BAND_MARGIN`."""
+        from planner.manufacturability import BAND_MARGIN
+
+        widen = 1.0 + BAND_MARGIN
+        return cls(tuple(ids), np.asarray(rho, dtype=float),
+                   widen * np.array([s["silent_below"] for s in separations]),
+                   widen * np.array([s["silent_above"] for s in separations]),
+                   np.array([s["responds_below"] for s in separations]),
+                   np.array([s["responds_above"] for s in separations]))
+
+    @classmethod
     def from_plan(cls, data: dict) -> "Separations":
         """From a plan.json dict (its impacters and ``manufacturability`` block).
 
@@ -77,12 +91,9 @@ class Separations:
                              "before design for yield): re-plan it with this version")
         recs = sorted(data["impacters"], key=lambda r: r["id"])
         sep = m["separation_hz"]
-        return cls(tuple(r["id"] for r in recs),
-                   np.array([r["frequency_hz"] / r["natural_frequency_hz"] for r in recs]),
-                   np.array([sep[r["id"]]["silent_below"] for r in recs]),
-                   np.array([sep[r["id"]]["silent_above"] for r in recs]),
-                   np.array([sep[r["id"]]["responds_below"] for r in recs]),
-                   np.array([sep[r["id"]]["responds_above"] for r in recs]))
+        return cls.of([r["id"] for r in recs],
+                      [r["frequency_hz"] / r["natural_frequency_hz"] for r in recs],
+                      [sep[r["id"]] for r in recs])
 
     def needed(self, i: int, j: int, nu_i: float, precision: float = 0.0) -> float:
         """The lowest resonance [Hz] impacter ``j`` may have above impacter ``i`` at

@@ -14,6 +14,7 @@ import numpy as np
 
 from planner.fabrication import ERRORS, NodeDesign
 from planner.manufacturability import (
+    BAND_MARGIN,
     CHIPS,
     collision_free_yield,
     measure_separation,
@@ -87,7 +88,8 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
         sens[n] = sensitivities(spec, _node_design(n, d))
         seps[n] = measure_separation(
             d.impacter, assignment.frequencies[n], power=settings.power_m2_s3,
-            amplitude=settings.amplitude_m, tone_amplitude=amps.get(n), window=settings.window_s)
+            amplitude=settings.amplitude_m, tone_amplitude=amps.get(n), window=settings.window_s,
+            silent_window=max(settings.single_step_s, settings.window_s))
     lw = np.array([sens[n]["line_width_um"] for n in nodes])
     out = {
         "model": ("first-order Monte Carlo of as-built natural frequencies (planner."
@@ -115,8 +117,8 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
     sd_dev = np.array([getattr(fab, e).device for e in ERRORS])
     pred = collision_free_yield(
         nodes, nu, tone, s_mat, sd_die, sd_dev, pairs,
-        silent_below=[seps[n].silent_below_hz for n in nodes],
-        silent_above=[seps[n].silent_above_hz for n in nodes],
+        silent_below=[(1 + BAND_MARGIN) * seps[n].silent_below_hz for n in nodes],
+        silent_above=[(1 + BAND_MARGIN) * seps[n].silent_above_hz for n in nodes],
         responds_below=[seps[n].responds_below_hz for n in nodes],
         responds_above=[seps[n].responds_above_hz for n in nodes],
         chips=chips, seed=settings.seed,

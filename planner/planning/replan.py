@@ -450,12 +450,16 @@ def _replan_record(plan, params, drive, orig_passed, orig_rows):
 
 
 def inseparable_message(c) -> str:
-    """One line on a pair no drive tells apart (:func:`planner.planning.rescue.inseparable`)."""
-    (a, b), (fa, fb) = c["pair"], c["as_built_hz"]
-    return (f"{a} (as built {fa:.0f} Hz) and {b} ({fb:.0f} Hz) cannot be told apart: "
-            f"{c['apart_hz']:.0f} Hz apart, they need {c['needs_hz']:.0f} Hz (one's tone "
-            "window lies inside the other's silent band); trim one of them "
-            "(vibroplan trim) or drive them together")
+    """One line on impacters no drive tells apart (:func:`planner.planning.rescue.rescue`'s
+    ``inseparable``: a pair, or one impacter whose window several bands cover)."""
+    names = [f"{n} ({hz:.0f} Hz as built)" for n, hz in zip(c["pair"], c["as_built_hz"])]
+    if c.get("needs_hz") is None:
+        return (f"{names[0]} cannot be told apart from {', '.join(names[1:])}: their silent "
+                "bands together cover every tone that drives it; trim one of them "
+                "(vibroplan trim)")
+    return (f"{names[0]} and {names[1]} cannot be told apart: {c['apart_hz']:.0f} Hz "
+            f"apart, they need {c['needs_hz']:.0f} Hz (one's tone window lies inside the "
+            "other's silent band); trim one of them (vibroplan trim) or drive them together")
 
 
 def replan_chip(plan: PlanRecord, as_built: dict, seed=None, *, original=None, record=True):

@@ -39,6 +39,11 @@ from model import halves
 from planner.nodes import Node
 from planner.trim import Separations
 
+#: A tone chosen beside a neighbour's silent band keeps this far from its edge: the
+#: edge's bisection tolerance (planner.manufacturability.EDGE_TOL_HZ) and twice the
+#: synthesis' snapping (planner.synthesis.FREQUENCY_TOLERANCE_REL) [Hz, -].
+EDGE_MARGIN_HZ = 1.0
+EDGE_MARGIN_REL = 2e-4
 #: Sub-steps a multi-tone step may be split into at most (each a run of neighbouring
 #: tones); further would make it a sequence of single-tone steps.
 MAX_SPLIT = 8
@@ -111,6 +116,66 @@ def inseparable(seps: Separations, measured: dict, pairs) -> list:
             out.append({"pair": [a, b], "as_built_hz": [fa, fb], "apart_hz": fb - fa,
                         "needs_hz": need - fa})
     return out
+
+
+def choose_tones(seps: Separations, tones: dict, measured: dict, pairs) -> tuple:
+    """Each impacter's tone inside its window and outside the silent band of every
+    impacter it must be told apart from, nearest the window's middle.
+
+    Parameters
+    ----------
+    seps : Separations
+    tones : dict
+        Impacter id -> the window's middle [Hz] (:func:`rescaled_tones`).
+    measured : dict
+        Impacter id -> measured resonance [Hz] (or the halves').
+    pairs : iterable of (str, str)
+        Impacters that must be told apart.
+
+    Returns
+    -------
+    (tones, blocked)
+        ``blocked``: impacter id -> the impacters whose silent bands cover its whole
+        window (no tone drives it without one of them answering).
+    """
+    index = {n: k for k, n in enumerate(seps.ids)}
+    partners = {n: set() for n in seps.ids}
+    for a, b in pairs:
+        partners[a].add(b)
+        partners[b].add(a)
+    nu = {n: measured_frequency(measured[n]) for n in seps.ids}
+    out, blocked = dict(tones), {}
+    for n in seps.ids:
+        k = index[n]
+        scale = nu[n] / (tones[n] / seps.rho[k]) if tones[n] else 1.0
+        half = 0.5 * (seps.lo[k] + seps.hi[k]) * scale
+        free = [(tones[n] - half, tones[n] + half)]
+        covers = []
+        for m in sorted(partners[n]):
+            j = index[m]
+            band = (nu[m] - seps.below[j], nu[m] + seps.above[j])
+            cut = []
+            for lo, hi in free:
+                if band[1] <= lo or band[0] >= hi:
+                    cut.append((lo, hi))
+                    continue
+                covers.append(m)
+                if lo < band[0]:
+                    cut.append((lo, band[0]))
+                if band[1] < hi:
+                    cut.append((band[1], hi))
+            free = cut
+        if not free:
+            blocked[n] = sorted(set(covers))
+            continue
+        # the free point nearest the middle, kept off a band's edge by what the edge's
+        # measurement and the synthesis' snapping may be off (or the middle of a
+        # narrower free interval)
+        best = min(free, key=lambda iv: 0.0 if iv[0] <= tones[n] <= iv[1] else
+                   min(abs(iv[0] - tones[n]), abs(iv[1] - tones[n])))
+        edge = min(0.5 * (best[1] - best[0]), EDGE_MARGIN_HZ + EDGE_MARGIN_REL * tones[n])
+        out[n] = min(max(tones[n], best[0] + edge), best[1] - edge)
+    return out, blocked
 
 
 def _sub_steps(step, groups):
@@ -211,14 +276,14 @@ def separations_of(plan, settings) -> Separations:
     else:
         seps = [measure_separation(recs[n].impacter(), recs[n].frequency_hz,
                                    power=settings.power_m2_s3, amplitude=settings.amplitude_m,
-                                   window=settings.window_s).to_dict() for n in ids]
+                                   window=settings.window_s,
+                                   silent_window=max(settings.single_step_s,
+                                                     settings.window_s)).to_dict()
+                for n in ids]
     rho = np.array([recs[n].frequency_hz / plan.design_natural_frequency_hz[n]
                     if not plan.replanned else recs[n].frequency_hz
                     / recs[n].natural_frequency_hz for n in ids])
-    return Separations(ids, rho, np.array([s["silent_below"] for s in seps]),
-                       np.array([s["silent_above"] for s in seps]),
-                       np.array([s["responds_below"] for s in seps]),
-                       np.array([s["responds_above"] for s in seps]))
+    return Separations.of(ids, rho, seps)
 
 
 @dataclasses.dataclass
@@ -280,8 +345,16 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict) -> Rescu
     measured = {n: measured.get(n, plan.design_natural_frequency_hz[n])
                 for n in (r.id for r in plan.impacters)}
     seps = separations_of(plan, settings)
-    tones = rescaled_tones(plan, measured, seps)
-    bad = inseparable(seps, measured, must_differ(settings.steps))
+    pairs = must_differ(settings.steps)
+    tones, blocked = choose_tones(seps, rescaled_tones(plan, measured, seps), measured, pairs)
+    # what blocks a tone is named pair by pair, with the separation each would need
+    bad = inseparable(seps, measured, pairs)
+    named = {n for c in bad for n in c["pair"]}
+    for n, by in blocked.items():
+        if n not in named:
+            fa = measured_frequency(measured[n])
+            bad.append({"pair": [n] + by, "as_built_hz": [fa] + [measured_frequency(
+                measured[m]) for m in by], "apart_hz": None, "needs_hz": None})
     # the plan's steps as it played them: its sized and repaired bursts and dwells
     recorded = {st.key: st for st in plan.steps}
     base = []

@@ -110,3 +110,84 @@ def test_cut_beam_length_lowers_the_resonance_to_the_target():
     trimmed = Impacter.from_geometry(g["area_m2"], g["width_m"], g["length_m"] + dl, 4e-6,
                                      viscosity=1.79e-5)
     assert trimmed.natural_frequency == pytest.approx(nu * 0.992, rel=1e-9)
+
+
+def _measured_csv(path, freqs):
+    path.write_text("impacter,natural_frequency_hz\n"
+                    + "".join(f"{n},{f:.6f}\n" for n, f in freqs.items()))
+    return path
+
+
+def _neighbours(plan):
+    """The two impacters nearest in resonance (lower first) and their indices."""
+    recs = sorted(plan.impacters, key=lambda r: r.natural_frequency_hz)
+    lo, hi = min(zip(recs, recs[1:]), key=lambda p: p[1].natural_frequency_hz
+                 - p[0].natural_frequency_hz)
+    return lo, hi
+
+
+def test_trim_cli_moves_a_colliding_impacter_and_verifies_on_the_trimmed_models(
+        close_plan_dir, tmp_path):
+    """A chip of the close plan whose two nearest impacters came 30 Hz closer than they
+    can be told apart (the rest as designed): `vibroplan trim` raises the upper one just
+    enough (plus the precision margin), trim.csv says what to cut, and the drive
+    re-planned for the trimmed chip verifies on the trimmed models (precision error
+    drawn)."""
+    import csv as csvmod
+    import json
+
+    from click.testing import CliRunner
+
+    from planner.cli import main
+    from planner.planning.plan_file import read_plan
+    from planner.planning.rescue import separations_of
+    from planner.planning.settings import resolve_settings
+
+    plan = read_plan(close_plan_dir)
+    seps = separations_of(plan, resolve_settings(plan.loaded))
+    lo, hi = _neighbours(plan)
+    i, j = seps.ids.index(lo.id), seps.ids.index(hi.id)
+    need = seps.needed(i, j, lo.natural_frequency_hz)
+    freqs = {r.id: r.natural_frequency_hz for r in plan.impacters}
+    freqs[hi.id] = need - 30.0
+    assert abs(freqs[hi.id] / hi.natural_frequency_hz - 1) < 0.03     # a chip's scatter
+    csv = _measured_csv(tmp_path / "measured.csv", freqs)
+    out = tmp_path / "trim"
+    res = CliRunner().invoke(main, ["trim", str(close_plan_dir), "--measured", str(csv),
+                                    "--out", str(out), "--no-figures", "--quiet"])
+    assert res.exit_code == 0, res.output
+    rows = list(csvmod.DictReader((out / "trim.csv").open()))
+    assert [r["impacter"] for r in rows] == plan.impacter_ids
+    moved = [r for r in rows if float(r["change_pct"]) != 0.0]
+    assert [r["impacter"] for r in moved] == [hi.id]
+    target = float(moved[0]["target_hz"])
+    assert target == pytest.approx(seps.needed(i, j, lo.natural_frequency_hz, 0.001))
+    assert 0 < float(moved[0]["change_pct"]) < 1.0
+    assert float(moved[0]["cut_area_um2"]) > 0 and float(moved[0]["cut_length_um"]) == 0
+    d = json.loads((out / "plan.json").read_text())
+    assert d["trim"]["trimmed_models"]["passed"] is True
+    assert d["verification"]["passed"] is True
+    assert d["trim"]["moved"][0]["trimmed_hz"] != target        # the precision error
+    assert "## Trim" in (out / "report.md").read_text()
+
+
+def test_trim_cli_names_a_chip_no_trim_in_range_can_fix(close_plan_dir, tmp_path):
+    """Two neighbours measured 5 Hz apart need a move of several per cent: beyond the
+    1 % range, named with the move, exit 1, trim.csv and report.md only."""
+    from click.testing import CliRunner
+
+    from planner.cli import main
+    from planner.planning.plan_file import read_plan
+
+    plan = read_plan(close_plan_dir)
+    lo, hi = _neighbours(plan)
+    freqs = {r.id: r.natural_frequency_hz for r in plan.impacters}
+    freqs[hi.id] = lo.natural_frequency_hz + 5.0
+    csv = _measured_csv(tmp_path / "measured.csv", freqs)
+    out = tmp_path / "trim"
+    res = CliRunner().invoke(main, ["trim", str(close_plan_dir), "--measured", str(csv),
+                                    "--out", str(out), "--quiet"])
+    assert res.exit_code == 1, res.output
+    assert "cannot be trimmed" in res.output and "trim.range_pct 1" in res.output
+    assert (out / "trim.csv").exists() and not (out / "plan.json").exists()
+    assert "cannot be trimmed" in (out / "report.md").read_text()
