@@ -58,7 +58,7 @@ class SchedulerError(OSError):
 
 
 class Interrupted(KeyboardInterrupt):
-    """The run was stopped by a signal (SIGINT or SIGTERM); ``signum`` says which.
+    """The run was stopped by a signal (SIGINT, SIGTERM or SIGHUP); ``signum`` says which.
 
     A ``KeyboardInterrupt`` so that every clean-up written for Ctrl-C runs for SIGTERM too.
     """
@@ -69,5 +69,5 @@ class Interrupted(KeyboardInterrupt):
 
     @property
     def exit_code(self) -> int:
-        """128 + the signal number: 130 for SIGINT, 143 for SIGTERM."""
+        """128 + the signal number: 130 for SIGINT, 143 for SIGTERM, 129 for SIGHUP."""
         return 128 + self.signum

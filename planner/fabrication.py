@@ -60,10 +60,11 @@ ERRORS = ("line_width_um", "thickness_um", "gap_um", "youngs_modulus_pct",
 class NodeDesign:
     """One designed impacter pair of a plan (SI).
 
-    ``stiffness_scale``, ``damping_scale`` and ``gap_shift`` [m] carry a re-planned
-    plan's as-built model: what the chip measured against what its geometry gives (1,
-    1 and 0 for a plan).  A chip's errors act on the geometry as for a plan, and the
-    as-built differences on top, so the chip without errors is the as-built one.
+    ``stiffness_scale``, ``damping_scale``, ``damping_shift`` [N s/m] and ``gap_shift``
+    [m] carry a re-planned plan's as-built model: what the chip measured against what
+    its geometry gives (1, 1, 0 and 0 for a plan; the damping as a shift only where the
+    geometry gives none, in vacuum).  A chip's errors act on the geometry as for a plan,
+    and the as-built differences on top, so the chip without errors is the as-built one.
     """
 
     id: str
@@ -77,6 +78,7 @@ class NodeDesign:
     restitution: float
     stiffness_scale: float = 1.0
     damping_scale: float = 1.0
+    damping_shift: float = 0.0
     gap_shift: float = 0.0
 
 
@@ -106,9 +108,10 @@ def design_from_plan(record) -> ChipDesign:
                           g.length_m, g.gap_m, rec.impact_angle_rad, rec.restitution)
         if record.replanned:
             built = nominal_impacter(spec, node)
+            damped = built.damping > 0
             node = replace(node, stiffness_scale=rec.stiffness_n_per_m / built.stiffness,
-                           damping_scale=(rec.damping_ns_per_m / built.damping
-                                          if built.damping > 0 else 1.0),
+                           damping_scale=rec.damping_ns_per_m / built.damping if damped else 1.0,
+                           damping_shift=0.0 if damped else rec.damping_ns_per_m,
                            gap_shift=rec.gap_m - built.gap)
         nodes.append(node)
     devices = tuple(sorted({n.device for n in nodes}, key=lambda d: (d[0], int(d[1:]))))
@@ -143,13 +146,14 @@ def _impacter(spec: ArraySpec, node: NodeDesign, err) -> Impacter:
             raise ValueError("natural frequency scaled to <= 0")
         imp = Impacter(imp.mass, imp.stiffness * f * f, imp.damping, imp.gap,
                        imp.impact_angle, imp.restitution, imp.geometry)
-    if (node.stiffness_scale, node.damping_scale, node.gap_shift) != (1.0, 1.0, 0.0):
+    if (node.stiffness_scale, node.damping_scale, node.damping_shift,
+            node.gap_shift) != (1.0, 1.0, 0.0, 0.0):
         gap = imp.gap + node.gap_shift
         if gap <= 0:
             raise ValueError("gap closed")
         imp = Impacter(imp.mass, imp.stiffness * node.stiffness_scale,
-                       imp.damping * node.damping_scale, gap, imp.impact_angle,
-                       imp.restitution, imp.geometry)
+                       imp.damping * node.damping_scale + node.damping_shift, gap,
+                       imp.impact_angle, imp.restitution, imp.geometry)
     return imp
 
 

@@ -47,12 +47,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import struct
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from planner._random import chip_seed
 from planner.fabrication import ChipDesign, design_from_plan, sample_chip
 from planner.planning.plan_file import PlanRecord, drives, plan_record
 from planner.spec import ArraySpec, FabricationSpec, LoadedSpec
@@ -87,17 +87,6 @@ REPLAN_CAUSES = ("cannot be told apart", "outside band", "fails on the measured 
 CHIP_BYTES = 16 * 1024
 #: Scale index of the nominal chip's task (scale 0: its draws are multiplied by 0).
 NOMINAL_INDEX = 2**31 - 1
-
-
-def chip_seed(seed: int, scale: float, chip: int) -> np.random.SeedSequence:
-    """The seed sequence of chip ``chip`` at sigma scale ``scale``: the run's seed, the
-    scale's exact value (its IEEE 754 bits) and the chip's index.
-
-    >>> chip_seed(0, 1.0000001, 3).entropy != chip_seed(0, 1.0000002, 3).entropy
-    True
-    """
-    bits = struct.unpack("<Q", struct.pack("<d", float(scale) + 0.0))[0]  # -0.0 is 0.0
-    return np.random.SeedSequence([int(seed), bits, int(chip)])
 
 
 def scale_key(scale: float) -> str:

@@ -61,7 +61,9 @@ if hasattr(signal, "SIGHUP"):
 
 
 class _SignalGuard:
-    """Turn the first SIGINT or SIGTERM into :class:`Interrupted` in the main thread.
+    """Turn the first SIGINT, SIGTERM or SIGHUP into :class:`Interrupted` in the main
+    thread (SIGHUP: the terminal went away; its default would end the process without
+    stopping its workers).
 
     Later signals are only recorded, so that the clean-up the first one started
     (terminating workers, removing temporaries) runs to its end.

@@ -81,12 +81,19 @@ def command(spec_or_plan, step_name, fmt, out, plot, sample_rate, seed, reoptimi
     from planner.synthesis import MAX_LOOP_LENGTH, check_loop_memory
 
     exporter = EXPORTERS[fmt]
+
+    def check_outputs(out, inputs):
+        check_output_files("drive", [("--out", out), ("--out's sidecar", sidecar_path(out)),
+                                     ("--plot", plot)], inputs=inputs, force=force)
+
+    if out is not None:   # before any work (a spec is planned first: minutes)
+        check_outputs(out, [spec_or_plan / "plan.json" if spec_or_plan.is_dir()
+                            else spec_or_plan])
     record, inputs = _load_plan(spec_or_plan)
     step = _select_step(record.steps, step_name)
     if out is None:
         out = Path(f"{step.scene}__{step.name}{exporter.suffix}".replace("/", "_"))
-    check_output_files("drive", [("--out", out), ("--out's sidecar", sidecar_path(out)),
-                                 ("--plot", plot)], inputs=inputs, force=force)
+    check_outputs(out, inputs)
     tones = step_drive(step)
 
     spec_drive = record.spec.drive

@@ -1,13 +1,17 @@
-"""Fuzz the real CLI with mutated copies of the shipped configs.
+"""Fuzz the real CLI with mutated copies of its inputs.
 
 Every mutation (a key dropped, duplicated or retyped, a wrong type, NaN, a huge or
 negative number, unicode, a truncated file) must end in exit 0, 1 or 2 with no
 traceback, and nothing may be written unless the command succeeded or reports a
 failed verification (exit 0 / 1).  Array specs go through ``vibroplan assign`` (the
 spec, steps, conflict graph and colouring: the whole input path of ``plan`` without
-the minutes of designs), device configs through ``vibroplan simulate``.
+the minutes of designs), device configs through ``vibroplan simulate``, a lab's sweep
+through ``vibroplan calibrate``, a measured.csv through ``vibroplan replan`` and
+plan.json through ``vibroplan drive`` (the one plan.json reader that yield and replan
+share).  Bounded example counts keep the whole module to about a minute.
 """
 
+import json
 import math
 from pathlib import Path
 
@@ -45,6 +49,24 @@ def _get_parent(data, path):
     return data
 
 
+def _mutate(draw, data, path, kind, factors):
+    """Change the value at ``path`` of ``data`` in place: drop it, give it an odd value,
+    rename its key, or scale a number by one of ``factors``."""
+    parent = _get_parent(data, path)
+    key = path[-1]
+    if kind == "drop":
+        del parent[key]
+    elif kind == "retype":
+        parent[key] = draw(st.sampled_from(ODD_VALUES))
+    elif kind == "rename" and isinstance(parent, dict):
+        parent[draw(st.sampled_from(["bogus", "ünï", key + "_x" if isinstance(key, str) else 7]))] \
+            = parent.pop(key)
+    elif kind == "scale":
+        v = parent[key]
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            parent[key] = v * draw(st.sampled_from(factors))
+
+
 @st.composite
 def mutated(draw, files):
     name = draw(st.sampled_from(files))
@@ -62,20 +84,7 @@ def mutated(draw, files):
         junk = draw(st.text(min_size=1, max_size=8))
         return name, text[:i] + junk + text[i:]
     data = yaml.safe_load(text)
-    path = draw(st.sampled_from(_paths(data)))
-    parent = _get_parent(data, path)
-    key = path[-1]
-    if kind == "drop":
-        del parent[key]
-    elif kind == "retype":
-        parent[key] = draw(st.sampled_from(ODD_VALUES))
-    elif kind == "rename" and isinstance(parent, dict):
-        parent[draw(st.sampled_from(["bogus", "ünï", key + "_x" if isinstance(key, str) else 7]))] \
-            = parent.pop(key)
-    elif kind == "scale":
-        v = parent[key]
-        if isinstance(v, (int, float)) and not isinstance(v, bool):
-            parent[key] = v * draw(st.sampled_from([-1, 0, 1e-9, 1e9, 1e300]))
+    _mutate(draw, data, draw(st.sampled_from(_paths(data))), kind, [-1, 0, 1e-9, 1e9, 1e300])
     return name, yaml.safe_dump(data, allow_unicode=True, sort_keys=False)
 
 
@@ -128,3 +137,122 @@ def test_shipped_configs_are_not_rejected(tmp_path, name):
     else:
         result = CliRunner().invoke(main, ["simulate", str(CONFIGS / name), "--freq", "6200"])
     assert result.exit_code == 0, result.output
+
+
+# --------------------------------------------------------------------------- lab CSVs
+
+CSV_CELLS = ["", " ", "nan", "inf", "-inf", "1e300", "-1", "0", "abc", "ünï", "1,5", '"',
+             "99999999999999999999999", "1e-300", "\x00", "A1.forward", "Z9.forward"]
+
+
+@st.composite
+def mutated_csv(draw, text):
+    """``text`` (a valid CSV) with a line, a cell or the header changed, or truncated."""
+    lines = text.splitlines()
+    kind = draw(st.sampled_from(["cell", "header", "drop_line", "duplicate_line",
+                                 "truncate", "junk", "bom", "extra_column"]))
+    if kind == "truncate":
+        return text[:draw(st.integers(0, len(text)))]
+    if kind == "bom":
+        return "\ufeff" + text
+    if kind == "junk":
+        i = draw(st.integers(0, len(text)))
+        return text[:i] + draw(st.text(min_size=1, max_size=6)) + text[i:]
+    i = draw(st.integers(0, len(lines) - 1))
+    cells = lines[i].split(",")
+    if kind == "cell":
+        cells[draw(st.integers(0, len(cells) - 1))] = draw(st.sampled_from(CSV_CELLS))
+        lines[i] = ",".join(cells)
+    elif kind == "header":
+        head = lines[0].split(",")
+        head[draw(st.integers(0, len(head) - 1))] = draw(st.sampled_from(
+            ["", "bogus", "frequency_khz", "impacter", "natural_frequency_hz", "gap_um"]))
+        lines[0] = ",".join(head)
+    elif kind == "drop_line":
+        del lines[i]
+    elif kind == "duplicate_line":
+        lines.insert(i, lines[i])
+    elif kind == "extra_column":
+        lines[i] += ",1"
+    return "\n".join(lines) + "\n"
+
+
+def _sweep_text():
+    import numpy as np
+
+    from planner.calibrate import transmissibility
+
+    f = np.linspace(4000.0, 4600.0, 24)
+    a = 0.1 * transmissibility(f, 4300.0, 40.0)
+    return "impacter,frequency_hz,amplitude_um\n" + "".join(
+        f"A1.forward,{float(x)!r},{float(y)!r}\n" for x, y in zip(f, a))
+
+
+CSV_FUZZ = settings(max_examples=25, deadline=None, derandomize=True,
+                    suppress_health_check=[HealthCheck.function_scoped_fixture,
+                                           HealthCheck.too_slow])
+
+
+@CSV_FUZZ
+@given(text=mutated_csv(_sweep_text()))
+def test_fuzzed_sweeps(tmp_path, text):
+    sweep = tmp_path / "sweep.csv"
+    sweep.write_text(text, encoding="utf-8")
+    out = tmp_path / "measured.csv"
+    out.unlink(missing_ok=True)
+    _check(CliRunner().invoke(main, ["calibrate", str(sweep), "--out", str(out)]), [out])
+
+
+MEASURED = ("impacter,natural_frequency_hz,quality_factor,gap_um\n"
+            "A1.forward,4400.5,30,2.5\nA2.backward,{nu},,\n")
+
+
+@settings(max_examples=15, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(data=st.data())
+def test_fuzzed_measured_csv(tiny_plan_dir, tmp_path, data):
+    plan = json.loads((tiny_plan_dir / "plan.json").read_text())
+    nu = {r["id"]: r["natural_frequency_hz"] for r in plan["impacters"]}["A2.backward"]
+    text = data.draw(mutated_csv(MEASURED.format(nu=nu)))
+    measured = tmp_path / "measured.csv"
+    measured.write_text(text, encoding="utf-8")
+    out = tmp_path / "replan_out"
+    import shutil
+
+    shutil.rmtree(out, ignore_errors=True)
+    _check(CliRunner().invoke(main, ["replan", str(tiny_plan_dir), "--measured", str(measured),
+                                     "--out", str(out), "--no-figures", "--quiet"]), [out])
+
+
+# --------------------------------------------------------------------------- plan.json
+
+
+@st.composite
+def mutated_plan(draw, data):
+    """plan.json with one value dropped or retyped, or its text truncated."""
+    kind = draw(st.sampled_from(["drop", "retype", "retype", "scale", "truncate"]))
+    if kind == "truncate":
+        text = json.dumps(data)
+        return text[:draw(st.integers(0, len(text) - 1))]
+    data = json.loads(json.dumps(data))
+    # the keys the reader declares, and a few it ignores
+    paths = [p for p in _paths(data)
+             if p[0] in ("format_version", "seed", "spec", "impacters", "devices", "steps",
+                         "verification", "assignment")
+             and not (p[0] == "verification" and len(p) > 3)]
+    _mutate(draw, data, draw(st.sampled_from(paths)), kind, [-1, 0, 1.5, 1e9, 1e300])
+    return json.dumps(data, allow_nan=True)
+
+
+@settings(max_examples=40, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(data=st.data())
+def test_fuzzed_plan_json(tiny_plan_dir, tmp_path, data):
+    original = json.loads((tiny_plan_dir / "plan.json").read_text())
+    plan = tmp_path / "plan.json"
+    plan.write_text(data.draw(mutated_plan(original)), encoding="utf-8")
+    out = tmp_path / "drive.wav"
+    for p in (out, tmp_path / "drive.wav.json"):
+        p.unlink(missing_ok=True)
+    _check(CliRunner().invoke(main, ["drive", str(plan), "--step", "pull", "--out", str(out)]),
+           [out])

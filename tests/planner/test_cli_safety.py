@@ -305,8 +305,9 @@ def test_a_file_of_the_wrong_kind_says_which_command_reads_it(tmp_path, command,
 def test_exit_codes_are_documented_in_help():
     res = CliRunner().invoke(main, ["--help"])
     assert "Exit codes" in res.output and "130" in res.output and "143" in res.output
+    assert "129" in res.output
     res = CliRunner().invoke(main, ["plan", "--help"])
-    assert "3 OS or I/O error" in res.output.replace("\n", " ").replace("  ", " ")
+    assert "3 OS, I/O, environment or scheduler error" in " ".join(res.output.split())
     assert "--force" in res.output
 
 

@@ -197,8 +197,13 @@ def test_a_command_replaces_only_its_own_kind_of_folder(tiny_plan_dir, tmp_path,
 
 
 def test_a_users_files_in_an_output_folder_are_refused_not_deleted(tiny_plan_dir, tmp_path):
-    out = tmp_path / "y"
-    args = ["yield", tiny_plan_dir, "--allow-zero", "--chips", 1, "--quiet", "--out", out]
+    """The data-loss case: a re-plan run again deleted the notes a user had put beside
+    the previous re-plan."""
+    measured = tmp_path / "measured.csv"
+    measured.write_text("impacter,natural_frequency_hz\nA1.forward,4400\n")
+    out = tmp_path / "replan_out"
+    args = ["replan", tiny_plan_dir, "--measured", measured, "--out", out, "--no-figures",
+            "--quiet"]
     assert cli(*args).exit_code == 0
     (out / "notes.txt").write_text("what I saw in the lab")
     res = cli(*args)
@@ -390,11 +395,11 @@ def test_a_scheduler_that_dies_mid_run_is_exit_3(tiny_plan_dir, tmp_path, huge_s
     assert not (tmp_path / "y").exists()
 
 
-def test_jobs_beyond_the_cores_are_refused(tiny_plan_dir, tmp_path):
+def test_jobs_beyond_the_cores_are_refused(tiny_plan_dir, tmp_path, huge_spec):
     from planner._limits import cores
 
-    res = cli("yield", tiny_plan_dir, "--allow-zero", "--chips", 1, "--out", tmp_path / "y",
-              "--jobs", cores() + 1)
+    res = cli("yield", tiny_plan_dir, "--spec", huge_spec, "--chips", 1, "--out",
+              tmp_path / "y", "--jobs", cores() + 1, "--quiet")
     one_line_error(res)
     assert f"between 1 and {cores()}" in res.output and not (tmp_path / "y").exists()
 
