@@ -25,10 +25,13 @@ from planner.cli._common import EXIT_CODES_HELP, EXIT_FAILED, handle_errors, out
               help="Take the process layers and rules (process.layers, min_line_um, "
                    "min_space_um, anchor_enclosure_um) and the trim: section from this spec "
                    "instead of the plan's (the designs still come from the plan).")
+@click.option("--force", is_flag=True,
+              help="Replace existing output files that vibroplan layout did not write "
+                   "(never the plan's or the spec's own files).")
 @click.option("--device", default=None, metavar="ID",
               help="The device of the zoomed picture.  [default: the first]")
 @handle_errors
-def command(plan_path, out_file, check, spec_file, device):
+def command(plan_path, out_file, check, spec_file, device, force):
     """Draw a plan's chip as a GDSII layout, read it back, and check it.
 
     PLAN is a `vibroplan plan` output folder or its plan.json.  One cell per
@@ -50,6 +53,7 @@ def command(plan_path, out_file, check, spec_file, device):
     from planner.layout.run import run_layout
 
     result = run_layout(plan_path, out_file, check=check, rules_spec=spec_file, device=device,
+                        force=force,
                         version=version_string())
     rows = result.round_trip
     worst = max(abs(r["error"]) for r in rows)

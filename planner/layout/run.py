@@ -11,7 +11,6 @@ failed run leaves every one of them as it was):
 
 from __future__ import annotations
 
-import contextlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +21,7 @@ from planner.layout.gds import read_gds, write_gds
 from planner.layout.geometry import ChipLayout, build_chip
 from planner.layout.measure import measure, round_trip
 from planner.layout.plots import chip_figure, device_figure
-from planner.layout.report import HEADER, write_report
+from planner.layout.report import write_report
 from planner.layout.source import LayoutPlan, read_layout_plan
 
 
@@ -86,21 +85,8 @@ def _gds_name(out) -> Path:
     return out
 
 
-def _check_outputs(paths: dict, plan_file: Path) -> None:
-    """Refuse to replace a plan's own files: in the plan's folder, an existing output
-    name may be replaced only when a layout report of the same name is there."""
-    folder = plan_file.resolve().parent
-    ours = paths["report"].is_file() and paths["report"].read_text(
-        encoding="utf-8", errors="replace").startswith(HEADER)
-    for path in paths.values():
-        if path.resolve() == plan_file.resolve() or (
-                path.exists() and path.resolve().parent == folder and not ours):
-            raise OutputError(f"--out: {path} would replace a file of the plan's folder; "
-                              "choose another name")
-
-
 def run_layout(plan_path, out, *, check: bool = False, rules_spec=None,
-               device: str | None = None, version: str = "") -> LayoutResult:
+               device: str | None = None, version: str = "", force: bool = False) -> LayoutResult:
     """Draw a plan's chip, read it back, optionally check it, and write the outputs.
 
     Parameters
@@ -118,6 +104,9 @@ def run_layout(plan_path, out, *, check: bool = False, rules_spec=None,
         The device of the zoomed picture (default: the first).
     version : str
         vibroplan's version, for the report.
+    force : bool
+        Replace existing files this command did not write (never an input, and never a
+        file inside another command's folder unless forced: :mod:`planner._io`).
 
     Returns
     -------
@@ -128,7 +117,7 @@ def run_layout(plan_path, out, *, check: bool = False, rules_spec=None,
     FileNotFoundError, ValueError, planner.errors.SpecError, OutputError
         Bad input or output name; nothing is written.
     """
-    from planner._io import atomic_path
+    from planner._io import check_output_file, output_files
 
     _gds_name(out)                         # refused before any work
     plan = read_layout_plan(plan_path, rules_spec)
@@ -139,9 +128,12 @@ def run_layout(plan_path, out, *, check: bool = False, rules_spec=None,
         raise ValueError(f"--device {device}: the plan has no designed device {device!r} "
                          f"(devices {devices[0]} ... {devices[-1]})")
     paths = output_paths(out, device, check)
-    _check_outputs(paths, plan.path)
-    with contextlib.ExitStack() as stack:
-        tmp = {k: stack.enter_context(atomic_path(p)) for k, p in paths.items()}
+    inputs = [plan.path] + ([rules_spec] if rules_spec is not None else [])
+    for p in paths.values():                  # every output refused before any work
+        check_output_file(p, command="layout", inputs=inputs, force=force, option="--out")
+    with output_files(list(paths.values()), command="layout", inputs=inputs,
+                      force=force) as tmps:
+        tmp = dict(zip(paths, tmps))
         write_gds(chip, tmp["gds"])
         lib = read_gds(tmp["gds"])
         rows = round_trip(plan.spec, plan.design, measure(lib, plan.rules.layers))

@@ -1,9 +1,8 @@
 """What the layout reads of a plan: its designs, tones, process rules and trim section.
 
 :func:`read_layout_plan` is the layout's one reader of plan.json; it goes through the
-plan readers of the rest of vibroplan (:func:`planner.yield_.read_plan`,
-:func:`planner.fabrication.design_from_plan`), so that a change of plan.json's reader
-is one change here.
+plan reader of the rest of vibroplan (:func:`planner.planning.plan_file.read_plan`, which
+checks the whole file, and :func:`planner.fabrication.design_from_plan`).
 """
 
 from __future__ import annotations
@@ -51,25 +50,6 @@ class LayoutPlan:
     trim: TrimPlan | None
 
 
-def _spec_of(data: dict, path):
-    """The plan's validated spec; ``trim`` (not in the spec model yet) is read apart."""
-    from pydantic import ValidationError
-
-    from planner.spec import ArraySpec
-
-    spec = dict(data["spec"]) if isinstance(data.get("spec"), dict) else data.get("spec")
-    if not isinstance(spec, dict):
-        raise ValueError(f"{path}: its spec is not a mapping")
-    if "trim" not in ArraySpec.model_fields:
-        spec.pop("trim", None)
-    try:
-        return ArraySpec.model_validate(spec)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        where = ".".join(str(p) for p in err["loc"])
-        raise ValueError(f"{path}: spec.{where}: {err['msg']}") from None
-
-
 def read_layout_plan(plan_path, rules_spec=None) -> LayoutPlan:
     """Read a plan folder or plan.json for the layout.
 
@@ -94,21 +74,15 @@ def read_layout_plan(plan_path, rules_spec=None) -> LayoutPlan:
     """
     from planner.config import LAYOUT_FIELDS
     from planner.fabrication import design_from_plan
+    from planner.planning.plan_file import read_plan
     from planner.planning.settings import resolve_settings
     from planner.spec import load_spec
-    from planner.yield_ import read_plan
 
-    data, path = read_plan(plan_path)
-    spec = _spec_of(data, path)
-    design = design_from_plan(data, spec)
-    frequencies = {}
-    for rec in data["impacters"]:
-        f, nu = rec.get("frequency_hz"), rec.get("natural_frequency_hz")
-        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in (f, nu)):
-            raise ValueError(f"{path}: impacter {rec.get('id')!r} has no frequency_hz and "
-                             "natural_frequency_hz")
-        frequencies[rec["id"]] = (float(f), float(nu))
-    trim = trim_from_spec(data["spec"])
+    record = read_plan(plan_path)
+    path, spec = record.path, record.spec
+    design = design_from_plan(record)
+    frequencies = {r.id: (r.frequency_hz, r.natural_frequency_hz) for r in record.impacters}
+    trim = trim_from_spec(json.loads(spec.model_dump_json()))
     process, source = spec.process, f"the plan's spec ({path})"
     if rules_spec is not None:
         # a spec the planner would refuse (rules no design inside its bounds can meet,
