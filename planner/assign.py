@@ -45,15 +45,29 @@ def split_node(node: str) -> tuple[str, str]:
 
 
 def plan_steps(loaded: LoadedSpec, single_step_s: float) -> tuple[Step, ...]:
-    """The spec's steps plus, when every impacter must be independent, one per impacter."""
+    """The spec's steps plus implicit single-impacter steps (scene ``independent``).
+
+    When every impacter must be independent, one per impacter.  Otherwise one for each
+    impacter of a ``targets_um`` step that moves two or more devices: its tones are
+    switched off one by one (:mod:`planner.gating`), so each must be told apart from
+    the others, silent under the others' tones and able to move its slider alone (the
+    last one to stop plays alone).
+    """
     steps = list(loaded.steps)
     if loaded.spec.all_independent:
-        for dev in loaded.device_ids:
-            for direction in DIRECTIONS:
-                fwd = (dev,) if direction == "forward" else ()
-                bwd = (dev,) if direction == "backward" else ()
-                steps.append(Step("independent", node_id(dev, direction), len(steps),
-                                  single_step_s, fwd, bwd))
+        alone = [(dev, direction) for dev in loaded.device_ids for direction in DIRECTIONS]
+    else:
+        gated = set()
+        for st in loaded.steps:
+            if st.targets_m is not None and len(st.active_nodes()) > 1:
+                gated |= st.active_nodes()
+        alone = [(dev, direction) for dev in loaded.device_ids for direction in DIRECTIONS
+                 if (dev, direction) in gated]
+    for dev, direction in alone:
+        fwd = (dev,) if direction == "forward" else ()
+        bwd = (dev,) if direction == "backward" else ()
+        steps.append(Step("independent", node_id(dev, direction), len(steps),
+                          single_step_s, fwd, bwd))
     return tuple(steps)
 
 

@@ -1,8 +1,9 @@
 """The stage order and the repair loop; each stage lives in its own module.
 
 settings -> steps -> assign -> drives (acceleration limit) -> designs -> burst sizing
--> verify (-> repair, re-assign ...) -> scenes with carried state (-> motion repair:
-shorter bursts, longer dwells) -> coupling -> manufacturability -> record.  Data flows one way; every stage reads the
+-> gates of the targets steps (scenes with carried state) -> verify (-> repair,
+re-assign ...) -> scenes with carried state (-> motion repair: shorter bursts, longer
+dwells) -> coupling -> manufacturability -> record.  Data flows one way; every stage reads the
 :class:`~planner.planning.settings.Settings` and the earlier stages' results only.
 """
 
@@ -26,6 +27,7 @@ from planner.planning.repair import (merge_carried, repair_motion, reseed_idle, 
 from planner.planning.result import Plan
 from planner.planning.scenes import scene_failures, simulate_scenes
 from planner.planning.settings import Settings, resolve_settings
+from planner.planning.targets import place_targets
 from planner.planning.verify import TRAVEL_OVER, UNSETTLED, check_steps, coupling_matrix
 
 
@@ -104,8 +106,8 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
             on_assignment(settings, steps, assignment)
         # the drives depend on the frequencies only, so they come before the designs,
         # which must be silent under the summed drive of every step they sit out
-        waveforms = timed("drive", synthesize_steps, settings, steps, assignment)
-        waveforms, drive_notes = timed("drive", limit_acceleration, settings, waveforms)
+        synthesized = timed("drive", synthesize_steps, settings, steps, assignment)
+        waveforms, drive_notes = timed("drive", limit_acceleration, settings, synthesized)
         tick("design", total=len(assignment.frequencies))
         designs = timed("design", design_all, settings, steps, assignment, cache,
                         progress=lambda n: tick("design", n), waveforms=waveforms, jobs=jobs,
@@ -117,9 +119,20 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         # steps that give travel_um get their burst from the predicted speed
         run_steps, sizing = size_bursts(settings, steps, waveforms, impacters, sliders,
                                         drive_of)
+        # targets steps play a gated burst, found from the carried state of their scene;
+        # its tones take turns within the limits, so it starts from their amplitudes as
+        # synthesised, not as lowered for the peak of their whole sum
+        played, gating = waveforms, {}
+        targeted = {st.key: synthesized[st.key] for st in run_steps if st.targets_m is not None}
+        if targeted:
+            tick("targets", total=len(targeted))
+            run_steps, played, gating = timed(
+                "targets", place_targets, settings, run_steps, {**waveforms, **targeted},
+                assignment.frequencies, impacters, sliders,
+                progress=lambda k: tick("targets", k))
         tick("verify", total=len(steps))
         ver_rows, failures = [], []
-        for rows, fails in check_steps(settings, run_steps, waveforms, impacters, sliders,
+        for rows, fails in check_steps(settings, run_steps, played, impacters, sliders,
                                        progress=lambda k: tick("verify", k),
                                        scheduler=scheduler):
             ver_rows += rows
@@ -133,8 +146,9 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         score = (sum(1 for d in designs.values() if not d.feasible),
                  sum(1 for f in failures if f.kind not in MOTION_KINDS))
         if best is None or score <= best[0]:
-            best = (score, round_, (assignment, waveforms, drive_notes, designs, impacters,
-                                    devices, sliders, run_steps, sizing, ver_rows, failures))
+            best = (score, round_, (assignment, waveforms, played, drive_notes, gating, designs,
+                                    impacters, devices, sliders, run_steps, sizing, ver_rows,
+                                    failures))
         if not failed_rows or round_ == settings.repair_rounds:
             break
         # repair: widen the separations the failures point at, re-colour, re-design;
@@ -151,8 +165,8 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         if not (widened or reseeded or answered):
             break
     if best[1] != rounds[-1]["round"]:
-        (assignment, waveforms, drive_notes, designs, impacters, devices, sliders, run_steps,
-         sizing, ver_rows, failures) = best[2]
+        (assignment, waveforms, played, drive_notes, gating, designs, impacters, devices,
+         sliders, run_steps, sizing, ver_rows, failures) = best[2]
         rounds.append({"round": None, "kept_round": best[1],
                        "why": "fewer infeasible designs and failures than the last round"})
     ts = time.perf_counter()
@@ -162,7 +176,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     motion_repairs, longer_dwells = [], {}
     for mround in range(settings.repair_rounds + 1):
         dwells = settle_by_step(ver_rows, longer_dwells)
-        scene_rows = simulate_scenes(settings, run_steps, waveforms, impacters, sliders, dwells)
+        scene_rows = simulate_scenes(settings, run_steps, played, impacters, sliders, dwells)
         carried = scene_failures(settings, run_steps, scene_rows)
         if mround == settings.repair_rounds:
             break
@@ -172,7 +186,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         run_steps, actions, redo = fixed
         motion_repairs.append({"round": mround + 1, "actions": actions})
         again = [st for st in run_steps if st.index in redo]
-        for st, (rows, fails) in zip(again, check_steps(settings, again, waveforms, impacters,
+        for st, (rows, fails) in zip(again, check_steps(settings, again, played, impacters,
                                                          sliders, scheduler=scheduler)):
             ver_rows = [r for r in ver_rows if r["index"] != st.index] + rows
             failures = [f for f in failures if f.step != st.index] + fails
@@ -192,16 +206,16 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     # not shown silent at its forbidden tones on the designer's fine grid
     passed = bool(ver["passed"].all()) and not problems
     motion = {"sizing": sizing, "drive": drive_notes, "settle_s": step_settle,
-              "repairs": motion_repairs, "design_problems": problems}
+              "repairs": motion_repairs, "design_problems": problems, "gating": gating}
     data, impacter_recs, device_recs, step_recs = build_record(
-        settings, run_steps, assignment, designs, sliders, waveforms, ver_rows, passed, rounds,
+        settings, run_steps, assignment, designs, sliders, played, ver_rows, passed, rounds,
         scene_rows, motion, manufacturability)
     timings["total"] = time.perf_counter() - t0
     return Plan(
         impacters=pd.DataFrame(impacter_recs), devices=pd.DataFrame(device_recs),
         steps=pd.DataFrame(step_recs), verification=ver, coupling=coupling,
         scenes=pd.DataFrame(scene_rows), passed=passed, data=data, timings=timings,
-        settings=settings, waveforms=waveforms, designs=designs, assignment=assignment,
+        settings=settings, waveforms=played, designs=designs, assignment=assignment,
         failures=tuple(failures),
         design_cache=(None if store is None else
                       {"path": str(store.path), "read": store.hits, "written": store.writes,
