@@ -95,7 +95,9 @@ def conflict_graph(steps, separation=1, pair_separation=None,
         repair loop widens offending pairs this way).
     ensemble_separation : int, optional
         Separation between a node idle in a step that plays two or more tones and
-        every node that plays in it (off-resonant responses to a step's tones add up).
+        every node that plays in it (off-resonant responses to a step's tones add up);
+        not in a ``targets_um`` step, whose tones take turns a few at a time
+        (:mod:`planner.planning.targets`).
 
     Returns
     -------
@@ -120,7 +122,7 @@ def conflict_graph(steps, separation=1, pair_separation=None,
     if ensemble_separation:
         for st in steps:
             playing = {member_of[node_id(d, dr)] for d, dr in st.active_nodes()}
-            if len(playing) < 2:
+            if len(playing) < 2 or st.targets_m is not None:
                 continue
             for idle in set(groups) - playing:
                 ensemble.update(frozenset((idle, p)) for p in playing)

@@ -264,8 +264,8 @@ def gate(waveform: Waveform, starts_s, gates_s, ramp_s) -> Burst:
     -------
     Burst
         Its samples from t = 0 to the end of the last fade-out inclusive, its peak over
-        continuous time (:func:`burst_peaks`), ``rms`` and ``crest_factor`` of the tones
-        at full amplitude.
+        continuous time (:func:`burst_peaks`), and the ``rms`` of its samples and
+        ``crest_factor`` = peak / rms (what the burst plays, not the tones' sum).
 
     Examples
     --------
@@ -289,12 +289,14 @@ def gate(waveform: Waveform, starts_s, gates_s, ramp_s) -> Burst:
     peak, _ = program_peaks(stretches(waveform.frequencies, waveform.amplitudes,
                                       waveform.phases, starts, gates, ramp))
     peak = max(peak, float(np.max(np.abs(samples))))
+    # the burst's own rms (the tones take turns: their sum's rms never plays)
+    rms = float(np.sqrt(np.mean(samples ** 2)))
     note = (f"a burst played once ({n + 1} samples): every tone fades in over "
             f"{ramp * 1e3:g} ms from its own start and out from its own gate")
     return Burst(samples=samples, sample_rate=fs, frequencies=waveform.frequencies,
                  amplitudes=waveform.amplitudes, phases=waveform.phases,
-                 crest_factor=peak / waveform.rms, loop_length=(n + 1) / fs, peak=peak,
-                 rms=waveform.rms, scale=waveform.scale,
+                 crest_factor=peak / rms, loop_length=(n + 1) / fs, peak=peak,
+                 rms=rms, scale=waveform.scale,
                  frequency_shift=waveform.frequency_shift,
                  warnings=tuple(waveform.warnings) + (note,), starts_s=starts,
                  gates_s=gates, ramp_s=ramp)

@@ -180,7 +180,7 @@ def waveform_and_spectrum(waveform, path, title="", *, peak_limit=None, stretch=
     ax_f.set_xscale("log")
     lo, hi = waveform.frequencies.min(), waveform.frequencies.max()
     ax_f.set_xlim(lo / 1.5, min(hi * 1.5, waveform.sample_rate / 2))
-    ax_f.set_ylim(floor / UM, spectrum.max() * 3 / UM)
+    ax_f.set_ylim(floor / UM, max(spectrum.max(), waveform.amplitudes.max()) * 3 / UM)
     khz = FuncFormatter(lambda x, _: f"{x / 1e3:g}")
     ax_f.xaxis.set_major_formatter(khz)
     ax_f.xaxis.set_minor_formatter(khz)
@@ -309,8 +309,10 @@ def target_map(spec, scene, rows, tolerance, path):
         if r.get("targets_m"):
             panels.append((f"after {r['step']}", r["targets_m"], r["positions_m"]))
         elif not r["driven"] and r.get("expected_positions_m"):
-            panels.append(("at the end, drive off", r["expected_positions_m"],
-                           r["final_positions_m"]))
+            end = ("at the end, drive off", r["expected_positions_m"], r["final_positions_m"])
+            # the end only if it says more than the last targets step did
+            if not panels or (panels[-1][1], panels[-1][2]) != end[1:]:
+                panels.append(end)
     n_rows, n_cols = spec.array.rows, spec.array.cols
     letters = [chr(ord("A") + k) for k in range(n_rows)]
     asked = [z / UM for _, t, _ in panels for z in t.values()] or [1.0]

@@ -13,7 +13,7 @@ import model
 from planner.nodes import device_key
 from planner.planning.result import Plan
 from planner.planning.scenes import scene_overshoot
-from planner.planning.settings import G0, SETTLE_S
+from planner.planning.settings import SETTLE_S
 from planner.units import MS, UM
 
 #: Response-curve figure: points over the band, half-width of the fine grid across each
@@ -335,11 +335,10 @@ def _motion_notes(d):
             played = [n for n, g in gating["gates_s"].items() if g > 0]
             lines.append(
                 f"- {key}: a gated burst of {rec['duration_s'] * 1e3:.4g} ms, played once: "
-                f"its {len(played)} tones take turns, at most "
-                f"{gating['budget_m_s2'] / G0:.0f} g of summed base acceleration at a time "
-                "(the sliders' dynamic friction over their mass), each fading out "
-                f"({gating['ramp_s'] * 1e3:g} ms) when its slider has gone its move "
-                f"({gating['search_iterations']} simulations of the step to find them)")
+                f"its {len(played)} tones one after the other, each fading in and out over "
+                f"{gating['ramp_s'] * 1e3:g} ms and playing until its slider has gone its "
+                f"move ({gating['search_iterations']} simulation(s) of the step to find "
+                "them)")
         if rec.get("requested_travel_m") is not None:
             v = (rec.get("sizing") or {}).get("slowest_probe_speed_m_s")
             sized = (rec.get("sizing") or {}).get("sized_s") or rec["duration_s"]

@@ -58,8 +58,8 @@ def step_record(step, waveform, motion=None):
     A ``targets_um`` step also records ``targets_m`` (device -> target [m] as the spec
     gives it, relative to ``relative_to``), ``moves_m`` (device -> the move [m] its
     burst was gated for, from where the scene left the slider) and ``gating`` (the
-    ramp, the summed base acceleration the tones playing together stay within, each
-    node's start and gate [s] and the search's iterations); its ``playback`` is
+    ramp, each node's start and gate [s] and the search's iterations); its
+    ``playback`` is
     ``once`` (a gated burst, :class:`planner.gating.Burst`) where other steps
     ``loop``, and its peaks and acceleration scale are the burst's."""
     from planner.gating import Burst
@@ -71,10 +71,10 @@ def step_record(step, waveform, motion=None):
         drive = dict(motion["drive"][step.key])
         gating = (motion.get("gating") or {}).get(step.key)
         if gating is not None:
+            # the burst's own tones, not the loop's (lowered for a sum that never plays)
             drive = {"peak_displacement_m": gating["peak_displacement_m"],
                      "peak_acceleration_m_s2": gating["peak_acceleration_m_s2"],
-                     "acceleration_scale": (drive["acceleration_scale"]
-                                            * gating["acceleration_scale"])}
+                     "acceleration_scale": gating["acceleration_scale"]}
         extra = {"settle_s": motion["settle_s"].get(step.key, 0.0),
                  "peak_displacement_m": drive["peak_displacement_m"],
                  "peak_acceleration_m_s2": drive["peak_acceleration_m_s2"],
@@ -82,8 +82,8 @@ def step_record(step, waveform, motion=None):
                  "acceleration_scale": drive["acceleration_scale"],
                  "travel_m": motion["travel"].get(step.key, {})}
         if gating is not None:
-            extra["gating"] = {"ramp_s": gating["ramp_s"], "budget_m_s2": gating["budget_m_s2"],
-                               "starts_s": gating["starts_s"], "gates_s": gating["gates_s"],
+            extra["gating"] = {"ramp_s": gating["ramp_s"], "starts_s": gating["starts_s"],
+                               "gates_s": gating["gates_s"],
                                "search_iterations": gating["iterations"]}
         if step.travel_m is not None:
             sized = motion["sizing"].get(step.key, {})

@@ -3,29 +3,38 @@ its scene asks it to be.
 
 One summed drive moves a step's sliders at speeds ten times apart, so a burst sized for
 one slider leaves the others short or far beyond their targets.  A ``targets_um`` step
-therefore plays a gated burst (:mod:`planner.gating`): each tone fades in at its own
-start and fades out at its own gate, when its slider has gone far enough.
+therefore plays a gated burst (:mod:`planner.gating`): its tones one after the other,
+each fading in, playing until its slider has gone far enough, and fading out.
 
-Why the tones take turns
-------------------------
-Measured on the default 5 x 5 designs (docs/targets.md): under the summed drive of all
-25 tones (~2,700 g peak, so M zeta'' reaches the sliders' 20 uN static friction) a
-slider, once an impact has set it sliding, is carried by the substrate's vibration
-against only its 5 uN dynamic friction: it moves 5-12 mm/s in jumps of 5-20 um, a jump
-whenever the summed drive peaks, whichever tones still play.  No gate places it within
-2 um then (gating all 25 tones at once left errors up to 16 um).  With the tones that
-play together kept to a summed base acceleration below the sliders' dynamic friction
-over their mass (:func:`slip_budget`; 2-3 tones here), a slider moves only while its
-own impacter kicks it (0.3-0.8 mm/s, in steps of 0.02-0.4 um), stops when its tone
-stops, and an idle slider never slips.  So the tones of a targets step take turns:
-each starts as soon as the tones still playing leave room in that budget (in order of
-their playing time, longest first), and a burst takes a few hundred ms where the summed
-drive would take a few tens.
+Why one tone at a time
+----------------------
+Measured on the default 5 x 5 designs (docs/targets.md):
 
-The designs need no change for this: the tones that play together are a subset of the
-step's summed drive, which the idle impacters were designed silent under, and each
-impacter of such a step is also designed silent under every other tone of it and able
-to move its slider alone (:func:`planner.assign.plan_steps`); the verification
+- under the summed drive of all 25 tones (~2,700 g peak: M zeta'' reaches the sliders'
+  20 uN static friction) a slider that an impact has set sliding is carried by the
+  substrate's vibration against only its 5 uN dynamic friction: it moves at 5-12 mm/s in
+  jumps of 5-20 um, whenever the summed drive peaks, whichever tones still play.  Gating
+  each of the 25 tones at its own time left errors up to 16 um;
+- a second tone playing beside a slider's own one, even below the dynamic friction
+  (540 g), doubles its speed (B1: 0.35 mm/s alone, 0.67 with E5's tone), so the travel a
+  tone gives depends on when its neighbours in time stop: gated in pairs and triples
+  within that friction, the search oscillated and the pattern of configs/pattern_5x5.yaml
+  missed by up to 17 um;
+- one tone alone (140-480 g, below every slider's dynamic friction over its mass) moves
+  its slider only while its impacter kicks it, 0.3-0.5 mm/s, in steps of 0.02 um per
+  50 us of playing time, and nothing else: each slider's travel depends on its own
+  tone's playing time alone.
+
+So a targets step is a sequence of single-tone sub-steps, in device order, each tone
+starting when the one before has faded out: a burst of a few hundred ms where the summed
+drive would take a few tens.  Idle sliders see one tone at a time, which the designs are
+silent under.
+
+The designs are not made against a targets step's summed drive, which never plays
+(:func:`planner.planning.designs.idle_ensembles`; nor does the assignment keep its
+ensemble separation for it): every impacter idle in it is designed silent under each of
+its tones, and each impacter of such a step silent under every other tone of it and able
+to move its slider alone (:func:`planner.assign.plan_steps`).  The verification
 re-simulates the burst exactly as it is exported, so none of this is taken on trust.
 
 Finding the gates
@@ -34,28 +43,26 @@ From the state the scene is in when the step starts (the carried state of
 :func:`planner.planning.scenes.simulate_scenes`), each burst followed by its settle
 dwell, since a slider moves on while its tone fades out:
 
-1. **probe**: the tones in groups within the budget, each group played to the
-   longest a tone may play (the step's ``duration_ms``, else
-   :data:`planner.spec.DEFAULT_MAX_BURST_S`); each slider's travel is recorded every
-   :data:`PROBE_CHUNK_S`.  A slider that does not travel its move in that time cannot
-   reach its target: :class:`~planner.errors.PlanningError` naming the device, the
-   travel it made and the scale its tones had.  Its first playing time is where it had
-   gone its move less half a ramp's travel.
-2. **iterate**: the tones are scheduled (:func:`schedule`), the burst is simulated
-   exactly (the same stretches the verification plays) through its settle dwell, and
-   each tone's playing time is moved by its slider's error over its speed (secant
-   steps, kept inside the bracket of times known short and long) until every slider
-   ends within :data:`AIM` of the position tolerance, or :data:`MAX_ITERATIONS` runs.
-   Times sit on the sample grid; one sample (5 us at 200 kHz) is a few nm of travel.
+1. **probe**: each tone alone, from the carried state, for the longest a tone may play
+   (the step's ``duration_ms``, else :data:`planner.spec.DEFAULT_MAX_BURST_S`), its
+   slider's travel recorded every :data:`PROBE_CHUNK_S` (until it has gone its move).
+   A slider that does not travel its move in that time cannot reach its target:
+   :class:`~planner.errors.PlanningError` naming the device, the travel it made and the
+   scale its tone had.  Its first playing time is where it had gone its move less half a
+   ramp's travel.
+2. **iterate**: the tones in sequence (:func:`sequence`), the burst simulated exactly
+   (the same stretches the verification plays) through its settle dwell, and each
+   tone's playing time moved by its slider's error over its speed (a secant through the
+   last two tries, at most half its time a step) until every slider ends within
+   :data:`AIM` of the position tolerance, or :data:`MAX_ITERATIONS` runs; the best try
+   (least worst error) is kept.  Times sit on the sample grid (5 us at 200 kHz).
 3. **limits**: a tone that alone is above ``drive.max_acceleration_g`` or the piezo's
-   limit has every amplitude lowered by one factor before the probe; the budget keeps
-   the tones playing together under them; and the burst's peak acceleration and
-   displacement are measured over continuous time (:func:`planner.gating.burst_peaks`):
-   above a limit, every amplitude is lowered by one factor and the times found again.
+   limit has every amplitude lowered by one factor before the probe; the burst's peak
+   acceleration and displacement are measured over continuous time
+   (:func:`planner.gating.burst_peaks`).
 
 A slider whose move is the other way of its impacter (the scene left it beyond a target
-it was to approach) gets no tone, nor does one whose shortest pulse (a fade-in straight
-into a fade-out) would overshoot by more than staying put misses.
+it was to approach) gets no tone.
 
 The check is the verification's: the carried-state scene simulation must end every
 slider within the tolerance of its target, and the per-step check must do so from every
@@ -79,7 +86,7 @@ from planner.units import UM
 
 #: Fade-in and fade-out of every tone of a gated burst [s]: many beat periods of an
 #: impacter a few hundred Hz off the tone (a switched tone rings its neighbours at their
-#: own resonance; a slow one excites nothing), and still far below a tone's playing time.
+#: own resonance; a slow one excites nothing), and short beside a tone's playing time.
 RAMP_S = 0.5e-3
 #: Trajectory resolution of the probe [s].
 PROBE_CHUNK_S = 2e-4
@@ -88,43 +95,18 @@ PROBE_CHUNK_S = 2e-4
 AIM = 0.1
 #: Iterations of the search (each one simulation of the step's moving devices).
 MAX_ITERATIONS = 12
-#: Times the amplitudes are lowered to meet the limits before giving up.
-LIMIT_ROUNDS = 3
 
 
-def slip_budget(settings):
-    """The largest summed base acceleration amplitude sum_i w_i^2 Z_i [m/s^2] the tones
-    playing together in a gated burst may have.
-
-    The least dynamic friction over mass of every slider of the array
-    (``settings.sliders``: a sliding one is then never carried along by the vibration alone, and an idle one
-    never slips, its static friction being larger), and at most
-    ``drive.max_acceleration_g``.  The sum of amplitudes bounds the peak whatever the
-    phases (over a burst of tens of ms the tones do line up).
-    """
-    budget = min(s.dynamic_friction / s.mass for s in settings.sliders.values())
-    if settings.max_acceleration_m_s2 is not None:
-        budget = min(budget, settings.max_acceleration_m_s2)
-    return budget
-
-
-def schedule(durations, accelerations, order, budget, ramp):
-    """Start of every tone [s]: each in ``order`` starts at the earliest time, not before
-    the one before it, at which it fits, with every tone still sounding then, within
-    ``budget``.
+def sequence(durations, order, ramp):
+    """Start of every tone [s]: one after the other in ``order``, each starting when the
+    one before has faded out (its start + its playing time + ``ramp``).
 
     Parameters
     ----------
     durations : dict
-        Tone index -> its playing time from start to gate [s] (it sounds until its gate
-        plus ``ramp``).
-    accelerations : dict
-        Tone index -> its base acceleration amplitude w^2 Z [m/s^2].
+        Tone index -> its playing time from start to gate [s].
     order : sequence
-        The tone indices in the order they start.
-    budget : float
-        Largest summed acceleration amplitude of the tones sounding together [m/s^2]; a
-        tone above it alone plays alone.
+        The tone indices in the order they play.
     ramp : float
         [s].
 
@@ -135,22 +117,13 @@ def schedule(durations, accelerations, order, budget, ramp):
 
     Examples
     --------
-    >>> schedule({0: 1.0, 1: 0.5, 2: 0.5}, {0: 1.0, 1: 1.0, 2: 1.0}, [0, 1, 2], 2.0, 0.0)
-    {0: 0.0, 1: 0.0, 2: 0.5}
+    >>> sequence({0: 0.02, 3: 0.01}, [3, 0], 0.001)
+    {3: 0.0, 0: 0.011}
     """
-    placed, out, earliest = [], {}, 0.0
+    out, t = {}, 0.0
     for i in order:
-        length = durations[i] + ramp
-        candidates = sorted({earliest} | {e for _, e, _ in placed if e > earliest})
-        for c in candidates:
-            # the load is highest at c or where a tone starts inside [c, c + length)
-            points = [c] + [s for s, _, _ in placed if c < s < c + length]
-            load = max(sum(a for s, e, a in placed if s <= p < e) for p in points)
-            if not placed or load + accelerations[i] <= budget * (1 + 1e-12) or load == 0.0:
-                break
-        out[i] = c
-        earliest = c
-        placed.append((c, c + length, accelerations[i]))
+        out[i] = t
+        t += durations[i] + ramp
     return out
 
 
@@ -163,7 +136,9 @@ def place_targets(settings, steps, waveforms, frequencies, impacters, sliders, p
     steps : sequence of Step
         With their bursts sized (:func:`planner.planning.motion.size_bursts`).
     waveforms : dict
-        Step key -> the step's summed drive (its loop, acceleration-limited).
+        Step key -> the step's drive: a loop for every step, a ``targets_um`` step's as
+        synthesised (its amplitudes not lowered for the peak of the whole sum, which
+        never plays).
     frequencies : dict
         Node -> its tone [Hz] (the assignment's), to find each node's tone.
     impacters, sliders : dict
@@ -182,7 +157,7 @@ def place_targets(settings, steps, waveforms, frequencies, impacters, sliders, p
     Raises
     ------
     PlanningError
-        A slider cannot reach its target within the step's longest burst.
+        A slider cannot reach its target within the longest its tone may play.
     """
     from planner.planning.scenes import simulate_scenes
 
@@ -211,17 +186,16 @@ def search_gates(settings, step, waveform, frequencies, impacters, sliders, stat
     docstring); ``states`` and ``sl_states`` are read, not changed.
 
     ``waveform`` is the step's summed drive as synthesised (its amplitudes not lowered
-    for the whole sum's peak: the tones that play together are kept within the limits
-    here).
+    for the peak of the whole sum, which never plays).
 
     Returns
     -------
     (burst, moves, note)
         ``moves``: device -> the move [m] each targeted slider must make from where it
-        is; ``note``: {"starts_s" and "gates_s": node -> [s] (0, 0: not played),
-        "ramp_s", "budget_m_s2", "iterations", "errors_m": device -> error of the last
-        search simulation [m], "acceleration_scale": the factor the limits took,
-        "peak_displacement_m", "peak_acceleration_m_s2"}.
+        is; ``note``: {"starts_s" and "gates_s": node -> [s] (gate 0: not played),
+        "ramp_s", "iterations", "errors_m": device -> the error of the try kept [m],
+        "acceleration_scale": the factor the limits took, "peak_displacement_m",
+        "peak_acceleration_m_s2"}.
     """
     from planner.spec import DEFAULT_MAX_BURST_S
 
@@ -236,9 +210,7 @@ def search_gates(settings, step, waveform, frequencies, impacters, sliders, stat
     fs = settings.sample_rate_hz
     ramp = round(RAMP_S * fs) / fs
     cap = step.max_duration_s if step.max_duration_s is not None else DEFAULT_MAX_BURST_S
-    cap = max(2 * ramp, math.floor(cap * fs) / fs)
-    budget = slip_budget(settings)
-    sim = _Simulation(settings, impacters, sliders, movers, states, sl_states)
+    cap = max(ramp, math.floor(cap * fs) / fs)
     w, scale = waveform, 1.0
     # a tone that alone is above a limit is lowered before anything plays (with the
     # others, by one factor: the designs saw the step's tones in these proportions)
@@ -251,29 +223,15 @@ def search_gates(settings, step, waveform, frequencies, impacters, sliders, stat
         scale = (1.0 - 1e-6) / over
         w = scaled(w, scale, f"every amplitude lowered by x{scale:.4g}: a tone alone was above "
                              "drive.max_acceleration_g or peak_limit_um")
-    for _ in range(LIMIT_ROUNDS + 1):
-        search = _Search(settings, step, w, scale, movers, moves, ramp, cap, budget, sim)
-        burst = search.run()
-        zp, ap = burst_peaks(burst)
-        over = zp / settings.peak_limit_m
-        if settings.max_acceleration_m_s2 is not None:
-            over = max(over, ap / settings.max_acceleration_m_s2)
-        if over <= 1.0:
-            break
-        # a hair under the limit, as drives.limit_acceleration does
-        factor = (1.0 - 1e-6) / over
-        scale *= factor
-        w = scaled(w, factor, f"every amplitude lowered by x{factor:.4g} so that the gated "
-                              "burst meets drive.max_acceleration_g and peak_limit_um")
-    else:
-        raise PlanningError(f"{step.key}: the gated burst stays above drive.max_acceleration_g "
-                            f"or peak_limit_um after lowering its amplitudes {LIMIT_ROUNDS} "
-                            "times")
+    sim = _Simulation(settings, impacters, sliders, movers, states, sl_states)
+    search = _Search(settings, step, w, scale, movers, moves, ramp, cap, sim)
+    burst = search.run()
+    zp, ap = burst_peaks(burst)
     note = {"starts_s": {movers[d][0]: float(burst.starts_s[movers[d][1]]) for d in movers},
             "gates_s": {movers[d][0]: float(burst.gates_s[movers[d][1]]) for d in movers},
-            "ramp_s": ramp, "budget_m_s2": budget, "iterations": search.iterations,
-            "errors_m": search.errors, "acceleration_scale": scale,
-            "peak_displacement_m": zp, "peak_acceleration_m_s2": ap}
+            "ramp_s": ramp, "iterations": search.iterations, "errors_m": search.errors,
+            "acceleration_scale": scale, "peak_displacement_m": zp,
+            "peak_acceleration_m_s2": ap}
     return burst, moves, note
 
 
@@ -302,10 +260,11 @@ class _Simulation:
         settle(own, sliders, self.settings.contacts, states, sl, self.settings.max_settle_s)
         return {d: sl[d][0] - self.sl_states[d][0] for d in devices}
 
-    def trajectory(self, program, chunk, devices):
+    def trajectory(self, program, chunk, devices, until=None):
         """(times [s], device -> travel [m] at each time) of ``devices`` over
         ``program``, recorded every ``chunk`` [s] (each stretch cut into chunks, phases
-        advanced to each)."""
+        advanced to each); stopped early once ``until(travel)`` (device -> travel [m]
+        now) is true."""
         own = {n: imp for n, imp in self.own.items() if Node.parse(n).device in devices}
         states = {n: s for n, s in self.states.items() if n in own}
         sl = {d: self.sl_states[d] for d in devices}
@@ -321,6 +280,8 @@ class _Simulation:
                 times.append(t + t1)
                 for d in devices:
                     travel[d].append(sl[d][0] - self.sl_states[d][0])
+                if until is not None and until({d: v[-1] for d, v in travel.items()}):
+                    return np.array(times), {d: np.array(v) for d, v in travel.items()}
             t += duration
         return np.array(times), {d: np.array(v) for d, v in travel.items()}
 
@@ -328,25 +289,24 @@ class _Simulation:
 class _Search:
     """Steps 1 and 2 of the module docstring for one set of amplitudes."""
 
-    def __init__(self, settings, step, waveform, scale, movers, moves, ramp, cap, budget,
-                 sim):
+    def __init__(self, settings, step, waveform, scale, movers, moves, ramp, cap, sim):
         self.settings, self.step, self.waveform, self.scale = settings, step, waveform, scale
         self.movers, self.moves, self.ramp, self.cap, self.sim = movers, moves, ramp, cap, sim
-        self.budget = budget
         self.fs = settings.sample_rate_hz
-        w = 2.0 * np.pi * np.asarray(waveform.frequencies)
-        self.accel = {i: float(w[i] ** 2 * waveform.amplitudes[i]) for _, i, _ in movers.values()}
         # a tone plays only if its slider is to move its impacter's way (the scene may
         # have left a slider beyond a target it was to approach)
         self.driven = {d: m for d, m in movers.items() if m[2] * moves[d] > 0.0}
+        # one after the other in device order: a burst a lab can read off the table
+        self.order = [self.driven[d][1] for d in sorted(self.driven)]
         self.iterations, self.errors = 0, {}
 
-    def burst(self, durations, order):
-        """The burst of the tones of ``durations`` (tone index -> playing time [s]),
-        started in ``order`` (:func:`schedule`)."""
+    def burst(self, durations):
+        """The burst of the tones of ``durations`` (tone index -> playing time [s]) in
+        sequence (:func:`sequence`)."""
         n = len(self.waveform.frequencies)
         starts, gates = np.zeros(n), np.zeros(n)
-        for i, s0 in schedule(durations, self.accel, order, self.budget, self.ramp).items():
+        for i, s0 in sequence(durations, [i for i in self.order if i in durations],
+                              self.ramp).items():
             starts[i], gates[i] = s0, s0 + durations[i]
         return gate(self.waveform, starts, gates, self.ramp)
 
@@ -355,68 +315,62 @@ class _Search:
             # a burst plays at least one tone: the shortest pulse of the slider asked to
             # move furthest (the verification judges whether that is near enough)
             d = max(self.movers, key=lambda dev: abs(self.moves[dev]))
-            i = self.movers[d][1]
-            return self.burst({i: self.ramp}, [i])
+            return self.burst({self.movers[d][1]: self.ramp})
         durations, speed = self.probe()
-        order = sorted(durations, key=lambda i: (-durations[i], i))
-        last = {}
+        last, best = {}, None
         aim = AIM * self.settings.position_tolerance_m
-        burst = None
         for self.iterations in range(1, MAX_ITERATIONS + 1):
-            burst = self.burst(durations, order)
+            burst = self.burst(durations)
             got = self.sim.travel(burst.program())
-            self.errors = {d: got[d] - self.moves[d] for d in self.movers}
-            todo = [d for d in self.driven if abs(self.errors[d]) > aim]
-            if not todo:
+            errors = {d: got[d] - self.moves[d] for d in self.movers}
+            worst = max(abs(errors[d]) for d in self.driven)
+            if best is None or worst < best[0]:
+                best = (worst, burst, errors)
+            if worst <= aim:
                 break
-            for d in todo:
+            for d in self.driven:
                 _, i, sign = self.driven[d]
-                g, err = durations[i], sign * self.errors[d]      # err > 0: too far
-                # a secant through this try and the last (the tones a slider shares the
-                # burst with move as the others' times change, so older tries are
-                # stale), else its probed speed; at most half its time either way
+                g, err = durations[i], sign * errors[d]      # err > 0: too far
+                if abs(errors[d]) <= aim:
+                    continue
+                # a secant through this try and the last, else its probed speed; at
+                # most half its time a step
                 slope = speed[d]
                 if d in last and last[d][0] != g and (err - last[d][1]) / (g - last[d][0]) > 0:
                     slope = (err - last[d][1]) / (g - last[d][0])
                 last[d] = (g, err)
                 change = max(-0.5 * g, min(0.5 * g, -err / slope))
                 durations[i] = self._on_grid(min(max(g + change, self.ramp), self.cap))
-        unreached = [d for d in self.driven
-                     if durations[self.driven[d][1]] >= self.cap
-                     and -self.driven[d][2] * self.errors[d] > self.settings.position_tolerance_m]
-        for d in unreached:
-            self._unreachable(d, self.moves[d] + self.errors[d])
+        _, burst, self.errors = best
+        for d, (_, i, sign) in self.driven.items():
+            played = burst.gates_s[i] - burst.starts_s[i]
+            if (played >= self.cap - 0.5 / self.fs
+                    and -sign * self.errors[d] > self.settings.position_tolerance_m):
+                self._unreachable(d, self.moves[d] + self.errors[d])
         return burst
 
     def probe(self):
-        """(tone index -> first playing time [s], device -> speed [m/s]) from the tones
-        in groups within the budget, each group played to the cap."""
-        groups, load = [[]], 0.0
-        for d in sorted(self.driven, key=lambda dev: (-abs(self.moves[dev]), dev)):
-            a = self.accel[self.driven[d][1]]
-            if groups[-1] and load + a > self.budget:
-                groups.append([])
-                load = 0.0
-            groups[-1].append(d)
-            load += a
+        """(tone index -> first playing time [s], device -> speed [m/s]): each tone
+        alone from the carried state, played to the cap or until its slider has gone
+        its move."""
         n = len(self.waveform.frequencies)
         durations, speed = {}, {}
-        for group in groups:
+        for d in sorted(self.driven):
+            _, i, sign = self.driven[d]
+            want = sign * self.moves[d]
             starts, gates = np.zeros(n), np.zeros(n)
-            for d in group:
-                gates[self.driven[d][1]] = self.cap - self.ramp
+            gates[i] = self.cap
             program = gate(self.waveform, starts, gates, self.ramp).program()
-            times, travel = self.sim.trajectory(program, PROBE_CHUNK_S, group)
-            for d in group:
-                _, i, sign = self.driven[d]
-                along, want = sign * travel[d], sign * self.moves[d]
-                if along[-1] < want - self.settings.position_tolerance_m:
-                    self._unreachable(d, travel[d][-1])
-                k = int(np.argmax(along >= want)) if np.any(along >= want) else len(times) - 1
-                speed[d] = max(float(along[-1] / times[-1]), 1e-9)
-                # its travel while the tone fades out is about half a ramp at full speed
-                durations[i] = self._on_grid(min(max(times[k] - 0.5 * self.ramp, self.ramp),
-                                                 self.cap))
+            times, travel = self.sim.trajectory(
+                program, PROBE_CHUNK_S, [d], until=lambda tr, d=d: sign * tr[d] >= want)
+            along = sign * travel[d]
+            if along[-1] < want - self.settings.position_tolerance_m:
+                self._unreachable(d, travel[d][-1])
+            k = int(np.argmax(along >= want)) if np.any(along >= want) else len(times) - 1
+            speed[d] = max(float(along[k] / times[k]) if times[k] > 0 else 0.0, 1e-9)
+            # its travel while the tone fades out is about half a ramp at full speed
+            durations[i] = self._on_grid(min(max(times[k] - 0.5 * self.ramp, self.ramp),
+                                             self.cap))
         return durations, speed
 
     def _unreachable(self, d, reached):
@@ -427,7 +381,7 @@ class _Search:
         raise PlanningError(
             f"{self.step.key}: {d} cannot reach its target: it must move "
             f"{self.moves[d] / UM:+.4g} um but travels {reached / UM:+.4g} um in the longest "
-            f"a tone may play, {self.cap * 1e3:g} ms{limit}; raise the step's duration_ms, "
+            f"its tone may play, {self.cap * 1e3:g} ms{limit}; raise the step's duration_ms, "
             "move it less in this step, or raise drive.max_acceleration_g")
 
     def _on_grid(self, t):
