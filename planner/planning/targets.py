@@ -12,22 +12,22 @@ Measured on the default 5 x 5 designs (docs/targets.md):
 
 - under the summed drive of all 25 tones (~2,700 g peak: M zeta'' reaches the sliders'
   20 uN static friction) a slider that an impact has set sliding is carried by the
-  substrate's vibration against only its 5 uN dynamic friction: it moves at 5-12 mm/s in
-  jumps of 5-20 um, whenever the summed drive peaks, whichever tones still play.  Gating
-  each of the 25 tones at its own time left errors up to 16 um;
+  substrate's vibration against only its 5 uN dynamic friction: it moves at 5-13 mm/s,
+  up to 5-13 um in 0.1 ms, whenever the summed drive peaks, whichever tones still play.
+  Gating each of the 25 tones at its own time left errors up to 16 um;
 - a second tone playing beside a slider's own one, even below the dynamic friction
-  (540 g), doubles its speed (B1: 0.35 mm/s alone, 0.67 with E5's tone), so the travel a
+  (540 g), doubles its speed (B1: 0.32 mm/s alone, 0.61 with E5's tone), so the travel a
   tone gives depends on when its neighbours in time stop: gated in pairs and triples
   within that friction, the search oscillated and the pattern of configs/pattern_5x5.yaml
   missed by up to 17 um;
 - one tone alone (140-480 g, below every slider's dynamic friction over its mass) moves
-  its slider only while its impacter kicks it, 0.3-0.5 mm/s, in steps of 0.02 um per
+  its slider only while its impacter kicks it, 0.3-0.5 mm/s, in steps of 0.016 um per
   50 us of playing time, and nothing else: each slider's travel depends on its own
   tone's playing time alone.
 
 So a targets step is a sequence of single-tone sub-steps, in device order, each tone
-starting when the one before has faded out: a burst of a few hundred ms where the summed
-drive would take a few tens.  Idle sliders see one tone at a time, which the designs are
+starting when the one before has faded out: a burst of about a second for 24 moves of
+up to 24 um, where the summed drive would take tens of ms.  Idle sliders see one tone at a time, which the designs are
 silent under.
 
 The designs are not made against a targets step's summed drive, which never plays
@@ -59,7 +59,8 @@ dwell, since a slider moves on while its tone fades out:
 3. **limits**: a tone that alone is above ``drive.max_acceleration_g`` or the piezo's
    limit has every amplitude lowered by one factor before the probe; the burst's peak
    acceleration and displacement are measured over continuous time
-   (:func:`planner.gating.burst_peaks`).
+   (:func:`planner.gating.burst_peaks`, the ramps included), and above a limit every
+   amplitude is lowered by one factor and the times found again.
 
 A slider whose move is the other way of its impacter (the scene left it beyond a target
 it was to approach) gets no tone.
@@ -95,6 +96,8 @@ PROBE_CHUNK_S = 2e-4
 AIM = 0.1
 #: Iterations of the search (each one simulation of the step's moving devices).
 MAX_ITERATIONS = 12
+#: Times the amplitudes are lowered to meet the limits before giving up.
+LIMIT_ROUNDS = 3
 
 
 def sequence(durations, order, ramp):
@@ -224,9 +227,25 @@ def search_gates(settings, step, waveform, frequencies, impacters, sliders, stat
         w = scaled(w, scale, f"every amplitude lowered by x{scale:.4g}: a tone alone was above "
                              "drive.max_acceleration_g or peak_limit_um")
     sim = _Simulation(settings, impacters, sliders, movers, states, sl_states)
-    search = _Search(settings, step, w, scale, movers, moves, ramp, cap, sim)
-    burst = search.run()
-    zp, ap = burst_peaks(burst)
+    for _ in range(LIMIT_ROUNDS + 1):
+        search = _Search(settings, step, w, movers, moves, ramp, cap, sim)
+        burst = search.run()
+        zp, ap = burst_peaks(burst)
+        # the ramps add to a tone's own peak (the envelope's slope, up to pi / (R w) of
+        # it): measured on the burst as played
+        over = zp / settings.peak_limit_m
+        if settings.max_acceleration_m_s2 is not None:
+            over = max(over, ap / settings.max_acceleration_m_s2)
+        if over <= 1.0:
+            break
+        factor = (1.0 - 1e-6) / over
+        scale *= factor
+        w = scaled(w, factor, f"every amplitude lowered by x{factor:.4g} so that the burst "
+                              "meets drive.max_acceleration_g and peak_limit_um")
+    else:
+        raise PlanningError(f"{step.key}: the gated burst stays above drive.max_acceleration_g "
+                            f"or peak_limit_um after lowering its amplitudes {LIMIT_ROUNDS} "
+                            "times")
     note = {"starts_s": {movers[d][0]: float(burst.starts_s[movers[d][1]]) for d in movers},
             "gates_s": {movers[d][0]: float(burst.gates_s[movers[d][1]]) for d in movers},
             "ramp_s": ramp, "iterations": search.iterations, "errors_m": search.errors,
@@ -248,14 +267,19 @@ class _Simulation:
         self.states = {n: states[n] for n in self.own if n in states}
         self.sl_states = {d: sl_states.get(d, (0.0, 0.0)) for d in self.devices}
 
+    def _copies(self, devices):
+        """(impacters, sliders, impacter states, slider states) of ``devices``, the
+        states copied."""
+        own = {n: imp for n, imp in self.own.items() if Node.parse(n).device in devices}
+        return (own, {d: self.sliders[d] for d in devices},
+                {n: s for n, s in self.states.items() if n in own},
+                {d: self.sl_states[d] for d in devices})
+
     def travel(self, program, devices=None):
         """Device -> travel [m] over ``program`` and the settle dwell (of ``devices``,
         default every moving device)."""
         devices = self.devices if devices is None else devices
-        own = {n: imp for n, imp in self.own.items() if Node.parse(n).device in devices}
-        states = {n: s for n, s in self.states.items() if n in own}
-        sl = {d: self.sl_states[d] for d in devices}
-        sliders = {d: self.sliders[d] for d in devices}
+        own, sliders, states, sl = self._copies(devices)
         run_program(own, sliders, self.settings.contacts, program, states, sl)
         settle(own, sliders, self.settings.contacts, states, sl, self.settings.max_settle_s)
         return {d: sl[d][0] - self.sl_states[d][0] for d in devices}
@@ -265,10 +289,7 @@ class _Simulation:
         ``program``, recorded every ``chunk`` [s] (each stretch cut into chunks, phases
         advanced to each); stopped early once ``until(travel)`` (device -> travel [m]
         now) is true."""
-        own = {n: imp for n, imp in self.own.items() if Node.parse(n).device in devices}
-        states = {n: s for n, s in self.states.items() if n in own}
-        sl = {d: self.sl_states[d] for d in devices}
-        sliders = {d: self.sliders[d] for d in devices}
+        own, sliders, states, sl = self._copies(devices)
         times, travel, t = [0.0], {d: [0.0] for d in devices}, 0.0
         for duration, drive in program:
             k = max(1, math.ceil(duration / chunk - 1e-9))
@@ -289,8 +310,8 @@ class _Simulation:
 class _Search:
     """Steps 1 and 2 of the module docstring for one set of amplitudes."""
 
-    def __init__(self, settings, step, waveform, scale, movers, moves, ramp, cap, sim):
-        self.settings, self.step, self.waveform, self.scale = settings, step, waveform, scale
+    def __init__(self, settings, step, waveform, movers, moves, ramp, cap, sim):
+        self.settings, self.step, self.waveform = settings, step, waveform
         self.movers, self.moves, self.ramp, self.cap, self.sim = movers, moves, ramp, cap, sim
         self.fs = settings.sample_rate_hz
         # a tone plays only if its slider is to move its impacter's way (the scene may
@@ -374,7 +395,8 @@ class _Search:
         return durations, speed
 
     def _unreachable(self, d, reached):
-        total = self.scale * self.waveform.scale
+        # the waveform's scale holds every lowering (synthesis, limits)
+        total = self.waveform.scale
         limit = ("" if total >= 1.0 else
                  f" with its tone lowered x{total:.3g} to meet drive.max_acceleration_g and "
                  "peak_limit_um")
