@@ -120,8 +120,8 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         run_steps, sizing = size_bursts(settings, steps, waveforms, impacters, sliders,
                                         drive_of)
         # targets steps play a gated burst, found from the carried state of their scene;
-        # its tones take turns within the limits, so it starts from their amplitudes as
-        # synthesised, not as lowered for the peak of their whole sum
+        # its tones play one after the other, so at their amplitudes as synthesised, not
+        # as lowered for the peak of their whole sum
         played, gating = waveforms, {}
         targeted = {st.key: synthesized[st.key] for st in run_steps if st.targets_m is not None}
         if targeted:
