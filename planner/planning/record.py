@@ -58,8 +58,8 @@ def step_record(step, waveform, motion=None):
     A ``targets_um`` step also records ``targets_m`` (device -> target [m] as the spec
     gives it, relative to ``relative_to``), ``moves_m`` (device -> the move [m] its
     burst was gated for, from where the scene left the slider) and ``gating`` (the
-    ramp, each node's start and gate [s] and the search's iterations); its
-    ``playback`` is
+    ramp, each node's start and gate [s] and the search's iterations), and each of its
+    tones its ``start_s`` and ``gate_s`` (gate 0: not played); its ``playback`` is
     ``once`` (a gated burst, :class:`planner.gating.Burst`) where other steps
     ``loop``, and its peaks and acceleration scale are the burst's."""
     from planner.gating import Burst
@@ -98,8 +98,10 @@ def step_record(step, waveform, motion=None):
         "duration_s": step.duration_s,
         "playback": "once" if isinstance(w, Burst) else "loop", **extra,
         "forward": list(step.forward), "backward": list(step.backward),
-        "tones": [{"frequency_hz": float(f), "amplitude_m": float(z), "phase_rad": float(p)}
-                  for f, z, p in zip(w.frequencies, w.amplitudes, w.phases)],
+        "tones": [{"frequency_hz": float(f), "amplitude_m": float(z), "phase_rad": float(p),
+                   **({"start_s": float(w.starts_s[i]), "gate_s": float(w.gates_s[i])}
+                      if isinstance(w, Burst) else {})}
+                  for i, (f, z, p) in enumerate(zip(w.frequencies, w.amplitudes, w.phases))],
         "crest_factor": float(w.crest_factor), "scale": float(w.scale),
         "loop_length_s": float(w.loop_length),
         "files": {fmt: f"waveforms/{stem}{EXPORTERS[fmt].suffix}" for fmt in EXPORT_FORMATS},

@@ -239,3 +239,26 @@ def test_gated_impacters_get_single_impacter_steps():
                     "independent/A2.backward"]
     one = TWO.replace("{A1: 12, A2: 5}", "{A1: 12}").replace("{all: 0}", "{A1: 0}")
     assert [st.key for st in resolve_settings(load_spec(one)).steps] == ["s/write", "s/back"]
+
+
+def test_vibroplan_drive_writes_the_plans_burst(two_plan, tmp_path):
+    """`vibroplan drive PLAN --step write` rebuilds the gated burst from plan.json's tone
+    table (each tone's start_s and gate_s), not a loop of the summed tones."""
+    from click.testing import CliRunner
+
+    from planner.cli import main
+    from planner.exporters import read_sidecar, read_waveform
+
+    out = tmp_path / "write.csv"
+    res = CliRunner().invoke(main, ["drive", str(two_plan.out_dir), "--step", "write",
+                                    "--format", "csv", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "read back: ok: burst samples within" in res.output
+    assert "a gated burst, played once" in res.output
+    rec = next(s for s in two_plan.data["steps"] if s["name"] == "write")
+    mine, _ = read_waveform(out)
+    theirs, _ = read_waveform(two_plan.out_dir / rec["files"]["csv"])
+    assert len(mine) == len(theirs)
+    # plan.json keeps 12 significant digits of each tone
+    np.testing.assert_allclose(mine, theirs, rtol=0, atol=1e-17)
+    assert read_sidecar(out)["playback"] == "once"
