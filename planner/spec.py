@@ -3,7 +3,8 @@
 Devices are named like a well plate: rows A, B, ... and columns 1, 2, ... (A1 ... E5 on
 the default 5 x 5 array).  Every device has a forward and a backward impacter pair.
 A *scene* is a named sequence of steps; a step lists which devices move forward and
-which backward, for how long; every other device must stay idle.  With
+which backward, for how long (or how far), or where each device must end
+(``targets_um``, docs/targets.md); every other device must stay idle.  With
 ``independent: true`` (the default when no scenes are given) every impacter must also
 be drivable on its own, which adds one implicit step per impacter.
 
