@@ -45,15 +45,29 @@ def split_node(node: str) -> tuple[str, str]:
 
 
 def plan_steps(loaded: LoadedSpec, single_step_s: float) -> tuple[Step, ...]:
-    """The spec's steps plus, when every impacter must be independent, one per impacter."""
+    """The spec's steps plus implicit single-impacter steps (scene ``independent``).
+
+    When every impacter must be independent, one per impacter.  Otherwise one for each
+    impacter of a ``targets_um`` step that moves two or more devices: its tones are
+    switched off one by one (:mod:`planner.gating`), so each must be told apart from
+    the others, silent under the others' tones and able to move its slider alone (the
+    last one to stop plays alone).
+    """
     steps = list(loaded.steps)
     if loaded.spec.all_independent:
-        for dev in loaded.device_ids:
-            for direction in DIRECTIONS:
-                fwd = (dev,) if direction == "forward" else ()
-                bwd = (dev,) if direction == "backward" else ()
-                steps.append(Step("independent", node_id(dev, direction), len(steps),
-                                  single_step_s, fwd, bwd))
+        alone = [(dev, direction) for dev in loaded.device_ids for direction in DIRECTIONS]
+    else:
+        gated = set()
+        for st in loaded.steps:
+            if st.targets_m is not None and len(st.active_nodes()) > 1:
+                gated |= st.active_nodes()
+        alone = [(dev, direction) for dev in loaded.device_ids for direction in DIRECTIONS
+                 if (dev, direction) in gated]
+    for dev, direction in alone:
+        fwd = (dev,) if direction == "forward" else ()
+        bwd = (dev,) if direction == "backward" else ()
+        steps.append(Step("independent", node_id(dev, direction), len(steps),
+                          single_step_s, fwd, bwd))
     return tuple(steps)
 
 
@@ -81,7 +95,9 @@ def conflict_graph(steps, separation=1, pair_separation=None,
         repair loop widens offending pairs this way).
     ensemble_separation : int, optional
         Separation between a node idle in a step that plays two or more tones and
-        every node that plays in it (off-resonant responses to a step's tones add up).
+        every node that plays in it (off-resonant responses to a step's tones add up);
+        not in a ``targets_um`` step, whose tones take turns a few at a time
+        (:mod:`planner.planning.targets`).
 
     Returns
     -------
@@ -106,7 +122,7 @@ def conflict_graph(steps, separation=1, pair_separation=None,
     if ensemble_separation:
         for st in steps:
             playing = {member_of[node_id(d, dr)] for d, dr in st.active_nodes()}
-            if len(playing) < 2:
+            if len(playing) < 2 or st.targets_m is not None:
                 continue
             for idle in set(groups) - playing:
                 ensemble.update(frozenset((idle, p)) for p in playing)

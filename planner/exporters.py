@@ -19,7 +19,10 @@ Every file ``NAME`` gets a JSON sidecar ``NAME.json`` with the tone table (frequ
 amplitude, phase), sample rate, loop length, points, ``full_scale_m`` (the displacement at
 full scale), ``volts_full_scale`` (the generator voltage at full scale, if the piezo's
 um/V and the amplifier's gain are given), crest factor, the scale applied against the
-piezo's limit, and warnings.  Both are written atomically (temporary file, then
+piezo's limit, and warnings.  ``playback`` says how to play the file: ``loop`` (repeat
+it for the step's burst) or ``once``: a gated burst (:class:`planner.gating.Burst`),
+whose sidecar also holds ``starts_s``, ``gates_s`` and ``ramp_s`` (every tone's
+envelope).  Both are written atomically (temporary file, then
 ``os.replace``).  :func:`read_waveform` reads any format back in metres through its
 sidecar; :func:`measure_tones` and :func:`verify_export` check that a file's spectrum
 holds its tones and that its loop point is continuous.
@@ -38,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from planner.gating import Burst, burst_samples
 from planner.synthesis import Waveform
 
 #: Largest integer code of the 16-bit formats; the scale is symmetric, so -32768 is unused.
@@ -309,9 +313,14 @@ def export(waveform: Waveform, path, format, *, um_per_v=None, amplifier_gain=No
         "rms_m": float(waveform.rms),
         "crest_factor": float(waveform.crest_factor),
         "scale": float(waveform.scale),
+        "playback": "once" if isinstance(waveform, Burst) else "loop",
         "warnings": list(waveform.warnings) + new,
         **(extra or {}),
     }
+    if isinstance(waveform, Burst):
+        sidecar["starts_s"] = [float(g) for g in waveform.starts_s]
+        sidecar["gates_s"] = [float(g) for g in waveform.gates_s]
+        sidecar["ramp_s"] = float(waveform.ramp_s)
     text = json.dumps(sidecar, indent=2) + "\n"
     _atomic_write(sidecar_path(path), lambda tmp: Path(tmp).write_text(text))
     return path
@@ -460,6 +469,15 @@ class Verification:
         Every tone makes a whole number of cycles in the file.
     ok : bool
         All four within tolerance.
+    sample_error : float or None
+        A burst (``playback: once``): the largest difference of a sample from the
+        burst's exact sum [m], against ``sample_bound`` (the format's quantisation);
+        its ``loop_jump`` is then the displacement at its first and last samples,
+        which must be 0 within a code, and ``amplitude_error`` and ``phase_error``
+        are 0 (the tones have envelopes; the samples are checked instead).  None for
+        a loop.
+    sample_bound : float or None
+        [m].
     """
 
     amplitude_error: float
@@ -468,8 +486,15 @@ class Verification:
     loop_bound: float
     whole_cycles: bool
     ok: bool
+    sample_error: float | None = None
+    sample_bound: float | None = None
 
     def __str__(self):
+        if self.sample_error is not None:
+            return (f"{'ok' if self.ok else 'FAILED'}: burst samples within "
+                    f"{self.sample_error * 1e9:.3g} nm of its gated tones (bound "
+                    f"{self.sample_bound * 1e9:.3g} nm), ends at "
+                    f"{self.loop_jump * 1e9:.3g} nm")
         return (f"{'ok' if self.ok else 'FAILED'}: amplitudes within "
                 f"{self.amplitude_error * 100:.2g} %, phases within "
                 f"{self.phase_error * 1e3:.2g} mrad, loop jump {self.loop_jump * 1e9:.3g} nm "
@@ -507,6 +532,8 @@ def verify_export(path, *, amplitude_rtol=AMPLITUDE_RTOL, phase_atol=PHASE_ATOL)
     f = np.array([t["frequency_hz"] for t in sidecar["tones"]])
     a = np.array([t["amplitude_m"] for t in sidecar["tones"]])
     ph = np.array([t["phase_rad"] for t in sidecar["tones"]])
+    if sidecar.get("playback") == "once":
+        return _verify_burst(sidecar, samples, rate, f, a, ph)
     a_meas, ph_meas = measure_tones(samples, rate, f)
     amplitude_error = float(np.max(np.abs(a_meas / a - 1)))
     phase_error = float(np.max(np.abs(np.angle(np.exp(1j * (ph_meas - ph))))))
@@ -518,6 +545,21 @@ def verify_export(path, *, amplitude_rtol=AMPLITUDE_RTOL, phase_atol=PHASE_ATOL)
     ok = (amplitude_error <= amplitude_rtol and phase_error <= phase_atol
           and loop_jump <= loop_bound and whole)
     return Verification(amplitude_error, phase_error, loop_jump, loop_bound, whole, ok)
+
+
+def _verify_burst(sidecar, samples, rate, f, a, ph) -> Verification:
+    """:func:`verify_export` of a gated burst: every sample against the exact sum of
+    its gated tones (:func:`planner.gating.burst_samples`), within half a code of
+    rounding plus the float32 WAV's relative precision; first and last samples at 0."""
+    resolution = get_exporter(sidecar["format"]).resolution * sidecar["full_scale_m"]
+    exact = burst_samples(f, a, ph, sidecar["starts_s"], sidecar["gates_s"], sidecar["ramp_s"],
+                          np.arange(len(samples)) / rate)
+    error = float(np.max(np.abs(samples - exact)))
+    bound = resolution
+    ends = float(max(abs(samples[0]), abs(samples[-1])))
+    ok = error <= bound and ends <= bound
+    return Verification(0.0, 0.0, ends, bound, True, ok, sample_error=error,
+                        sample_bound=bound)
 
 
 __all__ = ["EXPORTERS", "Exporter", "DriveWarning", "export", "get_exporter", "read_waveform",

@@ -136,13 +136,22 @@ def waveform_and_spectrum(waveform, path, title="", *, peak_limit=None, stretch=
     FigureCanvasAgg(fig)
     ax_t, ax_f = fig.subplots(2, 1)
 
-    span = min(stretch, waveform.loop_length)
-    n_show = int(round(span * waveform.sample_rate))
-    t_fine = np.linspace(0, span, max(2000, 20 * n_show))
-    ax_t.plot(t_fine * 1e3, waveform.evaluate(t_fine) / UM, lw=0.8, color="C0",
-              label="continuous (sum of cosines)")
-    ax_t.plot(waveform.times[:n_show] * 1e3, waveform.samples[:n_show] / UM, ".", ms=2,
-              color="C1", label=f"samples at {waveform.sample_rate / 1e3:g} kHz")
+    from planner.gating import Burst
+
+    burst = isinstance(waveform, Burst)
+    if burst:
+        # a gated burst: all of it, its samples joined (the tones' envelopes show)
+        n_show = len(waveform.samples)
+        ax_t.plot(waveform.times * 1e3, waveform.samples / UM, lw=0.3, color="C0",
+                  label=f"samples at {waveform.sample_rate / 1e3:g} kHz, played once")
+    else:
+        span = min(stretch, waveform.loop_length)
+        n_show = int(round(span * waveform.sample_rate))
+        t_fine = np.linspace(0, span, max(2000, 20 * n_show))
+        ax_t.plot(t_fine * 1e3, waveform.evaluate(t_fine) / UM, lw=0.8, color="C0",
+                  label="continuous (sum of cosines)")
+        ax_t.plot(waveform.times[:n_show] * 1e3, waveform.samples[:n_show] / UM, ".", ms=2,
+                  color="C1", label=f"samples at {waveform.sample_rate / 1e3:g} kHz")
     for sign in (1, -1):
         ax_t.axhline(sign * waveform.peak / UM, color="0.4", ls="--", lw=0.8,
                      label="peak" if sign > 0 else None)
@@ -152,7 +161,9 @@ def waveform_and_spectrum(waveform, path, title="", *, peak_limit=None, stretch=
     ax_t.set_xlabel("time [ms]")
     ax_t.set_ylabel("substrate displacement [um]")
     ax_t.set_title(f"{title}  crest factor {waveform.crest_factor:.2f}, scale {waveform.scale:.3f}"
-                   f", loop {waveform.loop_length * 1e3:.4g} ms")
+                   + (f", gated burst {waveform.length_s * 1e3:.4g} ms, "
+                      f"{int(np.sum(waveform.played))} tones taking turns" if burst else
+                      f", loop {waveform.loop_length * 1e3:.4g} ms"))
     ax_t.legend(loc="upper right", fontsize=7, ncol=2)
 
     loop = waveform.samples[:waveform.loop_points]
@@ -160,7 +171,8 @@ def waveform_and_spectrum(waveform, path, title="", *, peak_limit=None, stretch=
     bins = np.fft.rfftfreq(len(loop), 1 / waveform.sample_rate)
     floor = spectrum.max() * 1e-9   # rounding noise of the exact sum sits far below this
     ax_f.semilogy(bins[1:], np.maximum(spectrum[1:], floor) / UM, lw=0.6, color="C0",
-                  label="spectrum of one loop (bins of 1 / loop)")
+                  label=("spectrum of the burst" if burst else
+                         "spectrum of one loop (bins of 1 / loop)"))
     ax_f.plot(waveform.frequencies, waveform.amplitudes / UM, "x", color="C3", ms=7,
               label="tone table")
     for f in waveform.frequencies:
@@ -168,7 +180,7 @@ def waveform_and_spectrum(waveform, path, title="", *, peak_limit=None, stretch=
     ax_f.set_xscale("log")
     lo, hi = waveform.frequencies.min(), waveform.frequencies.max()
     ax_f.set_xlim(lo / 1.5, min(hi * 1.5, waveform.sample_rate / 2))
-    ax_f.set_ylim(floor / UM, spectrum.max() * 3 / UM)
+    ax_f.set_ylim(floor / UM, max(spectrum.max(), waveform.amplitudes.max()) * 3 / UM)
     khz = FuncFormatter(lambda x, _: f"{x / 1e3:g}")
     ax_f.xaxis.set_major_formatter(khz)
     ax_f.xaxis.set_minor_formatter(khz)
@@ -266,5 +278,78 @@ def manufacturability(impacters, block, path):
     y = block.get("collision_free_yield")
     a2.set_title("neighbours" + (f": predicted collision-free yield {y['value']:.3f}" if y else ""))
     a2.legend(fontsize=7)
+    fig.tight_layout()
+    save(fig, path)
+
+
+def target_map(spec, scene, rows, tolerance, path):
+    """A scene's pattern on the array: for each ``targets_um`` step (and the scene's end)
+    the position each slider was asked for (left) and how far from it it ended (right,
+    red or blue up to the tolerance and beyond).
+
+    Parameters
+    ----------
+    spec : ArraySpec
+        The array (rows, columns).
+    scene : str
+        The scene's name (the title).
+    rows : list of dict
+        The scene's rows of :func:`planner.planning.scenes.simulate_scenes`: a driven row
+        with ``targets_m`` and ``position_errors_m``, the tail with
+        ``expected_positions_m`` and ``final_positions_m``.
+    tolerance : float
+        ``verification.position_tolerance_um`` [m].
+    path : path
+        The PNG.
+    """
+    import matplotlib.colors as mcolors
+
+    panels = []
+    for r in rows:
+        if r.get("targets_m"):
+            panels.append((f"after {r['step']}", r["targets_m"], r["positions_m"]))
+        elif not r["driven"] and r.get("expected_positions_m"):
+            end = ("at the end, drive off", r["expected_positions_m"], r["final_positions_m"])
+            # the end only if it says more than the last targets step did
+            if not panels or (panels[-1][1], panels[-1][2]) != end[1:]:
+                panels.append(end)
+    n_rows, n_cols = spec.array.rows, spec.array.cols
+    letters = [chr(ord("A") + k) for k in range(n_rows)]
+    asked = [z / UM for _, t, _ in panels for z in t.values()] or [1.0]
+    reach = max(1e-9, max(abs(z) for z in asked))
+    fig, axes = plt.subplots(len(panels), 2, squeeze=False,
+                             figsize=(2 * (0.9 * n_cols + 1.6), 0.8 * n_rows * len(panels) + 1.2))
+    pos_norm = mcolors.TwoSlopeNorm(vcenter=0.0, vmin=-reach, vmax=reach)
+    err_norm = mcolors.TwoSlopeNorm(vcenter=0.0, vmin=-tolerance / UM, vmax=tolerance / UM)
+    for (title, want, got), (ax_t, ax_e) in zip(panels, axes):
+        t_grid = np.full((n_rows, n_cols), np.nan)
+        e_grid = np.full((n_rows, n_cols), np.nan)
+        for dev, z in want.items():
+            i, j = letters.index(dev[0]), int(dev[1:]) - 1
+            t_grid[i, j] = z / UM
+            e_grid[i, j] = (got[dev] - z) / UM
+        im_t = ax_t.imshow(t_grid, cmap="coolwarm", norm=pos_norm)
+        im_e = ax_e.imshow(np.clip(e_grid, -tolerance / UM, tolerance / UM), cmap="PuOr",
+                           norm=err_norm)
+        for i in range(n_rows):
+            for j in range(n_cols):
+                if np.isnan(t_grid[i, j]):
+                    continue
+                ax_t.text(j, i, f"{t_grid[i, j]:+.3g}", ha="center", va="center", fontsize=7)
+                off = abs(e_grid[i, j]) > tolerance / UM
+                ax_e.text(j, i, f"{e_grid[i, j]:+.2f}", ha="center", va="center", fontsize=7,
+                          weight="bold" if off else "normal", color="red" if off else "black")
+        for ax, what in ((ax_t, "asked [um]"), (ax_e, "got - asked [um]")):
+            ax.set_xticks(range(n_cols))
+            ax.set_xticklabels(range(1, n_cols + 1), fontsize=7)
+            ax.set_yticks(range(n_rows))
+            ax.set_yticklabels(letters, fontsize=7)
+            ax.set_title(f"{title}: {what}", fontsize=8)
+        fig.colorbar(im_t, ax=ax_t, fraction=0.046, pad=0.04)
+        fig.colorbar(im_e, ax=ax_e, fraction=0.046, pad=0.04)
+    worst = max((abs(g[d] - z) for _, t, g in panels for d, z in t.items()), default=0.0)
+    fig.suptitle(f"scene {scene}: positions asked and got (carried-state simulation); "
+                 f"worst error {worst / UM:.2f} um, tolerance {tolerance / UM:g} um",
+                 fontsize=9)
     fig.tight_layout()
     save(fig, path)

@@ -3,7 +3,8 @@
 Devices are named like a well plate: rows A, B, ... and columns 1, 2, ... (A1 ... E5 on
 the default 5 x 5 array).  Every device has a forward and a backward impacter pair.
 A *scene* is a named sequence of steps; a step lists which devices move forward and
-which backward, for how long; every other device must stay idle.  With
+which backward, for how long (or how far), or where each device must end
+(``targets_um``, docs/targets.md); every other device must stay idle.  With
 ``independent: true`` (the default when no scenes are given) every impacter must also
 be drivable on its own, which adds one implicit step per impacter.
 
@@ -38,6 +39,7 @@ from planner.yamlio import check_kind, format_loc, line_of, load_yaml, validate
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
 
 
 _Strict = Strict
@@ -234,6 +236,10 @@ class VerificationSpec(_Strict):
     #: Largest travel of any slider in one step (burst and settle dwell) [um]; None:
     #: half the array pitch.
     max_travel_um: PositiveFloat | None = None
+    #: How far from its target a slider of a ``targets_um`` step may end [um]: after the
+    #: step (state carried through the scene), and from every initial state of the
+    #: per-step check; and where every slider may end a scene that asks for positions.
+    position_tolerance_um: PositiveFloat = 2.0
 
 
 class Tolerance(_Strict):
@@ -309,23 +315,56 @@ class TrimSpec(_Strict):
 
 
 class StepSpec(_Strict):
-    """One step of a scene: who moves which way, for how long or how far.
+    """One step of a scene: who moves which way, for how long, how far or to where.
 
     ``duration_ms`` is the burst's length; ``travel_um`` asks the planner to size the
     burst so that the slowest slider of the step moves that far (predicted under the
     step's summed drive); with both, ``duration_ms`` is the longest burst allowed.
+
+    ``targets_um`` asks for positions instead: device selector (a device id, a row
+    letter, a column number or ``all``) -> position [um].  With ``relative_to:
+    scene_start`` (the default) a target is where the slider must be relative to where
+    it was when the scene started (so ``{all: 0}`` brings every slider back); with
+    ``relative_to: previous_step`` it is the move from where the slider ended the
+    previous step.  The planner drives each targeted slider toward its target (forward
+    for a positive move, backward for a negative one), switching each tone off when its
+    slider has gone far enough (:mod:`planner.gating`); devices without a target, or
+    already at it, stay.  ``duration_ms`` is then the longest burst allowed, and
+    ``forward``, ``backward`` and ``travel_um`` cannot be given.
     """
 
     name: str
     duration_ms: PositiveFloat | None = None
     travel_um: PositiveFloat | None = None
+    targets_um: dict[str, FiniteFloat] | None = None
+    relative_to: Literal["scene_start", "previous_step"] | None = None
     forward: list[str] = []
     backward: list[str] = []
 
+    @field_validator("targets_um", mode="before")
+    @classmethod
+    def _selector_keys(cls, value):
+        # a column selector written bare (``3: 10``) is an int key in YAML
+        if isinstance(value, dict):
+            return {str(k): v for k, v in value.items()}
+        return value
+
     @model_validator(mode="after")
     def _how_long(self):
+        if self.targets_um is not None:
+            if not self.targets_um:
+                raise ValueError("targets_um needs at least one device")
+            if self.travel_um is not None:
+                raise ValueError("targets_um and travel_um cannot be given together: a "
+                                 "step either moves its sliders to targets or by a travel")
+            if self.forward or self.backward:
+                raise ValueError("targets_um says which devices move and which way: "
+                                 "forward and backward cannot be given with it")
+            return self
+        if self.relative_to is not None:
+            raise ValueError("relative_to applies to targets_um only")
         if self.duration_ms is None and self.travel_um is None:
-            raise ValueError("a step needs duration_ms or travel_um (or both)")
+            raise ValueError("a step needs duration_ms, travel_um or targets_um")
         return self
 
 
@@ -398,12 +437,32 @@ class Step:
     backward: tuple[str, ...]
     #: Travel [m] the burst is sized for (step ``travel_um``), or None.
     travel_m: float | None = None
-    #: Longest burst [s] a ``travel_um`` step may get (its ``duration_ms``), or None.
+    #: Longest burst [s] a ``travel_um`` or ``targets_um`` step may get (its
+    #: ``duration_ms``), or None.
     max_duration_s: float | None = None
+    #: A ``targets_um`` step's targets: (device, position [m]) in the frame of
+    #: ``relative_to``, in device order; None for any other step.
+    targets_m: tuple[tuple[str, float], ...] | None = None
+    #: ``scene_start`` or ``previous_step`` (``targets_um`` steps).
+    relative_to: str = "scene_start"
+    #: (device, move [m]) of every targeted device: the spec's nominal move (its target
+    #: minus its previous target); the planner replaces it by the move from where the
+    #: carried-state scene simulation finds the slider when the step starts.
+    moves_m: tuple[tuple[str, float], ...] = ()
 
     @property
     def key(self) -> str:
         return f"{self.scene}/{self.name}"
+
+    @property
+    def targets(self) -> dict[str, float]:
+        """Device -> target [m] (empty unless a ``targets_um`` step)."""
+        return dict(self.targets_m or ())
+
+    @property
+    def moves(self) -> dict[str, float]:
+        """Device -> move [m] of a ``targets_um`` step (see ``moves_m``)."""
+        return dict(self.moves_m)
 
     def active_nodes(self) -> set[tuple[str, str]]:
         return {(d, "forward") for d in self.forward} | {(d, "backward") for d in self.backward}
@@ -424,35 +483,98 @@ class LoadedSpec:
         return self.spec.array.device_ids()
 
 
+def _select(sel, ids, rows, cols, loc, lines, source):
+    """The device ids one selector names (see the module docstring)."""
+    sel = str(sel).strip()
+    if sel.lower() == "all":
+        return list(ids)
+    if sel in ids:
+        return [sel]
+    if len(sel) == 1 and sel.upper() in rows:
+        return [i for i in ids if i[0] == sel.upper()]
+    if sel.isdigit() and sel in cols:
+        return [i for i in ids if i[1:] == sel]
+    raise SpecError(f"unknown device {sel!r} (devices are {ids[0]} ... {ids[-1]}, a row "
+                    "letter, a column number or 'all')", path=format_loc(loc),
+                    line=line_of(lines, loc), source=source)
+
+
 def _resolve(selectors, ids, rows, cols, where, lines, source):
     out = []
     for k, sel in enumerate(selectors):
-        sel = str(sel).strip()
-        if sel.lower() == "all":
-            chosen = list(ids)
-        elif sel in ids:
-            chosen = [sel]
-        elif len(sel) == 1 and sel.upper() in rows:
-            chosen = [i for i in ids if i[0] == sel.upper()]
-        elif sel.isdigit() and sel in cols:
-            chosen = [i for i in ids if i[1:] == sel]
-        else:
-            loc = where + (k,)
-            raise SpecError(f"unknown device {sel!r} (devices are {ids[0]} ... {ids[-1]}, a row "
-                            "letter, a column number or 'all')", path=format_loc(loc),
-                            line=line_of(lines, loc), source=source)
-        for c in chosen:
+        for c in _select(sel, ids, rows, cols, where + (k,), lines, source):
             if c not in out:
                 out.append(c)
     return tuple(out)
 
 
+def _max_travel_m(spec: ArraySpec) -> float:
+    """``verification.max_travel_um`` [m], or half the pitch."""
+    ver = spec.verification
+    return (ver.max_travel_um if ver.max_travel_um is not None
+            else 0.5 * spec.array.pitch_um) * 1e-6
+
+
+def _targets(st, base, ids, rows, cols, nominal, sized, max_travel, lines, source):
+    """(targets, moves) of a ``targets_um`` step, both ((device, [m]), ...) in device
+    order; updates the scene's ``nominal`` positions [m] in place.
+
+    ``sized``: device -> the earlier step that moved it by an amount the planner
+    sizes (its position in the scene frame is then unknown).
+    """
+    where = base + ("targets_um",)
+    rel = st.relative_to or "scene_start"
+    named = {}
+    for key, value in st.targets_um.items():
+        loc = where + (key,)
+        for dev in _select(key, ids, rows, cols, loc, lines, source):
+            if dev in named:
+                raise SpecError(f"device {dev} is given twice (keys {named[dev][0]!r} and "
+                                f"{key!r})", path=format_loc(loc), line=line_of(lines, loc),
+                                source=source)
+            named[dev] = (key, value * 1e-6)
+    targets, moves = [], []
+    for dev in [i for i in ids if i in named]:
+        key, target = named[dev]
+        loc = where + (key,)
+        if rel == "scene_start":
+            if dev in sized:
+                raise SpecError(f"{dev} was moved by step {sized[dev]!r} by an amount the "
+                                "planner sizes (duration_ms or travel_um), so where it is "
+                                "relative to the scene start is not known: give this step "
+                                "relative_to: previous_step", path=format_loc(loc),
+                                line=line_of(lines, loc), source=source)
+            move = target - nominal[dev]
+        else:
+            move = target
+        if abs(move) > max_travel * (1 + 1e-12):
+            raise SpecError(f"{dev}: a move of {move * 1e6:+.4g} um in one step exceeds "
+                            f"verification.max_travel_um ({max_travel * 1e6:g} um); split "
+                            "it over two steps or raise max_travel_um", path=format_loc(loc),
+                            line=line_of(lines, loc), source=source)
+        nominal[dev] += move
+        targets.append((dev, target))
+        moves.append((dev, move))
+    if not any(m != 0.0 for _, m in moves):
+        raise SpecError("a step must move at least one device: every target is where its "
+                        "device already is", path=format_loc(where),
+                        line=line_of(lines, where), source=source)
+    return tuple(targets), tuple(moves)
+
+
 def resolve_steps(spec: ArraySpec, lines=None, source=None) -> tuple[Step, ...]:
-    """Resolve every scene's steps to device ids, checking ids and contradictions."""
+    """Resolve every scene's steps to device ids, checking ids and contradictions.
+
+    A ``targets_um`` step's devices move forward or backward by the sign of their
+    nominal move (target minus the previous target of the scene, or the target itself
+    with ``relative_to: previous_step``); a move beyond the largest travel of one step
+    (``verification.max_travel_um``) is refused here, naming the device.
+    """
     lines = lines or {}
     ids = spec.array.device_ids()
     rows = {i[0] for i in ids}
     cols = {i[1:] for i in ids}
+    max_travel = _max_travel_m(spec)
     for dev in spec.devices:
         if dev not in ids:
             loc = ("devices", dev)
@@ -465,6 +587,10 @@ def resolve_steps(spec: ArraySpec, lines=None, source=None) -> tuple[Step, ...]:
             raise SpecError("a scene needs at least one step", path=format_loc(loc),
                             line=line_of(lines, loc), source=source)
         names = set()
+        # where each slider should be relative to the scene start [m], as the targets
+        # ask, and the devices an earlier step moved by an amount the planner sizes
+        nominal = {i: 0.0 for i in ids}
+        sized = {}
         for i, st in enumerate(step_list):
             base = ("scenes", scene, i)
             if st.name in names:
@@ -472,6 +598,20 @@ def resolve_steps(spec: ArraySpec, lines=None, source=None) -> tuple[Step, ...]:
                                 path=format_loc(base + ("name",)),
                                 line=line_of(lines, base + ("name",)), source=source)
             names.add(st.name)
+            cap = st.duration_ms * 1e-3 if st.duration_ms is not None else None
+            if st.targets_um is not None:
+                targets, moves = _targets(st, base, ids, rows, cols, nominal, sized,
+                                          max_travel, lines, source)
+                fwd = tuple(d for d, m in moves if m > 0)
+                bwd = tuple(d for d, m in moves if m < 0)
+                # the planner gates the burst (planning.targets); until then its
+                # duration is its cap, or the default cap
+                steps.append(Step(scene, st.name, len(steps),
+                                  cap if cap is not None else DEFAULT_MAX_BURST_S, fwd, bwd,
+                                  max_duration_s=cap, targets_m=targets,
+                                  relative_to=st.relative_to or "scene_start",
+                                  moves_m=moves))
+                continue
             fwd = _resolve(st.forward, ids, rows, cols, base + ("forward",), lines, source)
             bwd = _resolve(st.backward, ids, rows, cols, base + ("backward",), lines, source)
             both = sorted(set(fwd) & set(bwd))
@@ -483,8 +623,8 @@ def resolve_steps(spec: ArraySpec, lines=None, source=None) -> tuple[Step, ...]:
             if not fwd and not bwd:
                 raise SpecError("a step must move at least one device", path=format_loc(base),
                                 line=line_of(lines, base), source=source)
+            sized.update({d: st.name for d in fwd + bwd})
             travel = st.travel_um * 1e-6 if st.travel_um is not None else None
-            cap = st.duration_ms * 1e-3 if st.duration_ms is not None else None
             # a travel_um step gets its burst from the planner (planning.motion); until
             # then its duration is its cap, or the default cap
             duration = cap if cap is not None else DEFAULT_MAX_BURST_S

@@ -109,8 +109,13 @@ def command(spec_or_plan, step_name, fmt, out, plot, sample_rate, seed, reoptimi
     limit = None if limit_um is None else limit_um * UM
 
     notes = []
-    parts = _synthesise(tones.frequencies, tones.amplitudes,
-                        None if reoptimise else tones.phases, rate, seed, limit, mode, notes)
+    if step.playback == "once":
+        # a targets step: its tones gated one after the other, as the plan verified them
+        parts = _burst(step, tones, None if reoptimise else tones.phases, rate, seed, notes)
+    else:
+        parts = _synthesise(tones.frequencies, tones.amplitudes,
+                            None if reoptimise else tones.phases, rate, seed, limit, mode,
+                            notes)
     written = []
     for i, (idx, wf) in enumerate(parts, 1):
         path = out if len(parts) == 1 else _sub_path(out, exporter.suffix, i)
@@ -196,6 +201,28 @@ def _synthesise(freqs, amps, phases, rate, seed, limit, mode, notes):
                      f"instead of scaling by {wf.scale:.4f}")
         return groups
     return [(np.arange(len(f)), wf)]
+
+
+def _burst(step, drive, phases, rate, seed, notes):
+    """[(tone indices, Burst)] of a gated step (``playback: once``): its tones, each
+    gated at its recorded ``start_s`` and ``gate_s`` with the step's ramp
+    (:func:`planner.gating.gate`); one tone plays at a time, so no peak limit applies
+    to the sum."""
+    import numpy as np
+
+    from planner.gating import gate
+
+    starts = [t.start_s for t in step.tones]
+    gates = [t.gate_s for t in step.tones]
+    ramp = (step.gating or {}).get("ramp_s")
+    if any(not isinstance(x, (int, float)) for x in starts + gates + [ramp]):
+        raise ValueError(f"step {step.key}: a gated step (playback: once) needs each "
+                         "tone's start_s and gate_s and gating.ramp_s")
+    [(idx, wf)] = _synthesise(drive.frequencies, drive.amplitudes, phases, rate, seed, None,
+                              "scale", notes)
+    notes.append("a gated burst, played once (not looped): each tone fades in at its "
+                 f"start_s and out at its gate_s over {ramp * 1e3:g} ms")
+    return [(idx, gate(wf, np.asarray(starts), np.asarray(gates), ramp))]
 
 
 def _sub_path(out: Path, suffix: str, i: int) -> Path:

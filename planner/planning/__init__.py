@@ -5,6 +5,7 @@
   cannot honour are refused;
 - :mod:`~planner.planning.pipeline` -- the stage order and the repair loop;
 - :mod:`~planner.planning.designs`, :mod:`~planner.planning.drives`,
+  :mod:`~planner.planning.targets` (the gated bursts of ``targets_um`` steps),
   :mod:`~planner.planning.verify`, :mod:`~planner.planning.scenes`,
   :mod:`~planner.planning.repair` -- the stages;
 - :mod:`~planner.planning.record` -- the plan.json dict;

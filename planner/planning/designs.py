@@ -68,11 +68,16 @@ def played_tones(steps, frequencies, waveforms):
 
 
 def _multi_tone_steps(steps, frequencies, playing):
-    """Node -> keys of the multi-tone steps in which it plays (``playing``) or is idle."""
+    """Node -> keys of the multi-tone steps in which it plays (``playing``) or is idle.
+
+    A ``targets_um`` step is none: its tones never play all together but take turns in
+    its gated burst, a few at a time within the sliders' dynamic friction
+    (:mod:`planner.planning.targets`), and the verification simulates that burst."""
     out = {n: [] for n in frequencies}
     for st in steps:
         active = _active(st)
-        if len({frequencies[n] for n in active if n in frequencies}) < 2:
+        if (st.targets_m is not None
+                or len({frequencies[n] for n in active if n in frequencies}) < 2):
             continue
         for n in frequencies:
             if (n in active) == playing:

@@ -29,8 +29,36 @@ def synthesize_steps(settings: Settings, steps, assignment, seed=None):
 
 
 def drive_of(waveform) -> Drive:
-    """The model's drive of a waveform (its tones, amplitudes and phases)."""
+    """The model's drive of a waveform (its tones, amplitudes and phases, all at full
+    amplitude: for a gated burst, its summed drive before any gate)."""
     return Drive(waveform.frequencies, waveform.amplitudes, waveform.phases)
+
+
+def program_of(waveform, duration):
+    """What a step plays, as (duration [s], Drive) stretches played in turn.
+
+    A loop (:class:`planner.synthesis.Waveform`) plays its summed drive for
+    ``duration`` [s]: one stretch.  A gated burst (:class:`planner.gating.Burst`)
+    plays its :meth:`~planner.gating.Burst.program` (its own length; ``duration`` is
+    not read).
+    """
+    from planner.gating import Burst
+
+    if isinstance(waveform, Burst):
+        return waveform.program()
+    return ((float(duration), drive_of(waveform)),)
+
+
+def scaled(waveform, factor, why):
+    """``waveform`` with every amplitude (and its samples, peak, rms and scale) times
+    ``factor``; frequencies, phases and crest factor unchanged; ``why`` is added to its
+    warnings.  A gated burst keeps its gates."""
+    import dataclasses
+
+    return dataclasses.replace(
+        waveform, samples=waveform.samples * factor, amplitudes=waveform.amplitudes * factor,
+        peak=waveform.peak * factor, rms=waveform.rms * factor, scale=waveform.scale * factor,
+        warnings=waveform.warnings + (why,))
 
 
 def limit_acceleration(settings: Settings, waveforms):
@@ -44,8 +72,6 @@ def limit_acceleration(settings: Settings, waveforms):
         ``notes``: step key -> {"peak_displacement_m", "peak_acceleration_m_s2"
         (after any lowering), "acceleration_scale" (1 if none)}.
     """
-    import dataclasses
-
     from planner.planning.motion import drive_peaks
 
     out, notes = {}, {}
@@ -58,11 +84,8 @@ def limit_acceleration(settings: Settings, waveforms):
             # not above it by rounding
             scale = limit / ap * (1.0 - 1e-6)
             # the same loop scaled: frequencies, phases and crest factor unchanged
-            w = dataclasses.replace(
-                w, samples=w.samples * scale, amplitudes=w.amplitudes * scale,
-                peak=w.peak * scale, rms=w.rms * scale, scale=w.scale * scale,
-                warnings=w.warnings + (f"every amplitude lowered by x{scale:.4g} to meet "
-                                       "drive.max_acceleration_g",))
+            w = scaled(w, scale, f"every amplitude lowered by x{scale:.4g} to meet "
+                                 "drive.max_acceleration_g")
             zp, ap = drive_peaks(w)
         out[key] = w
         notes[key] = {"peak_displacement_m": zp, "peak_acceleration_m_s2": ap,

@@ -46,8 +46,6 @@ PROBE_S = 5e-3
 MIN_BURST_S = 1e-3
 #: Bursts sized from a travel are rounded up to this [s].
 BURST_QUANTUM_S = 1e-4
-#: Samples per period of the highest tone on the coarse grid of :func:`drive_peaks`.
-PEAK_SAMPLES_PER_PERIOD = 16
 #: The drive switched off.
 REST = Drive([1.0], [0.0])
 
@@ -173,9 +171,28 @@ def settle(impacters, sliders, contacts, states, sl_states, cap, at_least=0.0):
         t += SETTLE_CHUNK_S
 
 
-def device_travel(own, dev, slider, contact, drive, duration, cap, starts=None):
-    """One device from rest (or ``starts``: node -> (x0, v0, stuck)) through a burst
-    and its settle dwell.
+def run_program(impacters, sliders, contacts, program, states, sl_states):
+    """:func:`run_phase` through every (duration [s], model.Drive) stretch of
+    ``program`` in turn, the states carried across (a step's drive as
+    :func:`planner.planning.drives.program_of` gives it: one stretch for a loop, one
+    per stretch between ramp edges for a gated burst).
+
+    Returns
+    -------
+    dict
+        Node -> impacts over the whole program.
+    """
+    hits = {}
+    for duration, drive in program:
+        for n, h in run_phase(impacters, sliders, contacts, drive, duration, states,
+                              sl_states).items():
+            hits[n] = hits.get(n, 0) + h
+    return hits
+
+
+def device_travel(own, dev, slider, contact, program, cap, starts=None):
+    """One device from rest (or ``starts``: node -> (x0, v0, stuck)) through a step's
+    ``program`` (:func:`run_program`) and its settle dwell.
 
     Returns
     -------
@@ -183,7 +200,7 @@ def device_travel(own, dev, slider, contact, drive, duration, cap, starts=None):
     """
     states = dict(starts or {})
     sl = {dev: (0.0, 0.0)}
-    run_phase(own, {dev: slider}, {dev: contact}, drive, duration, states, sl)
+    run_program(own, {dev: slider}, {dev: contact}, program, states, sl)
     burst = sl[dev][0]
     dwell, ok, _ = settle(own, {dev: slider}, {dev: contact}, states, sl, cap)
     return burst, sl[dev][0], dwell, ok
@@ -236,38 +253,12 @@ def size_bursts(settings, steps, waveforms, impacters, sliders, drive_of):
 
 
 def drive_peaks(waveform):
-    """(peak |zeta| [m], peak |zeta''| [m/s^2]) of a summed drive over its loop.
+    """(peak |zeta| [m], peak |zeta''| [m/s^2]) of a summed drive over its loop, or of
+    a gated burst (:class:`planner.gating.Burst`) over its length
+    (:func:`planner.gating.tone_peaks`)."""
+    from planner.gating import Burst, burst_peaks, tone_peaks
 
-    zeta(t) = sum Z_i cos(w_i t + phi_i) and zeta''(t) = -sum w_i^2 Z_i cos(w_i t +
-    phi_i) on a grid of :data:`PEAK_SAMPLES_PER_PERIOD` points per period of the
-    highest tone over the loop, then refined near each of the largest grid maxima by
-    a bounded scalar search (the bound sum w_i^2 Z_i is only reached if every tone
-    peaks together, which a low-crest-factor drive avoids by construction).
-    """
-    from scipy.optimize import minimize_scalar
-
-    f = np.asarray(waveform.frequencies, dtype=float)
-    z = np.asarray(waveform.amplitudes, dtype=float)
-    ph = np.asarray(waveform.phases, dtype=float)
-    w = 2.0 * np.pi * f
-    loop = float(waveform.loop_length)
-    dt = 1.0 / (PEAK_SAMPLES_PER_PERIOD * f.max())
-    n = min(int(math.ceil(loop / dt)), 4_000_000)
-    dt = loop / n
-    out = []
-    for weight in (z, w * w * z):
-        def value(t, weight=weight):
-            return abs(float(np.sum(weight * np.cos(w * t + ph))))
-        best = 0.0
-        cands = []
-        for start in range(0, n, 200_000):
-            t = (np.arange(start, min(n, start + 200_000)) * dt)
-            y = np.abs(np.cos(np.outer(t, w) + ph) @ weight)
-            top = np.argsort(y)[-4:]
-            cands += [(float(y[i]), float(t[i])) for i in top]
-        for _, t0 in sorted(cands)[-8:]:
-            res = minimize_scalar(lambda t: -value(t), bounds=(t0 - dt, t0 + dt),
-                                  method="bounded", options={"xatol": dt * 1e-6})
-            best = max(best, value(t0), -float(res.fun))
-        out.append(best)
-    return out[0], out[1]
+    if isinstance(waveform, Burst):
+        return burst_peaks(waveform)
+    return tone_peaks(waveform.frequencies, waveform.amplitudes, waveform.phases,
+                      waveform.loop_length)

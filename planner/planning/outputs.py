@@ -58,6 +58,18 @@ def _drive_figure_name(step_key):
     return f"drive_{step_key.replace('/', '__')}.png"
 
 
+def _pattern_figure_name(scene):
+    return f"pattern_{scene}.png"
+
+
+def _target_scenes(scene_rows):
+    """Scene -> its rows, for every scene that asks for positions (``targets_um``)."""
+    out = {}
+    for r in scene_rows:
+        out.setdefault(r["scene"], []).append(r)
+    return {k: v for k, v in out.items() if any(r.get("targets_m") for r in v)}
+
+
 def _figures(result, out_dir):
     from planner import report_plots as rp
 
@@ -91,6 +103,9 @@ def _figures(result, out_dir):
         rp.waveform_and_spectrum(result.waveforms[k], figs / _drive_figure_name(k), k)
     if result.data["scenes"]:
         rp.slider_positions(result.data["scenes"], figs / "slider_positions.png")
+    for scene, rows in _target_scenes(result.data["scenes"]).items():
+        rp.target_map(settings.spec, scene, rows, settings.position_tolerance_m,
+                      figs / _pattern_figure_name(scene))
     if result.data.get("manufacturability"):
         rp.manufacturability(result.data["impacters"], result.data["manufacturability"],
                              figs / "manufacturability.png")
@@ -239,6 +254,7 @@ def _report(result, out_dir):
                             "largest idle displacement [um]", "checks passed"], rows)
         lines.append("")
     if d["scenes"]:
+        lines += _positions_section(d, ver)
         lines += _scene_section(d["scenes"])
     fails = ver[~ver["passed"]]
     lines += ["## Failures", ""]
@@ -314,6 +330,15 @@ def _motion_notes(d):
         if scale is not None and scale < 1.0:
             lines.append(f"- {key}: every tone amplitude lowered by x{scale:.3g} to meet "
                          f"drive.max_acceleration_g (peak now {rec['peak_acceleration_g']:.0f} g)")
+        gating = rec.get("gating")
+        if gating is not None:
+            played = [n for n, g in gating["gates_s"].items() if g > 0]
+            lines.append(
+                f"- {key}: a gated burst of {rec['duration_s'] * 1e3:.4g} ms, played once: "
+                f"its {len(played)} tones one after the other, each fading in and out over "
+                f"{gating['ramp_s'] * 1e3:g} ms and playing until its slider has gone its "
+                f"move ({gating['search_iterations']} simulation(s) of the step to find "
+                "them)")
         if rec.get("requested_travel_m") is not None:
             v = (rec.get("sizing") or {}).get("slowest_probe_speed_m_s")
             sized = (rec.get("sizing") or {}).get("sized_s") or rec["duration_s"]
@@ -332,6 +357,69 @@ def _motion_notes(d):
     for rnd in d["verification"].get("motion_repairs", []):
         lines += [f"- repair round {rnd['round']}: {a}" for a in rnd["actions"]]
     return (["## What the planner changed", ""] + lines + [""]) if lines else []
+
+
+def _positions_section(d, ver):
+    """Asked against got for every scene with targets: each targets step's slider
+    positions (carried-state simulation) and the worst error from the per-step check's
+    initial positions, and where every slider rests at the end."""
+    scenes = _target_scenes(d["scenes"])
+    if not scenes:
+        return []
+    tol = d["verification"]["position_tolerance_m"]
+    lines = ["## Positions asked and got", "",
+             "Each targets step is a gated burst (What the planner changed); positions "
+             "from the scene simulated with every state carried from step to step, "
+             f"relative to where the scene started.  Tolerance {tol / UM:g} um "
+             "(verification.position_tolerance_um); 'worst from x0': the largest error of "
+             "the step's own check, which starts the slider's impacter from each of the "
+             "x0 grid instead of the carried state (the move it was gated for).", ""]
+    worst_x0 = {}
+    if "worst_position_error_m" in ver:
+        for _, r in ver.dropna(subset=["worst_position_error_m"]).iterrows():
+            worst_x0[(r["scene"], r["step"], r["device"])] = r["worst_position_error_m"]
+    for scene, rows in scenes.items():
+        targeted = [r for r in rows if r.get("targets_m")]
+        tail = [r for r in rows if not r["driven"]]
+        devices = sorted(tail[0]["final_positions_m"] if tail else rows[0]["positions_m"],
+                         key=device_key)
+        header = ["device"]
+        for r in targeted:
+            header += [f"{r['step']}: asked [um]", "got [um]", "error [um]", "worst from x0 [um]"]
+        header += ["end: asked [um]", "rests at [um]", "error [um]"]
+        table, worst = [], 0.0
+        for dev in devices:
+            row = [dev]
+            for r in targeted:
+                if dev in r["targets_m"]:
+                    err = r["position_errors_m"][dev]
+                    worst = max(worst, abs(err))
+                    x0 = worst_x0.get((scene, r["step"], dev))
+                    row += [_fmt(r["targets_m"][dev] / UM, ".2f"),
+                            _fmt(r["positions_m"][dev] / UM, ".2f"), _err(err, tol),
+                            "-" if x0 is None or x0 != x0 else _err(x0, tol)]
+                else:
+                    row += ["stays", _fmt(r["positions_m"][dev] / UM, ".2f"), "-", "-"]
+            if tail and dev in tail[0].get("expected_positions_m", {}):
+                want = tail[0]["expected_positions_m"][dev]
+                err = tail[0]["final_positions_m"][dev] - want
+                worst = max(worst, abs(err))
+                row += [_fmt(want / UM, ".2f"), _fmt(tail[0]["final_positions_m"][dev] / UM, ".2f"),
+                        _err(err, tol)]
+            else:
+                row += ["-", _fmt(tail[0]["final_positions_m"][dev] / UM, ".2f") if tail else "-",
+                        "-"]
+            table.append(row)
+        lines += [f"**{scene}**: worst error {worst / UM:.2f} um.", ""]
+        lines += _md_table(header, table)
+        lines += ["", f"![pattern {scene}](figures/{_pattern_figure_name(scene)})", ""]
+    return lines
+
+
+def _err(err, tol):
+    """An error [m] for the positions table, bold beyond the tolerance."""
+    text = f"{err / UM:+.2f}"
+    return f"**{text}**" if abs(err) > tol else text
 
 
 def _scene_section(scene_rows):

@@ -1,8 +1,9 @@
 """The stage order and the repair loop; each stage lives in its own module.
 
 settings -> steps -> assign -> drives (acceleration limit) -> designs -> burst sizing
--> verify (-> repair, re-assign ...) -> scenes with carried state (-> motion repair:
-shorter bursts, longer dwells) -> coupling -> manufacturability -> record.  Data flows one way; every stage reads the
+-> gates of the targets steps (scenes with carried state) -> verify (-> repair,
+re-assign ...) -> scenes with carried state (-> motion repair: shorter bursts, longer
+dwells) -> coupling -> manufacturability -> record.  Data flows one way; every stage reads the
 :class:`~planner.planning.settings.Settings` and the earlier stages' results only.
 """
 
@@ -25,6 +26,7 @@ from planner.planning.repair import (reseed_idle, reseed_slow, scenes_and_motion
                                      widen_separations)
 from planner.planning.result import Plan
 from planner.planning.settings import Settings, resolve_settings
+from planner.planning.targets import place_targets
 from planner.planning.verify import TRAVEL_OVER, UNSETTLED, check_steps, coupling_matrix
 
 
@@ -103,8 +105,8 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
             on_assignment(settings, steps, assignment)
         # the drives depend on the frequencies only, so they come before the designs,
         # which must be silent under the summed drive of every step they sit out
-        waveforms = timed("drive", synthesize_steps, settings, steps, assignment)
-        waveforms, drive_notes = timed("drive", limit_acceleration, settings, waveforms)
+        synthesized = timed("drive", synthesize_steps, settings, steps, assignment)
+        waveforms, drive_notes = timed("drive", limit_acceleration, settings, synthesized)
         tick("design", total=len(assignment.frequencies))
         designs = timed("design", design_all, settings, steps, assignment, cache,
                         progress=lambda n: tick("design", n), waveforms=waveforms, jobs=jobs,
@@ -116,9 +118,20 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         # steps that give travel_um get their burst from the predicted speed
         run_steps, sizing = size_bursts(settings, steps, waveforms, impacters, sliders,
                                         drive_of)
+        # targets steps play a gated burst, found from the carried state of their scene;
+        # its tones play one after the other, so at their amplitudes as synthesised, not
+        # as lowered for the peak of their whole sum
+        played, gating = waveforms, {}
+        targeted = {st.key: synthesized[st.key] for st in run_steps if st.targets_m is not None}
+        if targeted:
+            tick("targets", total=len(targeted))
+            run_steps, played, gating = timed(
+                "targets", place_targets, settings, run_steps, {**waveforms, **targeted},
+                assignment.frequencies, impacters, sliders,
+                progress=lambda k: tick("targets", k))
         tick("verify", total=len(steps))
         ver_rows, failures = [], []
-        for rows, fails in check_steps(settings, run_steps, waveforms, impacters, sliders,
+        for rows, fails in check_steps(settings, run_steps, played, impacters, sliders,
                                        progress=lambda k: tick("verify", k),
                                        scheduler=scheduler):
             ver_rows += rows
@@ -132,8 +145,9 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         score = (sum(1 for d in designs.values() if not d.feasible),
                  sum(1 for f in failures if f.kind not in MOTION_KINDS))
         if best is None or score <= best[0]:
-            best = (score, round_, (assignment, waveforms, drive_notes, designs, impacters,
-                                    devices, sliders, run_steps, sizing, ver_rows, failures))
+            best = (score, round_, (assignment, waveforms, played, drive_notes, gating, designs,
+                                    impacters, devices, sliders, run_steps, sizing, ver_rows,
+                                    failures))
         if not failed_rows or round_ == settings.repair_rounds:
             break
         # repair: widen the separations the failures point at, re-colour, re-design;
@@ -150,8 +164,8 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         if not (widened or reseeded or answered):
             break
     if best[1] != rounds[-1]["round"]:
-        (assignment, waveforms, drive_notes, designs, impacters, devices, sliders, run_steps,
-         sizing, ver_rows, failures) = best[2]
+        (assignment, waveforms, played, drive_notes, gating, designs, impacters, devices,
+         sliders, run_steps, sizing, ver_rows, failures) = best[2]
         rounds.append({"round": None, "kept_round": best[1],
                        "why": "fewer infeasible designs and failures than the last round"})
     ts = time.perf_counter()
@@ -159,7 +173,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     # followed by its settle dwell; what they find counts in the verification, and the
     # motion repair acts on it (shorter bursts, longer dwells)
     (run_steps, ver_rows, failures, scene_rows, motion_repairs,
-     step_settle) = scenes_and_motion(settings, run_steps, waveforms, impacters, sliders,
+     step_settle) = scenes_and_motion(settings, run_steps, played, impacters, sliders,
                                       ver_rows, failures, scheduler=scheduler)
     tones = sorted(set(assignment.frequencies.values()))
     coupling = coupling_matrix(impacters, tones, settings, settings.single_step_s)
@@ -174,16 +188,16 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     # not shown silent at its forbidden tones on the designer's fine grid
     passed = bool(ver["passed"].all()) and not problems
     motion = {"sizing": sizing, "drive": drive_notes, "settle_s": step_settle,
-              "repairs": motion_repairs, "design_problems": problems}
+              "repairs": motion_repairs, "design_problems": problems, "gating": gating}
     data, impacter_recs, device_recs, step_recs = build_record(
-        settings, run_steps, assignment, designs, sliders, waveforms, ver_rows, passed, rounds,
+        settings, run_steps, assignment, designs, sliders, played, ver_rows, passed, rounds,
         scene_rows, motion, manufacturability)
     timings["total"] = time.perf_counter() - t0
     return Plan(
         impacters=pd.DataFrame(impacter_recs), devices=pd.DataFrame(device_recs),
         steps=pd.DataFrame(step_recs), verification=ver, coupling=coupling,
         scenes=pd.DataFrame(scene_rows), passed=passed, data=data, timings=timings,
-        settings=settings, waveforms=waveforms, designs=designs, assignment=assignment,
+        settings=settings, waveforms=played, designs=designs, assignment=assignment,
         failures=tuple(failures),
         design_cache=(None if store is None else
                       {"path": str(store.path), "read": store.hits, "written": store.writes,

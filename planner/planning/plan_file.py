@@ -69,11 +69,14 @@ class PlanFileError(SpecError):
 
 @dataclass(frozen=True)
 class Tone:
-    """One tone of a step's drive."""
+    """One tone of a step's drive; a gated step's tones (``playback: once``) also carry
+    when each starts and stops playing [s]."""
 
     frequency_hz: Positive
     amplitude_m: Positive
     phase_rad: Number
+    start_s: NonNegative | None = None
+    gate_s: NonNegative | None = None
 
 
 @dataclass(frozen=True)
@@ -96,6 +99,11 @@ class StepRecord:
     #: The factor the acceleration limit lowered the step's tones by (1: none; None in
     #: plans from before the limit).
     acceleration_scale: Positive | None = None
+    #: ``loop`` (a seamless loop played for ``duration_s``) or ``once`` (a gated burst:
+    #: each tone between its ``start_s`` and ``gate_s``, :mod:`planner.gating`).
+    playback: str = "loop"
+    #: A gated step's gating (``ramp_s`` and more, plan.json's ``gating``).
+    gating: dict | None = None
 
     @property
     def key(self) -> str:

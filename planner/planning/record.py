@@ -58,29 +58,55 @@ def impacter_record(n, assignment, design):
 def step_record(step, waveform, motion=None):
     """One step's plan.json entry: its tones, crest factor and waveform files; with
     ``motion`` (the pipeline's motion notes, see :func:`build_record`) its settle dwell,
-    the summed drive's peaks and every slider's predicted travel."""
+    the summed drive's peaks and every slider's predicted travel.
+
+    A ``targets_um`` step also records ``targets_m`` (device -> target [m] as the spec
+    gives it, relative to ``relative_to``), ``moves_m`` (device -> the move [m] its
+    burst was gated for, from where the scene left the slider) and ``gating`` (the
+    ramp, each node's start and gate [s] and the search's iterations), and each of its
+    tones its ``start_s`` and ``gate_s`` (gate 0: not played); its ``playback`` is
+    ``once`` (a gated burst, :class:`planner.gating.Burst`) where other steps
+    ``loop``, and its peaks and acceleration scale are the burst's."""
+    from planner.gating import Burst
+
     stem = f"{step.scene}__{step.name}"
     w = waveform
     extra = {}
     if motion is not None:
-        drive = motion["drive"][step.key]
+        drive = dict(motion["drive"][step.key])
+        gating = (motion.get("gating") or {}).get(step.key)
+        if gating is not None:
+            # the burst's own tones, not the loop's (lowered for a sum that never plays)
+            drive = {"peak_displacement_m": gating["peak_displacement_m"],
+                     "peak_acceleration_m_s2": gating["peak_acceleration_m_s2"],
+                     "acceleration_scale": gating["acceleration_scale"]}
         extra = {"settle_s": motion["settle_s"].get(step.key, 0.0),
                  "peak_displacement_m": drive["peak_displacement_m"],
                  "peak_acceleration_m_s2": drive["peak_acceleration_m_s2"],
                  "peak_acceleration_g": drive["peak_acceleration_m_s2"] / G0,
                  "acceleration_scale": drive["acceleration_scale"],
                  "travel_m": motion["travel"].get(step.key, {})}
+        if gating is not None:
+            extra["gating"] = {"ramp_s": gating["ramp_s"], "starts_s": gating["starts_s"],
+                               "gates_s": gating["gates_s"],
+                               "search_iterations": gating["iterations"]}
         if step.travel_m is not None:
             sized = motion["sizing"].get(step.key, {})
             extra["requested_travel_m"] = step.travel_m
             extra["sizing"] = {"slowest_probe_speed_m_s": sized.get("slowest_m_s"),
                                "probe_s": PROBE_S, "sized_s": sized.get("sized_s")}
+    if step.targets_m is not None:
+        extra = {"targets_m": dict(step.targets_m), "relative_to": step.relative_to,
+                 "moves_m": dict(step.moves_m), **extra}
     return {
         "scene": step.scene, "name": step.name, "index": step.index,
-        "duration_s": step.duration_s, **extra,
+        "duration_s": step.duration_s,
+        "playback": "once" if isinstance(w, Burst) else "loop", **extra,
         "forward": list(step.forward), "backward": list(step.backward),
-        "tones": [{"frequency_hz": float(f), "amplitude_m": float(z), "phase_rad": float(p)}
-                  for f, z, p in zip(w.frequencies, w.amplitudes, w.phases)],
+        "tones": [{"frequency_hz": float(f), "amplitude_m": float(z), "phase_rad": float(p),
+                   **({"start_s": float(w.starts_s[i]), "gate_s": float(w.gates_s[i])}
+                      if isinstance(w, Burst) else {})}
+                  for i, (f, z, p) in enumerate(zip(w.frequencies, w.amplitudes, w.phases))],
         "crest_factor": float(w.crest_factor), "scale": float(w.scale),
         "loop_length_s": float(w.loop_length),
         "files": {fmt: f"waveforms/{stem}{EXPORTERS[fmt].suffix}" for fmt in EXPORT_FORMATS},
@@ -106,9 +132,10 @@ def build_record(settings, steps, assignment, designs, sliders, waveforms, ver_r
 
     ``manufacturability``: the block of :func:`planner.planning.manufacture.assess`.
 
-    ``motion``: {"sizing", "drive", "settle_s", "repairs"} of the pipeline (burst sizing
-    notes, drive peaks and acceleration scales, settle dwells by step key, motion
-    repairs); adds the per-step motion keys.
+    ``motion``: {"sizing", "drive", "settle_s", "repairs", "gating"} of the pipeline
+    (burst sizing notes, drive peaks and acceleration scales, settle dwells by step key,
+    motion repairs, the gate search of each ``targets_um`` step); adds the per-step
+    motion keys.
     """
     if motion is not None:
         motion = {**motion, "travel": step_travels(ver_rows)}
@@ -140,7 +167,9 @@ def build_record(settings, steps, assignment, designs, sliders, waveforms, ver_r
         "verification": {"passed": passed, "repair_rounds": rounds,
                          "motion_repairs": (motion or {}).get("repairs", []),
                          "design_problems": (motion or {}).get("design_problems", []),
-                         "max_travel_m": settings.max_travel_m, "steps": per_step},
+                         "max_travel_m": settings.max_travel_m,
+                         "position_tolerance_m": settings.position_tolerance_m,
+                         "steps": per_step},
         "scenes": scene_rows,
     }
     if manufacturability is not None:

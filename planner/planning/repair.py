@@ -102,6 +102,7 @@ def repair_motion(settings, steps, failures, dwells, longer_dwells):
 
     - a slider travels over ``verification.max_travel_um`` in a step: that step's burst
       is shortened in proportion (to 0.8 of limit / travel, at least one burst quantum);
+      not a ``targets_um`` step's, whose gates set where each slider stops;
     - an idle slider moves in a scene step from the state the previous step left: the
       previous step's dwell is doubled (up to ``settings.max_settle_s``), so that its
       impacters ring down further before the next tones start;
@@ -129,6 +130,8 @@ def repair_motion(settings, steps, failures, dwells, longer_dwells):
             worst[f.step] = max(worst.get(f.step, 0.0), abs(f.value))
     for i, travel in sorted(worst.items()):
         st = by_index[i]
+        if st.targets_m is not None:
+            continue
         factor = 0.8 * settings.max_travel_m / travel
         burst = max(BURST_QUANTUM_S,
                     math.floor(st.duration_s * factor / BURST_QUANTUM_S) * BURST_QUANTUM_S)
@@ -183,7 +186,7 @@ def merge_carried(ver_rows, carried, steps, scene_rows, dwells):
         ``settle``: step key -> the step's settle dwell [s]: the scene's for scene
         steps (at least the verification's), else the verification's.
     """
-    from planner.planning.verify import CARRIED_IDLE, TRAVEL_OVER, UNSETTLED
+    from planner.planning.verify import CARRIED_IDLE, OFF_TARGET, TRAVEL_OVER, UNSETTLED
 
     rows = [dict(r) for r in ver_rows]
     for f in carried:
@@ -193,6 +196,9 @@ def merge_carried(ver_rows, carried, steps, scene_rows, dwells):
             text = f"carried state: travel {f.value * 1e6:.4g} um over the limit"
         elif f.kind == UNSETTLED:
             text = f"carried state: still moving {f.value * 1e3:g} ms after the drive stops"
+        elif f.kind == OFF_TARGET:
+            text = (f"carried state: ends {f.value * 1e6:+.3g} um from where the scene asks "
+                    "(beyond verification.position_tolerance_um)")
         else:
             text = f"carried state: {f.kind}"
         for r in rows:

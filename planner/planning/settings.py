@@ -146,6 +146,8 @@ class Settings:
         Largest peak base acceleration of a step's summed drive [m/s^2].
     max_settle_s : float
         Longest settle dwell after a step [s].
+    position_tolerance_m : float
+        How far from its target a slider of a ``targets_um`` step may end [m].
     sensitivity_band : (float, float) or None
         ``design.match_sensitivity``: the band (lo, hi) of the line-width sensitivity
         d ln nu_n / dw every design must lie in [1/m]; None when off.
@@ -190,6 +192,7 @@ class Settings:
     max_travel_m: float
     max_acceleration_m_s2: float | None
     max_settle_s: float
+    position_tolerance_m: float = 2e-6
     sensitivity_band: tuple | None = None
     fabrication: object = None
 
@@ -364,6 +367,7 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
         max_acceleration_m_s2=(drive.max_acceleration_g * G0
                                if drive.max_acceleration_g is not None else None),
         max_settle_s=MAX_SETTLE_S,
+        position_tolerance_m=ver.position_tolerance_um * UM,
         sensitivity_band=_sensitivity_band(spec),
         fabrication=spec.fabrication,
     )

@@ -15,7 +15,7 @@ import pandas as pd
 import model
 from model import Drive
 from planner.nodes import Node, device_key
-from planner.planning.drives import drive_of
+from planner.planning.drives import program_of
 from planner.planning.motion import device_travel, run_phase
 from planner.planning.settings import Settings, tone_amplitudes
 from planner.units import UM
@@ -29,6 +29,10 @@ IDLE_RESPONSE, TOO_SLOW, IDLE_MOVES = "idle_response", "too_slow", "idle_moves"
 #: (state carried from step to step), an idle slider moves beyond the tolerance.
 TRAVEL_OVER, UNSETTLED, CARRIED_IDLE = ("travel_over_limit", "unsettled",
                                         "carried_idle_motion")
+#: Failure kind of a ``targets_um`` step: a slider ends further than
+#: ``verification.position_tolerance_um`` from its target (from some initial state of
+#: the per-step check, or in the carried-state scene simulation).
+OFF_TARGET = "off_target"
 
 
 @dataclass(frozen=True)
@@ -45,10 +49,11 @@ class Failure:
         The offending impacter (node text) for ``idle_response``; None otherwise.
     kind : str
         :data:`IDLE_RESPONSE`, :data:`TOO_SLOW`, :data:`IDLE_MOVES`,
-        :data:`TRAVEL_OVER`, :data:`UNSETTLED` or :data:`CARRIED_IDLE`.
+        :data:`TRAVEL_OVER`, :data:`UNSETTLED`, :data:`CARRIED_IDLE` or
+        :data:`OFF_TARGET`.
     value : float
-        Worst response r [N], worst speed [m/s], displacement or travel [m], or dwell
-        [s] (unsettled), by kind.
+        Worst response r [N], worst speed [m/s], displacement or travel [m], dwell
+        [s] (unsettled), or position error [m] (off target), by kind.
     """
 
     step: int
@@ -72,6 +77,34 @@ def pair_responses(impacter, drive, n, duration, stop_at_first=False):
     for half, _ in model.halves(impacter):
         r = model.responses(half, drive, x0_grid(half, n), duration=duration,
                             stop_at_first=stop_at_first)
+        out = r if out is None else np.maximum(out, r)
+    return out
+
+
+def program_responses(impacter, program, n, stop_at_first=False):
+    """:func:`pair_responses` under a step's program (:func:`planner.planning.drives.
+    program_of`): r [N] of eq. (12) over the whole program from each of the ``n``
+    initial positions, the state carried from stretch to stretch and only the first
+    impact of the whole program left out.  One stretch is :func:`pair_responses`."""
+    if len(program) == 1:
+        (duration, drive), = program
+        return pair_responses(impacter, drive, n, duration, stop_at_first=stop_at_first)
+    total = sum(d for d, _ in program)
+    out = None
+    for half, _ in model.halves(impacter):
+        r = np.zeros(n)
+        for k, x0 in enumerate(x0_grid(half, n)):
+            x, v, stuck, sum_v, first = float(x0), 0.0, False, 0.0, True
+            for duration, drive in program:
+                res = model.simulate(half, drive, x, v, duration, stuck=stuck or None,
+                                     max_events=1_000_000)
+                sum_v += float(np.sum(res.velocities) + np.sum(res.chatter_sums))
+                if first and res.times.size:
+                    # the first impact is the initial position's, not a response (eq. 12)
+                    sum_v -= float(res.velocities[0])
+                    first = False
+                x, v, stuck = min(res.x_end, half.gap), res.v_end, res.stuck_end
+            r[k] = half.mass * sum_v / total
         out = r if out is None else np.maximum(out, r)
     return out
 
@@ -113,7 +146,11 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
     Besides the response and speed checks, every device is run from rest through the
     burst and the settle dwell (:func:`planner.planning.motion.device_travel`): its
     travel (``travel_m``) must stay within ``max_travel_m`` and the dwell it needs
-    (``settle_s``) within the cap.
+    (``settle_s``) within the cap.  ``waveform`` is the step's loop, played for
+    ``step.duration_s``, or its gated burst (:class:`planner.gating.Burst`), played as
+    it is exported; then each moving slider of a ``targets_um`` step must travel its
+    move (``step.moves``) within ``settings.position_tolerance_m`` from every initial
+    position of its impacter, instead of the speed check.
 
     Returns
     -------
@@ -122,8 +159,9 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
     failures : list of Failure
         Every failed check, structured.
     """
-    drive = drive_of(waveform)
-    duration = step.duration_s
+    program = program_of(waveform, step.duration_s)
+    duration = sum(d for d, _ in program)
+    moves = step.moves if step.targets_m is not None else {}
     active = {Node(d, dr).text for d, dr in step.active_nodes()}
     rows, failures = [], []
     for dev in sorted(sliders, key=device_key):
@@ -137,17 +175,16 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
             if n in active:
                 continue
             x0s = x0_grid(imp, settings.x0_points)
-            r = pair_responses(imp, drive, settings.x0_points, duration, stop_at_first=True)
+            r = program_responses(imp, program, settings.x0_points, stop_at_first=True)
             if np.any(r > 0):
-                full = pair_responses(imp, drive, settings.x0_points, duration)
+                full = program_responses(imp, program, settings.x0_points)
                 worst_idle_r = max(worst_idle_r, float(full.max()))
                 causes.append(f"{n} responds (r = {full.max():.3g} N from x0 = "
                               f"{x0s[int(np.argmax(full))] / UM:.2f} um)")
                 failures.append(Failure(step.index, dev, n, IDLE_RESPONSE, float(full.max())))
         contact = settings.contacts[dev]
         displacement, travel, dwell, calm = device_travel(own, dev, sliders[dev], contact,
-                                                          drive, duration,
-                                                          settings.max_settle_s)
+                                                          program, settings.max_settle_s)
         if abs(travel) > settings.max_travel_m:
             causes.append(f"travel {travel / UM:.4g} um over the limit "
                           f"{settings.max_travel_m / UM:g} um")
@@ -155,9 +192,25 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
         if not calm:
             causes.append(f"still moving {dwell * 1e3:g} ms after the drive stops")
             failures.append(Failure(step.index, dev, None, UNSETTLED, float(dwell)))
-        if moving:
+        if moving and dev in moves:
+            n = moving[0]
+            # the gates were set for the state the scene leaves; from every x0 of the
+            # grid the slider must still end within the tolerance of its move
+            errors = [device_travel(own, dev, sliders[dev], contact, program,
+                                    settings.max_settle_s, {n: start})[1] - moves[dev]
+                      for start in pair_starts(own[n], settings.x0_points)]
+            worst = float(max(errors, key=abs))
+            if abs(worst) > settings.position_tolerance_m:
+                causes.append(f"off target: travels {(moves[dev] + worst) / UM:.4g} um "
+                              f"for a move of {moves[dev] / UM:.4g} um from some x0 (off "
+                              f"by {worst / UM:+.3g} um > "
+                              f"{settings.position_tolerance_m / UM:g} um)")
+                failures.append(Failure(step.index, dev, None, OFF_TARGET, worst))
+            worst_case = {"move_m": moves[dev], "worst_position_error_m": worst}
+        elif moving:
             n = moving[0]
             sign = Node.parse(n).sign
+            drive = program[0][1]
             speeds = []
             for start in pair_starts(own[n], settings.x0_points):
                 z, _ = device_motion(own, sliders[dev], drive, duration, {n: start},

@@ -237,7 +237,7 @@ def test_spec_keys_are_validated():
     from planner.planning.settings import resolve_settings
     from planner.spec import load_spec
 
-    with pytest.raises(SpecError, match="duration_ms or travel_um"):
+    with pytest.raises(SpecError, match="duration_ms, travel_um or targets_um"):
         load_spec(TRAVEL.replace("travel_um: 20,", ""))
     with pytest.raises(SpecError, match="contact"):
         load_spec(TRAVEL + "device: {contact: wall}\n")
