@@ -67,7 +67,8 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
                     slider=None, progress=None, x0_points=None, guard=GUARD,
                     impact_angle=_d.IMPACT_ANGLE, restitution=_d.RESTITUTION,
                     forbidden_drives=(), max_mass_ratio=None, contact="paper",
-                    robust_shift=None, target_drives=(), sensitivity=None):
+                    robust_shift=None, target_drives=(), sensitivity=None,
+                    speed_window=None, speed_x0_points=None):
     """Design one impacter by the paper's max-min problem, eqs. (13)-(18).
 
     Maximise the worst response over initial positions at ``frequency`` subject to
@@ -151,6 +152,15 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         moves every impacter of an array by one factor.  The search then solves the
         beam width (the area, when ``bounds.width`` fixes the width) for a target in
         the band instead of searching it.  None: no constraint.
+    speed_window : float, optional
+        Time over which the predicted slider speed is simulated [s] (default
+        ``window``): an array plan passes its single-impacter step's length, over which
+        its verification measures the speed.
+    speed_x0_points : int, optional
+        The predicted speed is the least from these many x0 over [-c, c] as well as the
+        search's worst x0 (an array plan passes its verification's grid): a design can
+        lock into an orbit that stops kicking after the design window from an x0 the
+        window did not show as the worst.
 
     Returns
     -------
@@ -293,10 +303,14 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
     band, margins = _band_and_margins(imp, tones, frequency, forbidden,
                                       _u_grid(budget.forbidden_x0_points) * imp.gap, window, budget)
     worst_x0 = chk["worst_u"] * imp.gap
+    starts = [min(worst_x0, imp.gap)]
+    if speed_x0_points:
+        starts += list(np.linspace(-imp.gap, imp.gap, int(speed_x0_points)))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SolverWarning)
-        speed = simulate_slider(imp, slider, tones.drive(frequency), min(worst_x0, imp.gap),
-                                duration=window, contact=contact).mean_velocity
+        speed = min(simulate_slider(imp, slider, tones.drive(frequency), x0,
+                                    duration=speed_window or window,
+                                    contact=contact).mean_velocity for x0 in starts)
     checks = {
         "optimizer_x0_points": int(problem.u.size),
         "optimizer_forbidden_x0_points": int(problem.u_forbid.size),

@@ -212,7 +212,11 @@ class Settings:
                     restitution=imp.restitution,
                     slider=build_slider(imp.slider, imp.process, self.environment),
                     max_mass_ratio=self.max_mass_ratio, contact=imp.contact,
-                    sensitivity=self.sensitivity_band, **self._robust_kwargs(imp))
+                    sensitivity=self.sensitivity_band,
+                    # the speed the verification will measure: its single-impacter step's
+                    # length, from every x0 of its grid
+                    speed_window=self.single_step_s, speed_x0_points=self.x0_points,
+                    **self._robust_kwargs(imp))
 
     def _robust_kwargs(self, imp) -> dict:
         """``robust_shift`` for the designer when ``design.robust`` is on (k sigma of
