@@ -46,12 +46,11 @@ import model
 from model.drive import POWER as DEFAULT_POWER  # Z0^2 w^3 = 50 m^2/s^3, the paper's convention
 from model.drive import amplitude_from_power
 
-#: Default snapping tolerance, relative to each tone's frequency [-].  An air-damped
-#: impacter designed for yield keeps driving its slider only within 10-80 Hz of its tone
-#: (plan.json's manufacturability.separation_hz): 0.01 % is 5 Hz at 50 kHz, inside it; the
-#: loops it needs are still short (27-36 ms for the default plan's scene steps, at most
-#: about 0.1 s for one tone).  (0.1 % had moved a 51 kHz tone by 50 Hz.)
-FREQUENCY_TOLERANCE_REL = 1e-4
+#: Default snapping tolerance, relative to each tone's frequency [-].  Response bands are a
+#: few percent wide (paper notes), so a 0.1 % shift is far inside a channel; it allows loops
+#: of about 0.25 s at 2 kHz and shorter ones for higher tones.  (A plan plays a single tone
+#: within SINGLE_TONE_TOLERANCE_REL: planner.planning.drives.)
+FREQUENCY_TOLERANCE_REL = 1e-3
 
 #: Longest loop searched when no duration is given [s]; 1 s at 200 kS/s is 200 k points,
 #: well inside a Keysight 33500B's standard 1 M-point memory.

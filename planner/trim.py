@@ -331,3 +331,25 @@ def trimmed_resonances(tp: TrimPlan, precision_pct: float, rng) -> dict:
     z = rng.standard_normal(len(ids))
     return {n: (tp.target[n] * (1.0 + precision_pct / 100.0 * float(zi)) if n in tp.moved
                 else tp.measured[n]) for n, zi in zip(ids, z)}
+
+
+def trim_models(impacters: dict, ratios: dict, direction: str) -> dict:
+    """The models after trims: node -> model, each trimmed one's natural frequency times
+    its ratio [-] (both halves of a pair alike).  ``up`` removes plate mass (m / r^2,
+    k kept: the kick each impact gives falls with the mass), ``down`` frees beam from the
+    anchor (k r^2 to first order, m kept)."""
+    import model
+
+    def trimmed(imp, r):
+        if direction == "up":
+            return model.Impacter(imp.mass / (r * r), imp.stiffness, imp.damping, imp.gap,
+                                  imp.impact_angle, imp.restitution, imp.geometry)
+        return model.Impacter(imp.mass, imp.stiffness * r * r, imp.damping, imp.gap,
+                              imp.impact_angle, imp.restitution, imp.geometry)
+
+    out = dict(impacters)
+    for n, r in ratios.items():
+        parts = model.halves(impacters[n])
+        new = [trimmed(h, r) for h, _ in parts]
+        out[n] = new[0] if len(new) == 1 else model.pair_of(*new)
+    return out

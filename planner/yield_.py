@@ -53,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from planner._random import chip_seed
+from model import halves
 from planner.fabrication import ChipDesign, design_from_plan, sample_chip
 from planner.planning.plan_file import PlanRecord, drives, plan_record
 from planner.spec import ArraySpec, FabricationSpec, LoadedSpec
@@ -133,6 +134,11 @@ class Payload:
     measure_noise_pct: float = 0.0
     #: The plan the re-plan starts from (only with ``replan``).
     record: "PlanRecord | None" = None
+    #: Trim the chips the re-plan cannot rescue (``--trim``, needs ``replan``).
+    trim: bool = False
+    #: One sigma of a trim's error [%] (``--trim-precision``; None: the spec's
+    #: ``trim.precision_pct``).
+    trim_precision_pct: float | None = None
 
 
 def _drive_of(record: PlanRecord):
@@ -140,26 +146,28 @@ def _drive_of(record: PlanRecord):
     return tuple(st.step for st in record.steps), drives(record), dict(record.dwells)
 
 
-def check_noise(pct) -> float:
-    """``pct`` as a measurement noise [%]: a finite number >= 0.
+def check_noise(pct, option: str = "--measure-noise") -> float:
+    """``pct`` as a relative sigma [%] (a measurement noise, a trim's precision): a finite
+    number >= 0.
 
     Raises
     ------
     ValueError
-        Naming ``--measure-noise``.
+        Naming ``option``.
     """
     try:
         x = float(pct)
     except (TypeError, ValueError):
-        raise ValueError(f"--measure-noise: {pct!r} is not a number") from None
+        raise ValueError(f"{option}: {pct!r} is not a number") from None
     if not (math.isfinite(x) and x >= 0):
-        raise ValueError(f"--measure-noise: must be a finite number >= 0 [%], {pct} was given")
+        raise ValueError(f"{option}: must be a finite number >= 0 [%], {pct} was given")
     return x
 
 
 def make_payload(record: PlanRecord, seed: int, fabrication: FabricationSpec | None = None, *,
                  replan: bool = False, measure_noise_pct: float = 0.0,
-                 allow_zero: bool = False) -> Payload:
+                 allow_zero: bool = False, trim: bool = False,
+                 trim_precision_pct: float | None = None) -> Payload:
     """The worker payload of a plan (:func:`planner.planning.plan_file.read_plan`);
     ``fabrication`` overrides the plan's.
 
@@ -176,6 +184,12 @@ def make_payload(record: PlanRecord, seed: int, fabrication: FabricationSpec | N
     noise = check_noise(measure_noise_pct)
     if noise and not replan:
         raise ValueError("--measure-noise needs --replan (only a re-plan measures the chip)")
+    if trim and not replan:
+        raise ValueError("--trim needs --replan (a trimmed chip's drive is re-planned)")
+    if trim_precision_pct is not None:
+        trim_precision_pct = check_noise(trim_precision_pct, "--trim-precision")
+        if not trim:
+            raise ValueError("--trim-precision needs --trim")
     fab = fabrication if fabrication is not None else record.spec.fabrication
     if fab.zero and not allow_zero:
         raise ValueError("every fabrication tolerance is 0 (the spec has no fabrication: "
@@ -187,7 +201,8 @@ def make_payload(record: PlanRecord, seed: int, fabrication: FabricationSpec | N
     loaded = LoadedSpec(record.spec, steps, str(record.path or "plan.json"))
     return Payload(design_from_plan(record), loaded, waveforms, fab, int(seed),
                    dwells=dwells, replan=bool(replan), measure_noise_pct=noise,
-                   record=record if replan else None)
+                   record=record if replan else None, trim=bool(trim),
+                   trim_precision_pct=trim_precision_pct)
 
 
 def _kind(cause: str) -> str:
@@ -312,6 +327,9 @@ def verify_chip(payload: Payload, scale_index: int, chip_index: int, scale: floa
             out["replan"] = {"passed": False, "measured_passed": False,
                              "causes": ["unbuildable"], "failures": {"unbuildable": 1},
                              "collisions": [], "outside_band": []}
+            if payload.trim:
+                out["trim"] = {"passed": False, "trimmed": [], "causes": ["unbuildable"],
+                               "failures": {"unbuildable": 1}}
             out["seconds"] = {"nominal": time.perf_counter() - t0, "replan": 0.0}
         return out
     settings = _settings(payload.loaded)
@@ -323,7 +341,72 @@ def verify_chip(payload: Payload, scale_index: int, chip_index: int, scale: floa
         t1 = time.perf_counter()
         out["replan"] = replan_chip_on(payload, settings, scale, chip_index, chip, got)
         out["seconds"] = {"nominal": t1 - t0, "replan": time.perf_counter() - t1}
+        if payload.trim:
+            t2 = time.perf_counter()
+            out["trim"] = trim_chip_on(payload, settings, scale, chip_index, chip, got,
+                                       out["replan"])
+            out["seconds"]["trim"] = time.perf_counter() - t2
     return out
+
+
+def trim_chip_on(payload: Payload, settings, scale: float, chip_index: int, chip,
+                 nominal: dict, replanned: dict) -> dict:
+    """Trim a chip the re-plan could not rescue because two of its impacters cannot be
+    told apart, re-measure it, re-plan it and verify the drive on its trimmed true models.
+
+    A chip the re-plan rescued needs no trim (its result is the re-plan's); a chip the
+    re-plan lost for another reason is not helped by one.  The trims are chosen from the
+    chip's measurement (:func:`planner.trim.plan_trim`); each lands on its target times
+    (1 + precision z / 100) of the true resonance's move, z from the chip's seed
+    (:func:`planner.trim.trimmed_resonances`); the trimmed chip is measured again (the
+    same noise level, new draws) and re-planned.
+
+    Returns
+    -------
+    dict
+        ``passed``, ``trimmed`` (impacters trimmed), ``causes`` (``cannot be trimmed``
+        naming the moves beyond the range, or the re-plan's causes after the trim),
+        ``failures`` (kind -> rows on the trimmed true models).
+    """
+    from planner.planning.replan import measured_resonances
+    from planner.planning.rescue import must_differ, separations_of
+    from planner.spec import TrimSpec
+    from planner.trim import plan_trim, trim_models, trimmed_resonances
+
+    if replanned["passed"] or not replanned["collisions"]:
+        return {**{k: replanned[k] for k in ("passed", "causes", "failures")}, "trimmed": []}
+    spec = payload.record.spec.trim or TrimSpec()
+    precision = (spec.precision_pct if payload.trim_precision_pct is None
+                 else payload.trim_precision_pct)
+    freqs = measured_frequencies(payload, scale, chip_index, chip)
+    measured = measured_resonances(payload.record, _as_measured(freqs))
+    mean = {n: float(np.mean(v)) if isinstance(v, tuple) else v for n, v in measured.items()}
+    tp = plan_trim(separations_of(payload.record, settings), mean, must_differ(settings.steps),
+                   range_pct=spec.range_pct, direction=spec.direction,
+                   precision_pct=precision)
+    if not tp.ok:
+        return {"passed": False, "trimmed": [], "failures": {},
+                "causes": ["cannot be trimmed"],
+                "beyond_range": [f["impacter"] for f in tp.failures]}
+    seq = chip_seed(payload.seed, scale, chip_index).spawn(3)
+    actual = trimmed_resonances(tp, precision, np.random.default_rng(seq[1]))
+    ratios = {n: actual[n] / tp.measured[n] for n in tp.moved}
+    true = trim_models(chip.impacters, ratios, spec.direction)
+    # the trimmed chip measured again
+    z = np.random.default_rng(seq[2]).standard_normal((len(payload.design.nodes), 2))
+    again = {}
+    for node, zi in zip(payload.design.nodes, z):
+        parts = halves(true[node.id])
+        meas = [float(h.natural_frequency) * max(1.0 + payload.measure_noise_pct / 100.0
+                                                 * float(zk), 0.1)
+                for (h, _), zk in zip(parts, zi)]
+        again[node.id] = ({"natural_frequency_hz": meas[0]} if len(parts) == 1 else
+                          {"natural_frequency_hz": float(np.mean(meas)),
+                           "halves_hz": tuple(meas)})
+    got = _replan_and_check(payload, settings, again, true, chip.sliders,
+                            (nominal["steps_passed"], nominal["rows"]))
+    return {"passed": got["passed"], "trimmed": list(tp.moved), "causes": got["causes"],
+            "failures": got["failures"]}
 
 
 def measured_frequencies(payload: Payload, scale: float, chip_index: int, chip) -> dict:
@@ -336,8 +419,6 @@ def measured_frequencies(payload: Payload, scale: float, chip_index: int, chip) 
     level), floored at a tenth of the true frequency (a measurement never finds a
     resonance at or below 0 Hz; only a noise of tens of per cent reaches the floor).
     """
-    from model import halves
-
     seq = chip_seed(payload.seed, scale, chip_index).spawn(1)[0]
     z = np.random.default_rng(seq).standard_normal((len(payload.design.nodes), 2))
     out = {}
@@ -454,7 +535,30 @@ def _summary(results, chips):
                              "ci95": wilson_interval(both, chips)}}
     if results and "replan" in results[0]:
         out["replan"] = _replan_summary(results, chips)
+    if results and "trim" in results[0]:
+        out["trim"] = _trim_summary(results, chips)
     return out
+
+
+def _trim_summary(results, chips):
+    """The yield with trims: chips the re-plan passed, or that a trim and a re-plan of
+    the trimmed chip rescued."""
+    ok = sum(r["trim"]["passed"] for r in results)
+    causes, kinds = {}, {}
+    for r in results:
+        if r["trim"]["passed"]:
+            continue
+        for c in r["trim"]["causes"]:
+            causes[c] = causes.get(c, 0) + 1
+        for k in r["trim"]["failures"]:
+            kinds[k] = kinds.get(k, 0) + 1
+    return {"chips": chips, "passed": ok, "yield": ok / chips,
+            "ci95": wilson_interval(ok, chips),
+            "trimmed": sum(1 for r in results if r["trim"]["trimmed"]),
+            "rescued": sum(1 for r in results
+                           if r["trim"]["passed"] and not r["replan"]["passed"]),
+            "causes": _ordered(causes, REPLAN_CAUSES + ("cannot be trimmed",)),
+            "failures": _ordered(kinds, KINDS)}
 
 
 def _replan_summary(results, chips):
@@ -481,7 +585,9 @@ def _chip_record(r) -> dict:
             "measured_passed": rp["measured_passed"], "causes": rp["causes"],
             "failures": _ordered(rp["failures"], KINDS), "collisions": rp["collisions"],
             "outside_band": rp["outside_band"], "split_steps": rp.get("split_steps", []),
-            "tones_moved": rp.get("tones_moved", 0)}
+            "tones_moved": rp.get("tones_moved", 0),
+            **({"trim_passed": r["trim"]["passed"], "trimmed": r["trim"]["trimmed"],
+                "trim_causes": r["trim"]["causes"]} if "trim" in r else {})}
 
 
 def parse_scales(text: str | None) -> list[float]:
@@ -651,13 +757,17 @@ def _figures(data: dict, spec: ArraySpec, folder: Path) -> list[str]:
     fig, ax = plt.subplots(figsize=(5, 3.5))
     ax.errorbar(xs, ys, yerr=[lo, hi], fmt="o-", capsize=4,
                 label="nominal drive" if "replan" in data else None)
-    if "replan" in data:
-        rps = ([v["replan"] for v in data["by_sigma_scale"].values()]
-               if "by_sigma_scale" in data else [data["replan"]])
+    for block, fmt, label in (("replan", "s--", "re-planned per chip"),
+                              ("trim", "^:", "trimmed where needed, re-planned")):
+        if block not in data:
+            continue
+        rps = ([v[block] for v in data["by_sigma_scale"].values()]
+               if "by_sigma_scale" in data else [data[block]])
         ax.errorbar(xs, [v["yield"] for v in rps],
                     yerr=[[v["yield"] - v["ci95"][0] for v in rps],
                           [v["ci95"][1] - v["yield"] for v in rps]],
-                    fmt="s--", capsize=4, label="re-planned per chip")
+                    fmt=fmt, capsize=4, label=label)
+    if "replan" in data:
         ax.legend(loc="best", fontsize=8)
     ax.set_xlabel("sigma scale [-]")
     ax.set_ylabel("yield (95 % Wilson CI)")
@@ -738,9 +848,11 @@ def _replan_lines(data: dict, timings: dict | None) -> list[str]:
                   "| chip | nominal drive | causes | colliding resonances (as built) |",
                   "|---|---|---|---|"]
         for c in bad[:50]:
-            pairs = "; ".join(f"{x['pair'][0]} {x['as_built_hz'][0]:.0f} Hz / {x['pair'][1]} "
-                              f"{x['as_built_hz'][1]:.0f} Hz (need {x['needs_hz']:.0f} Hz "
-                              "apart)" for x in c["collisions"][:4])
+            pairs = "; ".join(" / ".join(f"{n} {hz:.0f} Hz" for n, hz in
+                                         zip(x["pair"], x["as_built_hz"]))
+                              + (f" (need {x['needs_hz']:.0f} Hz apart)"
+                                 if x.get("needs_hz") is not None else "")
+                              for x in c["collisions"][:4])
             if len(c["collisions"]) > 4:
                 pairs += f"; ... {len(c['collisions']) - 4} more"
             lines.append(f"| {c['chip']} | {'passes' if c['nominal_passed'] else 'fails'} | "
@@ -748,6 +860,20 @@ def _replan_lines(data: dict, timings: dict | None) -> list[str]:
         if len(bad) > 50:
             lines.append(f"| ... | | {len(bad) - 50} more in yield.json | |")
         lines.append("")
+    if "trim" in data:
+        tr = data["trim"]
+        lines += ["## Trimmed where needed (`--trim`)", "",
+                  "A chip the re-plan could not rescue because two of its impacters cannot "
+                  "be told apart was trimmed (one-way moves within the spec's "
+                  "trim.range_pct, chosen from its measurement), each trim off its target by "
+                  "the trim precision, measured again, re-planned and verified on its "
+                  "trimmed true models.", "",
+                  f"**Yield with trims {tr['yield']:.3f}** (95 % CI [{tr['ci95'][0]:.3f}, "
+                  f"{tr['ci95'][1]:.3f}], {tr['passed']} / {tr['chips']} chips); "
+                  f"{tr['trimmed']} chips trimmed, {tr['rescued']} rescued by the trim.", ""]
+        if tr["causes"]:
+            lines += ["| why a chip still fails | chips |", "|---|---|"]
+            lines += [f"| {k} | {v} |" for k, v in tr["causes"].items()] + [""]
     return lines
 
 

@@ -45,6 +45,14 @@ from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_err
 @click.option("--measure-noise", "measure_noise", default=None, metavar="PCT",
               help="With --replan: one sigma of the Gaussian noise of each measured "
                    "natural frequency [%], seeded per chip.  [default: 0]")
+@click.option("--trim", is_flag=True,
+              help="With --replan: a chip the re-plan cannot rescue because two of its "
+                   "impacters cannot be told apart is trimmed (vibroplan trim: one-way "
+                   "moves within the spec's trim.range_pct), measured again, re-planned and "
+                   "verified on its trimmed true models; yield.json gets a trim block.")
+@click.option("--trim-precision", "trim_precision", default=None, metavar="PCT",
+              help="With --trim: one sigma of each trim's error [%] (default: the spec's "
+                   "trim.precision_pct, else 0.1).")
 @click.option("--allow-zero", is_flag=True,
               help="Run even when every fabrication tolerance is 0 (no fabrication: "
                    "section in the plan's spec or --spec): every chip is then the nominal "
@@ -56,7 +64,7 @@ from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_err
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @handle_errors
 def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_scale, replan,
-            measure_noise, allow_zero, force, quiet):
+            measure_noise, trim, trim_precision, allow_zero, force, quiet):
     """Yield of a plan under fabrication variation (Monte Carlo over sampled chips).
 
     PLAN is a plan folder written by ``vibroplan plan`` or ``vibroplan replan``, or its
@@ -95,18 +103,28 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
     if measure_noise is not None and not replan:
         raise click.UsageError("--measure-noise needs --replan (only a re-plan measures "
                                "the chip)")
+    if trim and not replan:
+        raise click.UsageError("--trim needs --replan (a trimmed chip's drive is re-planned)")
+    if trim_precision is not None and not trim:
+        raise click.UsageError("--trim-precision needs --trim")
     try:
         noise = check_noise(0.0 if measure_noise is None else measure_noise)
     except ValueError as exc:
         raise click.BadParameter(str(exc).split(": ", 1)[-1],
                                  param_hint="'--measure-noise'") from None
+    try:
+        precision = (None if trim_precision is None else
+                     check_noise(trim_precision, "--trim-precision"))
+    except ValueError as exc:
+        raise click.BadParameter(str(exc).split(": ", 1)[-1],
+                                 param_hint="'--trim-precision'") from None
     record = read_plan(plan_path)
     plan_file = record.path
     fab = load_spec(Path(spec_file)).spec.fabrication if spec_file else None
     inputs = [plan_file] + ([spec_file] if spec_file else [])
     check_output_folder(out_dir, command="yield", inputs=inputs, force=force)
     payload = make_payload(record, seed, fab, replan=replan, measure_noise_pct=noise,
-                           allow_zero=allow_zero)
+                           allow_zero=allow_zero, trim=trim, trim_precision_pct=precision)
     if scheduler:
         check_scheduler(scheduler)
     total = 1 + chips * len(scales)
@@ -138,6 +156,13 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
         if rp["causes"]:
             click.echo("re-plan failures: " + ", ".join(f"{k} ({v} chips)"
                                                         for k, v in rp["causes"].items()))
+        if "trim" in result:
+            tr = result["trim"]
+            click.echo(f"trimmed yield {tr['yield']:.3f} ({tr['passed']}/{tr['chips']} chips, "
+                       f"95 % CI [{tr['ci95'][0]:.3f}, {tr['ci95'][1]:.3f}]); {tr['trimmed']} "
+                       f"chips trimmed, {tr['rescued']} rescued by it"
+                       + ("; " + ", ".join(f"{k} ({v} chips)" for k, v in tr["causes"].items())
+                          if tr["causes"] else ""))
         if timings.get("replan_s"):
             t = timings["replan_s"]
             click.echo(f"re-plan cost: {sum(t) / len(t):.1f} s per chip (mean of {len(t)}), "

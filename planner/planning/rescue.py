@@ -41,7 +41,7 @@ from planner.trim import Separations
 
 #: A tone chosen beside a neighbour's silent band keeps this far from its edge: the
 #: edge's bisection tolerance (planner.manufacturability.EDGE_TOL_HZ) and twice the
-#: synthesis' snapping (planner.synthesis.FREQUENCY_TOLERANCE_REL) [Hz, -].
+#: snapping of a single tone (planner.planning.drives.SINGLE_TONE_TOLERANCE_REL) [Hz, -].
 EDGE_MARGIN_HZ = 1.0
 EDGE_MARGIN_REL = 2e-4
 #: Sub-steps a multi-tone step may be split into at most (each a run of neighbouring

@@ -14,7 +14,7 @@ name: travel
 array: {rows: 1, cols: 2}
 independent: false
 drive:
-  band_hz: [3000, 12000]
+  band_hz: [5000, 14000]
   channels: {count: 60}
 verification: {repair_rounds: 1, x0_points: 5}
 scenes:
@@ -154,7 +154,7 @@ array: {rows: 1, cols: 2}
 independent: false
 environment: {viscosity_mpa_s: 0.0}
 drive:
-  band_hz: [3000, 12000]
+  band_hz: [5000, 14000]
   channels: {count: 60}
 scenes:
   s:

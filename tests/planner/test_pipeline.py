@@ -160,7 +160,7 @@ name: one
 array: {rows: 1, cols: 1}
 independent: false
 drive:
-  band_hz: [3000, 12000]
+  band_hz: [5000, 14000]
   channels: {count: 60}
 scenes:
   s:

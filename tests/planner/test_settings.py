@@ -200,13 +200,25 @@ def test_unset_rules_leave_the_default_bounds_alone():
     from planner.designer import DesignBounds
 
     assert _settings().bounds == DesignBounds()
-    assert resolve_settings(load_spec(_default_spec_text())).bounds == DesignBounds()
 
 
 def _default_spec_text():
     from planner.spec import default_spec_path
 
     return default_spec_path().read_text(encoding="utf-8")
+
+
+def test_the_default_spec_sets_its_rules_and_gap_bound():
+    """The default spec sets the 2 um rules (issue 30) and gaps up to 16 um (issue 25):
+    its bounds are the defaults but the gap, from 2 um / sin(45 deg) to 16 um."""
+    import math
+
+    from planner.designer import DesignBounds
+
+    b = resolve_settings(load_spec(_default_spec_text())).bounds
+    assert b.gap == pytest.approx((2e-6 / math.sin(math.pi / 4), 16e-6))
+    assert (b.area, b.width, b.length) == (DesignBounds().area, DesignBounds().width,
+                                           DesignBounds().length)
 
 
 def test_rules_narrow_the_bounds_to_what_the_layout_can_draw():

@@ -164,7 +164,9 @@ def test_target_beyond_max_travel_is_refused_at_the_cli(tmp_path):
     assert "Traceback" not in proc.stderr
     line = proc.stderr.strip()
     assert "scenes.s[0].targets_um.A1" in line and "A1:" in line and "+120 um" in line
-    assert "max_travel_um (100 um)" in line and "(line 10)" in line
+    want = next(k for k, text in enumerate(spec.read_text().splitlines(), 1)
+                if "A1: 120" in text)
+    assert "max_travel_um (100 um)" in line and f"(line {want})" in line
     assert not out.exists()
 
 
