@@ -56,7 +56,7 @@ from planner._random import chip_seed
 from model import halves
 from planner.fabrication import ChipDesign, design_from_plan, sample_chip
 from planner.planning.plan_file import PlanRecord, drives, plan_record
-from planner.spec import ArraySpec, FabricationSpec, LoadedSpec
+from planner.spec import ArraySpec, FabricationSpec, LoadedSpec, TrimSpec
 
 #: z of the two-sided 95 % normal quantile.
 Z95 = 1.959963984540054
@@ -713,6 +713,17 @@ def run_yield(payload: Payload, chips: int, *, scales=(1.0,), jobs: int = 1,
             "failed_chips": [r["chip"] for r in mine if not r["replan"]["passed"]],
             "per_chip": [_chip_record(r) for r in mine],
         }
+    if payload.trim:
+        tr = summary["trim"]
+        spec_trim = payload.record.spec.trim
+        data["trim"] = {
+            "precision_pct": (payload.trim_precision_pct if payload.trim_precision_pct
+                              is not None else (spec_trim.precision_pct if spec_trim
+                                                else TrimSpec().precision_pct)),
+            **{k: tr[k] for k in ("chips", "passed", "yield", "ci95", "trimmed", "rescued",
+                                  "causes", "failures")},
+            "failed_chips": [r["chip"] for r in mine if not r["trim"]["passed"]],
+        }
     if len(scales) > 1 or scales != [1.0]:
         keys = ("yield", "ci95", "passed", "failures", "carried_state")
         data["by_sigma_scale"] = {}
@@ -721,6 +732,9 @@ def run_yield(payload: Payload, chips: int, *, scales=(1.0,), jobs: int = 1,
             if payload.replan:
                 entry["replan"] = {k: out_scale[j][0]["replan"][k]
                                    for k in ("yield", "ci95", "passed", "rescued", "causes")}
+            if payload.trim:
+                entry["trim"] = {k: out_scale[j][0]["trim"][k]
+                                 for k in ("yield", "ci95", "passed", "rescued", "causes")}
             data["by_sigma_scale"][scale_key(s)] = entry
     return data
 

@@ -136,3 +136,52 @@ def test_bad_measure_noise_exits_2_naming_the_option(tiny_plan_dir, tmp_path, ar
     assert res.exit_code == 2, res.output
     assert needle in res.output and "--measure-noise" in res.output
     assert not out.exists()
+
+
+#: Line width scatter of the default's device part, doubled: on the close plan's four
+#: impacters (0.8 kHz apart at 21-23 kHz) some chips' neighbours come too close to be
+#: told apart, and a 1 % trim moves them apart again.
+SCATTER = """\
+name: scatter
+fabrication:
+  line_width_um: {die: 0.05, device: 0.04}
+trim: {range_pct: 1.0, direction: up, precision_pct: 0.1}
+"""
+
+
+def test_trim_rescues_chips_the_replan_cannot_and_jobs_do_not_change_it(close_plan_dir,
+                                                                       tmp_path):
+    """yield --replan --trim on the close plan: chips whose neighbours collide are
+    trimmed, measured again, re-planned and verified on their trimmed true models; the
+    trimmed yield is at least the re-planned one, and --jobs 1 and --jobs 2 (a local
+    Dask cluster) write byte-identical yield.json."""
+    spec = tmp_path / "scatter.yaml"
+    spec.write_text(SCATTER)
+    outs = []
+    for jobs in (1, 2):
+        out = tmp_path / f"y{jobs}"
+        res = _yield(close_plan_dir, "--chips", 12, "--seed", 3, "--out", out, "--spec", spec,
+                     "--replan", "--trim", "--measure-noise", 0.05, "--jobs", jobs)
+        assert res.exit_code == 0, res.output
+        outs.append(out)
+    assert (outs[0] / "yield.json").read_bytes() == (outs[1] / "yield.json").read_bytes()
+    d = _read(outs[0])
+    rp, tr = d["replan"], d["trim"]
+    assert {"yield", "ci95", "passed", "failures"} <= set(tr)
+    assert tr["passed"] >= rp["passed"]
+    collided = [c for c in rp["per_chip"] if "cannot be told apart" in c["causes"]]
+    assert collided, "the doubled device scatter must make some neighbours collide"
+    trimmed = [c for c in rp["per_chip"] if c.get("trimmed")]
+    assert {c["chip"] for c in trimmed} <= {c["chip"] for c in collided}
+    assert tr["rescued"] == sum(1 for c in rp["per_chip"]
+                                if c["trim_passed"] and not c["replan_passed"])
+    assert "Trimmed where needed" in (outs[0] / "report.md").read_text()
+
+
+def test_trim_needs_replan(tiny_plan_dir, shift_spec, tmp_path):
+    res = _yield(tiny_plan_dir, "--chips", 2, "--out", tmp_path / "y", "--spec", shift_spec,
+                 "--trim")
+    assert res.exit_code == 2 and "--trim needs --replan" in res.output
+    res = _yield(tiny_plan_dir, "--chips", 2, "--out", tmp_path / "y", "--spec", shift_spec,
+                 "--replan", "--trim", "--trim-precision", "-1")
+    assert res.exit_code == 2 and "--trim-precision" in res.output
