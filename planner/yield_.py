@@ -225,9 +225,14 @@ def _settings(loaded: LoadedSpec):
     return resolve_settings(loaded)
 
 
-def check_drive(settings, steps, waveforms, dwells, impacters, sliders) -> dict:
+def check_drive(settings, steps, waveforms, dwells, impacters, sliders, *,
+                first_failure=False) -> dict:
     """Every check of a drive on one chip's models: the per-step checks and the
     carried-state check, as ``vibroplan plan`` runs them.
+
+    With ``first_failure`` the checks stop at the first step that fails (its kinds are
+    then the only ones counted, ``stopped`` says so): whether a drive passes is all a
+    re-planning yield needs of the drive the chip is about to be re-planned away from.
 
     Parameters
     ----------
@@ -275,6 +280,9 @@ def check_drive(settings, steps, waveforms, dwells, impacters, sliders) -> dict:
                 elif not named:  # an idle slider moved: its idle impacters did it
                     named = [n for n in own if n not in active]
                 nodes |= set(named)
+        if first_failure and failures:
+            return {"passed": False, "steps_passed": False, "failures": failures,
+                    "nodes": nodes, "rows": rows, "stopped": st.key}
     steps_passed = not failures
     if settings.scenes:
         by_index = {st.index: st for st in steps}
@@ -333,8 +341,10 @@ def verify_chip(payload: Payload, scale_index: int, chip_index: int, scale: floa
             out["seconds"] = {"nominal": time.perf_counter() - t0, "replan": 0.0}
         return out
     settings = _settings(payload.loaded)
+    # re-planning, the plan's own drive is only a reference: its checks stop at the
+    # first failing step (a chip the die moved fails the first one it plays)
     got = check_drive(settings, payload.loaded.steps, payload.waveforms, payload.dwells,
-                      chip.impacters, chip.sliders)
+                      chip.impacters, chip.sliders, first_failure=payload.replan)
     out.update(passed=got["passed"], carried_passed=got["passed"],
                failures=got["failures"], nodes=sorted(got["nodes"]))
     if payload.replan:
