@@ -104,6 +104,7 @@ class _Problem:
         self.mass_cap = float(mass_cap)
         self.q_per_kg = float(q_per_kg)
         self.forbidden = forbidden
+        self.guard = float(guard)
         self.factory = factory
         self.tones = tones
         self.bounds = bounds
