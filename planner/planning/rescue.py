@@ -436,3 +436,83 @@ def split_weak(settings, drive: RescuedDrive, rows, failures, models, sliders, c
     return (dataclasses.replace(drive, steps=tuple(steps), waveforms=waveforms, notes=notes,
                                 dwells=dwells, splits=splits),
             rows, failures)
+
+
+#: Amplitude factors :func:`quieten` tries, in turn, on a step an idle impacter answers
+#: (relative to the step's drive as re-planned) [-].
+QUIET_FACTORS = (0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3)
+
+
+def quieten(settings, drive: RescuedDrive, rows, failures, models, sliders, check):
+    """Lower the drive of each step an idle impacter answers until it no longer does.
+
+    On a chip an idle impacter can answer a step its design was silent under: its
+    resonance has moved towards the step's tones, or (most often, measured) it starts at
+    the edge of its gap and the transient of its release plus the step's forced response
+    reaches the wall (an impacter with Q ~ 70 swings back to 98 % of its gap in half a
+    cycle).  A new phase draw does not change a multi-tone step's optimised phases; a
+    weaker drive does.  Each such step is tried at :data:`QUIET_FACTORS` of its amplitude,
+    its burst sized again for the slower sliders, and the first factor whose step passes
+    every check but the motion's is kept (else the one with the fewest such failures, if
+    fewer than before); the movers' speed floor is one of the checks, so a step is never
+    weakened below what moves its sliders.  A slider that then travels too far, or
+    settles too late, is the motion repair's (shorter bursts, longer dwells:
+    :func:`planner.planning.repair.repair_motion`), which runs after this.
+
+    Parameters
+    ----------
+    drive : RescuedDrive
+        Its steps verified: ``rows`` and ``failures`` of ``check(steps)``.
+    check : callable
+        ``(steps, waveforms) -> (rows, failures)`` on the models the drive is verified on.
+
+    Returns
+    -------
+    (drive, rows, failures)
+        The drive with the weakened steps (their notes say by how much), and the checks
+        of every step as it now stands.
+    """
+    from planner.planning.drives import drive_of, scaled
+    from planner.planning.motion import drive_peaks, size_bursts
+    from planner.planning.verify import IDLE_RESPONSE, TRAVEL_OVER, UNSETTLED
+
+    def serious(fails):
+        return sum(1 for f in fails if f.kind not in (TRAVEL_OVER, UNSETTLED))
+
+    answered = {f.step for f in failures if f.kind == IDLE_RESPONSE}
+    if not answered:
+        return drive, rows, failures
+    steps = list(drive.steps)
+    waveforms, notes = dict(drive.waveforms), dict(drive.notes)
+    rows, failures = list(rows), list(failures)
+    for pos, st in enumerate(drive.steps):
+        if st.index not in answered:
+            continue
+        before = serious(f for f in failures if f.step == st.index)
+        best = None
+        for factor in QUIET_FACTORS:
+            w = scaled(waveforms[st.key], factor, f"every amplitude lowered by x{factor:g} "
+                       "more: an idle impacter answered the step on this chip")
+            (sub,), _ = size_bursts(settings, (st,), {st.key: w}, models, sliders, drive_of)
+            got_rows, got_fails = check([sub], {st.key: w})
+            bad = serious(got_fails)
+            if best is None or bad < best[0]:
+                best = (bad, factor, sub, w, got_rows, got_fails)
+            if bad == 0:
+                break
+        if best is None or best[0] >= before:
+            continue
+        _, factor, sub, w, got_rows, got_fails = best
+        steps[pos] = sub
+        waveforms[st.key] = w
+        zp, ap = drive_peaks(w)
+        note = dict(notes.get(st.key, {}))
+        note.update(peak_displacement_m=zp, peak_acceleration_m_s2=ap,
+                    acceleration_scale=note.get("acceleration_scale", 1.0) * factor,
+                    quietened_by=factor)
+        notes[st.key] = note
+        rows = [r for r in rows if r["index"] != st.index] + got_rows
+        failures = [f for f in failures if f.step != st.index] + list(got_fails)
+    rows.sort(key=lambda r: r["index"])
+    return (dataclasses.replace(drive, steps=tuple(steps), waveforms=waveforms, notes=notes),
+            rows, failures)

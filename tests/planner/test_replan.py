@@ -265,3 +265,58 @@ def test_replanned_drive_meets_the_acceleration_limit(plan_data):
     peaks = [st["peak_acceleration_m_s2"] for st in result.data["steps"]]
     assert peaks and max(peaks) <= limit_g * 9.80665 * (1 + 1e-6)
     assert max(peaks) > 0.9 * limit_g * 9.80665     # lowered to the limit, not below
+
+
+def test_a_step_an_idle_impacter_answers_is_played_weaker(plan_data):
+    """`quieten`: an idle impacter whose resonance sits where the step's tone reaches it
+    at full drive but not at 85 % answers the step (the real check), and the step played
+    weaker no longer does; its notes say by how much, and the mover still moves."""
+    from planner.planning.drives import limit_acceleration, scaled, synthesize_steps
+    from planner.planning.plan_file import plan_record
+    from planner.planning.rescue import RescuedDrive, as_built_models, quieten
+    from planner.planning.settings import resolve_settings
+    from planner.planning.verify import IDLE_RESPONSE, check_steps
+
+    record = plan_record(plan_data)
+    settings = resolve_settings(record.loaded)
+    step = next(st for st in settings.steps if st.forward == ("A1",) and not st.backward)
+    step = dataclasses.replace(step, index=0)
+    tones = {r.id: r.frequency_hz for r in record.impacters}
+    waveforms, notes = limit_acceleration(settings, synthesize_steps(settings, [step], tones))
+    sliders = dict(settings.sliders)
+
+    def check(steps, w, models):
+        rows, fails = [], []
+        for r, f in check_steps(settings, steps, w, models, sliders):
+            rows += r
+            fails += f
+        return rows, fails
+
+    def answers(nu, factor):
+        models = as_built_models(record, {"A2.backward": nu})
+        w = {step.key: scaled(waveforms[step.key], factor, "test")}
+        return any(f.kind == IDLE_RESPONSE for f in check([step], w, models)[1])
+
+    def edge(factor):
+        # A2.backward's highest resonance at which A1.forward's tone (below it) reaches it
+        silent, answer = tones["A1.forward"] / 0.6, tones["A1.forward"] / 0.7
+        assert answers(answer, factor) and not answers(silent, factor)
+        for _ in range(16):
+            mid = 0.5 * (silent + answer)
+            silent, answer = (silent, mid) if answers(mid, factor) else (mid, answer)
+        return answer
+
+    full, weak = edge(1.0), edge(0.85)
+    assert full > weak                       # a stronger drive reaches further
+    nu = 0.5 * (full + weak)
+    models = as_built_models(record, {"A2.backward": nu})
+    rows, fails = check([step], waveforms, models)
+    assert [f.impacter for f in fails if f.kind == IDLE_RESPONSE] == ["A2.backward"]
+    drive = RescuedDrive((step,), waveforms, notes, {step.key: 0.0}, tones, [], {}, {})
+    got, rows, fails = quieten(settings, drive, rows, fails, models, sliders,
+                               lambda s, w: check(s, w, models))
+    assert not fails and all(r["passed"] for r in rows)
+    factor = got.notes[step.key]["quietened_by"]
+    assert 0.8 <= factor < 1.0
+    assert got.waveforms[step.key].amplitudes[0] == pytest.approx(
+        factor * waveforms[step.key].amplitudes[0])
