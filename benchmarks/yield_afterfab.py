@@ -41,6 +41,7 @@ def main():
     ap.add_argument("--out", default=str(HERE / "results" / "yield_afterfab.md"))
     args = ap.parse_args()
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="afterfab-"))
+    work.mkdir(parents=True, exist_ok=True)
     out_dir = work / "yield"
     cmd = ["vibroplan", "yield", args.plan, "--chips", str(args.chips), "--seed",
            str(args.seed), "--jobs", str(args.jobs), "--sigma-scale", args.sigma_scale,

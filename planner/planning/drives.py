@@ -11,12 +11,15 @@ from planner.planning.settings import Settings, tone_amplitudes
 SINGLE_TONE_TOLERANCE_REL = 1e-4
 
 
-def synthesize_steps(settings: Settings, steps, assignment, seed=None):
+def synthesize_steps(settings: Settings, steps, assignment, seed=None, phases=None):
     """Waveform of every step (the sum of its active impacters' tones), by step key.
 
     ``assignment``: an :class:`~planner.assign.Assignment`, or a mapping impacter id ->
     tone [Hz] (a re-plan's tones).  Step ``i`` is seeded with ``seed + i`` (``seed``
-    default ``settings.seed``).
+    default ``settings.seed``).  ``phases`` (optional): step key -> {impacter id ->
+    phase [rad]}; a step whose every impacter has one plays its tones at those phases
+    instead of optimised ones (a re-plan keeps the phases its designs were verified
+    under).
     """
     from planner.synthesis import synthesize
 
@@ -32,8 +35,16 @@ def synthesize_steps(settings: Settings, steps, assignment, seed=None):
         # several tones keeps the default (a longer loop only raises its crest factor,
         # and its designs are made under the drive as played)
         tol = ([SINGLE_TONE_TOLERANCE_REL * f for f in freqs] if len(freqs) == 1 else None)
+        given = (phases or {}).get(st.key) or {}
+        ph = None
+        if nodes and all(n in given for n in nodes):
+            first = {}
+            for n in nodes:                     # a shared tone: its first impacter's phase
+                first.setdefault(frequencies[n], given[n])
+            ph = [first[f] for f in freqs]
         out[st.key] = synthesize(freqs, amps, settings.sample_rate_hz, seed=seed + st.index,
-                                 peak_limit=settings.peak_limit_m, frequency_tolerance=tol)
+                                 peak_limit=settings.peak_limit_m, frequency_tolerance=tol,
+                                 phases=ph)
     return out
 
 

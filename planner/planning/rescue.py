@@ -286,6 +286,38 @@ def separations_of(plan, settings) -> Separations:
     return Separations.of(ids, rho, seps)
 
 
+def plan_phases(plan) -> dict:
+    """Step key -> {impacter id -> the phase [rad] its tone played at in the plan}.
+
+    The designs were made silent under each multi-tone step's drive as it was played,
+    phases included; a re-plan that moves the tones by a fraction of a per cent and
+    optimises their phases afresh plays another waveform.  Measured on the default
+    (seed 0, chips 3, 8 and 16 of ``vibroplan yield --replan``): with new phases idle
+    backward impacters (28-33 kHz) touched their sliders under the 25-tone positioning
+    step from the edge of their gaps, at any amplitude that still moved every slider;
+    with the plan's phases none did.  A gated burst's tones (``start_s`` given) and a
+    step whose tones cannot be matched to its impacters keep optimised phases.
+    """
+    from planner.nodes import Node
+
+    tone_of = {r.id: r.frequency_hz for r in plan.impacters}
+    out = {}
+    for st in plan.steps:
+        if not st.tones or any(t.start_s is not None for t in st.tones):
+            continue
+        freqs = np.array([t.frequency_hz for t in st.tones])
+        got = {}
+        for d, r in st.step.active_nodes():
+            n = Node(d, r).text
+            k = int(np.argmin(np.abs(freqs - tone_of[n])))
+            # the played tone is the planned one snapped by at most 0.1 %
+            if abs(freqs[k] - tone_of[n]) <= 2e-3 * tone_of[n]:
+                got[n] = float(st.tones[k].phase_rad)
+        if got and len(got) == len(st.step.active_nodes()):
+            out[st.key] = got
+    return out
+
+
 @dataclasses.dataclass
 class RescuedDrive:
     """A chip's re-planned drive before its verification.
@@ -363,8 +395,11 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict) -> Rescu
         base.append(st if rec is None else dataclasses.replace(st, duration_s=rec.duration_s))
     scales = {st.key: (st.acceleration_scale or 1.0) for st in plan.steps}
 
+    phases = plan_phases(plan)
+
     def synthesize_and_limit(steps, freqs):
-        return limit_acceleration(settings, synthesize_steps(settings, steps, freqs))
+        return limit_acceleration(settings, synthesize_steps(settings, steps, freqs,
+                                                             phases=phases))
 
     waveforms, notes = synthesize_and_limit(tuple(base), tones)
     steps, sizing = size_bursts(settings, tuple(base), waveforms, models, sliders, drive_of)

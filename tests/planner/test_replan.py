@@ -320,3 +320,51 @@ def test_a_step_an_idle_impacter_answers_is_played_weaker(plan_data):
     assert 0.8 <= factor < 1.0
     assert got.waveforms[step.key].amplitudes[0] == pytest.approx(
         factor * waveforms[step.key].amplitudes[0])
+
+
+def test_the_replan_plays_the_plans_phases(plan_data):
+    """The designs were verified under the plan's drive, phases included: a chip's
+    re-plan moves the tones and keeps each impacter's phase (the plan's phases set to
+    values an optimiser would not give a single tone)."""
+    import copy
+
+    from planner.planning.plan_file import plan_record
+    from planner.planning.replan import replan_chip
+    from planner.planning.rescue import plan_phases
+
+    data = copy.deepcopy(plan_data)
+    for k, st in enumerate(data["steps"]):
+        st["tones"][0]["phase_rad"] = 0.7 - 1.1 * k
+    plan = plan_record(data)
+    phases = plan_phases(plan)
+    assert set(phases) == {st["scene"] + "/" + st["name"] for st in data["steps"]}
+    measured = {r.id: {"natural_frequency_hz": 1.01 * r.natural_frequency_hz}
+                for r in plan.impacters}
+    _, result = replan_chip(plan, measured, record=False)
+    for st in result.data["steps"]:
+        old = next(s for s in data["steps"] if s["name"] == st["name"])
+        assert st["tones"][0]["frequency_hz"] != pytest.approx(
+            old["tones"][0]["frequency_hz"], rel=1e-3)            # the tone moved
+        assert st["tones"][0]["phase_rad"] == pytest.approx(old["tones"][0]["phase_rad"])
+
+
+def test_synthesis_takes_given_phases_per_impacter(plan):
+    """`synthesize_steps(..., phases=)`: a step whose every impacter has a phase plays
+    them (a shared tone its first impacter's); a step missing one optimises its own."""
+    from planner.planning.drives import synthesize_steps
+    from planner.planning.settings import resolve_settings
+    from planner.spec import Step
+
+    settings = resolve_settings(plan.loaded)
+    both = Step("s", "both", 0, 0.005, ("A1",), ("A2",))
+    tones = {"A1.forward": 5000.0, "A2.backward": 7000.0}
+    given = {"s/both": {"A1.forward": 0.5, "A2.backward": -1.25}}
+    w = synthesize_steps(settings, [both], tones, phases=given)["s/both"]
+    assert w.phases == pytest.approx([0.5, -1.25])
+    free = synthesize_steps(settings, [both], tones)["s/both"]
+    partial = synthesize_steps(settings, [both], tones,
+                               phases={"s/both": {"A1.forward": 0.5}})["s/both"]
+    assert partial.phases == pytest.approx(free.phases)
+    shared = synthesize_steps(settings, [both], {"A1.forward": 5000.0, "A2.backward": 5000.0},
+                              phases=given)["s/both"]
+    assert shared.phases == pytest.approx([0.5])
