@@ -46,7 +46,7 @@ def main(argv=None):
     ap.add_argument("--out", default=str(HERE / "results" / "yield.md"))
     args = ap.parse_args(argv)
     if args.plan is None:
-        from planner.pipeline import plan
+        from planner.planning import plan
 
         folder = Path(tempfile.mkdtemp()) / "plan"
         t = time.perf_counter()

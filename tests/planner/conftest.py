@@ -7,7 +7,7 @@ import pytest
 def tiny_plan_dir(tmp_path_factory):
     """The tiny 1 x 2 plan (``test_pipeline.TINY``), planned once for the re-plan and
     yield tests, which only read it."""
-    from planner.pipeline import plan
+    from planner.planning import plan
     from tests.planner.test_pipeline import TINY
 
     out = tmp_path_factory.mktemp("tiny") / "plan"
@@ -46,7 +46,7 @@ fabrication:
 def close_plan_dir(tmp_path_factory):
     """The CLOSE plan (every impacter independent, neighbours one tolerance spacing
     apart), planned once for the trim tests."""
-    from planner.pipeline import plan
+    from planner.planning import plan
 
     out = tmp_path_factory.mktemp("close") / "plan"
     result = plan(CLOSE, out_dir=out, figures=False, jobs=1)

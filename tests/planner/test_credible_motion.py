@@ -26,7 +26,7 @@ scenes:
 
 @pytest.fixture(scope="module")
 def travel_plan():
-    from planner.pipeline import run_plan
+    from planner.planning import run_plan
     from planner.spec import load_spec
 
     return run_plan(load_spec(TRAVEL))
@@ -87,7 +87,7 @@ def test_drive_peaks_are_true_peaks(travel_plan):
 
 
 def test_acceleration_limit_lowers_the_amplitudes_and_says_so(travel_plan, tmp_path):
-    from planner.pipeline import run_plan, write_outputs
+    from planner.planning import run_plan, write_outputs
     from planner.spec import load_spec
 
     peaks = {st["name"]: st["peak_acceleration_m_s2"] / 9.80665
@@ -111,7 +111,7 @@ def test_acceleration_limit_lowers_the_amplitudes_and_says_so(travel_plan, tmp_p
 
 
 def test_travel_over_limit_is_a_failure_and_repair_shortens_the_burst():
-    from planner.pipeline import run_plan
+    from planner.planning import run_plan
     from planner.spec import load_spec
 
     # a 40 ms push against a 5 um limit: the first verification fails on travel; the

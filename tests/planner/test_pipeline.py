@@ -18,7 +18,7 @@ IMPACTER_KEYS = {"id", "device", "direction", "channel", "frequency_hz", "mass_k
 
 @pytest.fixture(scope="module")
 def tiny_plan():
-    from planner.pipeline import run_plan
+    from planner.planning import run_plan
     from planner.spec import load_spec
 
     return run_plan(load_spec(TINY))
@@ -58,7 +58,7 @@ def test_verification_is_real_simulation(tiny_plan):
 
 
 def test_same_seed_same_plan_json():
-    from planner.pipeline import run_plan
+    from planner.planning import run_plan
     from planner.spec import load_spec
 
     a = run_plan(load_spec(TINY), seed=3).data
@@ -67,20 +67,37 @@ def test_same_seed_same_plan_json():
 
 
 def test_interrupted_plan_leaves_no_output(tmp_path):
+    """SIGINT while the tiny plan is designing: exit 130, no output folder, no temporary.
+
+    The signal is sent only once the plan has announced its designs (the estimate and the
+    predicted yield, printed after the assignment and before any design) with an empty
+    design cache, so it always arrives mid-run; a plan that finished first fails the test
+    instead of passing it unchecked."""
+    import queue
+    import threading
+
     spec = tmp_path / "tiny.yaml"
     spec.write_text(TINY)
     out = tmp_path / "plan_out"
     proc = subprocess.Popen([sys.executable, "-m", "planner.cli", "plan", str(spec), "--out",
-                             str(out), "--quiet"], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, cwd=tmp_path)
+                             str(out), "--cache-dir", str(tmp_path / "cache")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path,
+                            text=True)
+    lines = queue.Queue()
+    threading.Thread(target=lambda: [lines.put(x) for x in proc.stderr], daemon=True).start()
+    seen = []
     try:
-        proc.wait(timeout=4)
-    except subprocess.TimeoutExpired:
-        proc.send_signal(signal.SIGINT)
-        proc.wait(timeout=60)
-    assert not out.exists() or (out / "plan.json").exists()
-    leftovers = [p for p in tmp_path.iterdir() if p.name.startswith(".plan_out")]
-    assert leftovers == []
+        while not any("collision-free yield" in x for x in seen):
+            seen.append(lines.get(timeout=120))
+    except queue.Empty:
+        proc.kill()
+        pytest.fail("the plan never announced its designs: " + "".join(seen)[-2000:])
+    assert proc.poll() is None, "the tiny plan finished before it could be interrupted"
+    proc.send_signal(signal.SIGINT)
+    proc.wait(timeout=60)
+    assert proc.returncode == 130, "".join(seen)[-2000:]
+    assert not out.exists()
+    assert [p for p in tmp_path.iterdir() if p.name.startswith(".plan_out")] == []
 
 
 def _cli_plan(spec, out, *extra):
@@ -117,7 +134,7 @@ def test_ctrl_c_mid_run_leaves_no_output(tmp_path):
 
 
 def test_row_assembly_config_shares_channels_and_verifies():
-    from planner.pipeline import run_plan
+    from planner.planning import run_plan
     from planner.spec import load_spec
 
     root = Path(__file__).resolve().parents[2]
@@ -176,7 +193,8 @@ def test_scene_counts_the_overshoot_after_the_drive_stops():
     import model
     from planner.assign import plan_steps
     from planner.config import build_slider
-    from planner.pipeline import SETTLE_NAME, SETTLE_S, SINGLE_STEP_S, simulate_scenes
+    from planner.planning.scenes import SETTLE_NAME, simulate_scenes
+    from planner.planning.settings import SETTLE_S, SINGLE_STEP_S
     from planner.planning.settings import resolve_settings
     from planner.spec import load_spec
     from planner.synthesis import synthesize
@@ -212,7 +230,7 @@ def test_scene_counts_the_overshoot_after_the_drive_stops():
 
 def test_report_tables_and_figures(tiny_plan, tmp_path):
     """report.md: markdown tables in lab units, and every figure it shows exists."""
-    from planner.pipeline import write_outputs
+    from planner.planning import write_outputs
 
     write_outputs(tiny_plan, tmp_path)
     report = (tmp_path / "report.md").read_text()

@@ -23,7 +23,7 @@ TWO = (TINY.split("scenes:")[0].replace("name: tiny", "name: two")
 
 @pytest.fixture(scope="module")
 def two_plan(tmp_path_factory):
-    from planner.pipeline import plan
+    from planner.planning import plan
 
     out = tmp_path_factory.mktemp("two") / "plan"
     return plan(TWO, out_dir=out, figures=True, jobs=1)
