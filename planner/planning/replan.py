@@ -31,6 +31,7 @@ point for a yield study.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from pathlib import Path
@@ -45,7 +46,8 @@ from planner.nodes import Node, device_key, node_key
 from planner.planning.plan_file import PlanRecord, drives
 from planner.planning.record import build_record, round_floats
 from planner.planning.repair import scenes_and_motion
-from planner.planning.rescue import as_built_models, quieten, rescue, split_weak
+from planner.planning.rescue import (REPLAN_TRAVEL_MARGIN, as_built_models, quieten, rescue,
+                                     split_weak)
 from planner.planning.result import Plan
 from planner.planning.settings import resolve_settings, tone_amplitudes
 from planner.planning.verify import check_step, check_steps, coupling_matrix, x0_grid
@@ -317,6 +319,10 @@ def replan(plan: PlanRecord, measured, *, seed=None, progress=None, original=Non
         orig_passed, orig_rows = bool(original[0]), list(original[1])
     timings["original_drive"] = time.perf_counter() - ts
 
+    # the checks on the measured models keep a margin on the travel (REPLAN_TRAVEL_MARGIN);
+    # the record states the spec's own limit
+    strict = dataclasses.replace(settings,
+                                 max_travel_m=settings.max_travel_m * REPLAN_TRAVEL_MARGIN)
     ts = time.perf_counter()
     drive = rescue(plan, measured_resonances(plan, measured), settings, models, sliders)
     timings["drive"] = time.perf_counter() - ts
@@ -324,7 +330,7 @@ def replan(plan: PlanRecord, measured, *, seed=None, progress=None, original=Non
     tick("verify", total=len(drive.steps))
     def check(steps, waveforms, progress=None):
         rows, fails = [], []
-        for r, f in check_steps(settings, steps, waveforms, models, sliders,
+        for r, f in check_steps(strict, steps, waveforms, models, sliders,
                                 progress=progress):
             rows += r
             fails += f
@@ -333,13 +339,13 @@ def replan(plan: PlanRecord, measured, *, seed=None, progress=None, original=Non
     ver_rows, failures = check(drive.steps, drive.waveforms, lambda k: tick("verify", k))
     # a step the acceleration limit weakened, failing by a slow slider: split it where
     # its sub-steps pass more checks
-    drive, ver_rows, failures = split_weak(settings, drive, ver_rows, failures, models,
+    drive, ver_rows, failures = split_weak(strict, drive, ver_rows, failures, models,
                                            sliders, check)
     # a step an idle impacter answers on this chip: played weaker, where that passes
-    drive, ver_rows, failures = quieten(settings, drive, ver_rows, failures, models,
+    drive, ver_rows, failures = quieten(strict, drive, ver_rows, failures, models,
                                         sliders, check)
     steps, ver_rows, failures, scene_rows, repairs, settle = scenes_and_motion(
-        settings, drive.steps, drive.waveforms, models, sliders, ver_rows, failures,
+        strict, drive.steps, drive.waveforms, models, sliders, ver_rows, failures,
         dwell_floor=drive.dwells)
     timings["verify"] = time.perf_counter() - ts
 

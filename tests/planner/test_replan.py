@@ -267,6 +267,39 @@ def test_replanned_drive_meets_the_acceleration_limit(plan_data):
     assert max(peaks) > 0.9 * limit_g * 9.80665     # lowered to the limit, not below
 
 
+def test_the_replan_keeps_a_margin_on_the_travel(plan_data):
+    """On the measured models every re-planned travel stays within REPLAN_TRAVEL_MARGIN of
+    verification.max_travel_um (a chip's true speeds near the edge of a tone window may be
+    higher than its measured models say), while the record keeps the spec's own limit.
+    With a limit set 7 % above what the re-plan's mover travels, the re-plan shortens the
+    burst until the travel is within 85 % of it."""
+    import copy
+
+    from planner.planning.plan_file import plan_record
+    from planner.planning.replan import replan_chip
+    from planner.planning.rescue import REPLAN_TRAVEL_MARGIN
+
+    def travels(data):
+        return [r["travel_m"] for st in data["verification"]["steps"].values()
+                for r in st.values() if r["expected"] != "idle"]
+
+    chip = {r["id"]: {"natural_frequency_hz": r["natural_frequency_hz"]}
+            for r in plan_data["impacters"]}
+    # the re-plan's own travel with the default limit (its tones sit mid-window, not
+    # where the plan put them), then a limit 7 % above it
+    _, free = replan_chip(plan_record(plan_data), chip)
+    limit = max(travels(free.data)) / 0.93
+    data = copy.deepcopy(plan_data)
+    data["spec"]["verification"]["max_travel_um"] = limit * 1e6
+    data["spec"]["verification"]["repair_rounds"] = 1      # the tiny spec repairs nothing
+    passed, result = replan_chip(plan_record(data), chip)
+    assert passed
+    got = travels(result.data)
+    assert got and max(got) <= REPLAN_TRAVEL_MARGIN * limit * (1 + 1e-9)
+    assert max(got) > 0.5 * REPLAN_TRAVEL_MARGIN * limit          # shortened, not stopped
+    assert result.data["verification"]["max_travel_m"] == pytest.approx(limit)
+
+
 def test_a_step_an_idle_impacter_answers_is_played_weaker(plan_data):
     """`quieten`: an idle impacter whose resonance sits where the step's tone reaches it
     at full drive but not at 85 % answers the step (the real check), and the step played
