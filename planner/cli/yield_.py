@@ -95,7 +95,8 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
     from planner.planning.plan_file import read_plan
     from planner.spec import load_spec
     from planner.yield_ import (check_chip_count, check_noise, make_payload, parse_scales,
-                                run_yield, scale_key, write_outputs)
+                                run_yield, scale_key)
+    from planner.yield_report import write_outputs
 
     scales = parse_scales(sigma_scale)
     check_jobs(jobs)
