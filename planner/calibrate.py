@@ -35,7 +35,10 @@ from planner.units import UM  # noqa: E402
 
 #: Columns of a sweep file: required, then optional.
 SWEEP_COLUMNS = ("impacter", "frequency_hz", "amplitude_um")
-SWEEP_OPTIONAL = ("drive_amplitude_um",)
+SWEEP_OPTIONAL = ("drive_amplitude_um", "half")
+#: The halves of a pair in a sweep's (and measured.csv's) ``half`` column: one cantilever
+#: of the pair each; blank for a pair measured as a whole.
+HALVES = ("a", "b")
 
 #: Columns of the measured file, in order.  ``vibroplan replan --measured`` reads
 #: ``impacter, natural_frequency_hz`` and optionally ``quality_factor``; the std
@@ -421,16 +424,21 @@ def calibrate(sweep: pd.DataFrame) -> pd.DataFrame:
     if missing:
         raise ValueError(f"sweep is missing the column(s) {', '.join(missing)}")
     has_drive = "drive_amplitude_m" in sweep.columns
+    halves = "half" in sweep.columns and bool(sweep["half"].astype(str).str.len().any())
+    keys = ["impacter", "half"] if halves else ["impacter"]
     rows = []
-    for name, group in sweep.groupby("impacter", sort=False):
+    for key, group in sweep.groupby(keys, sort=False):
+        name, half = (key if halves else (key[0] if isinstance(key, tuple) else key, ""))
+        label = f"{name} half {half}" if half else f"{name}"
         try:
             fit = fit_resonance(group["frequency_hz"].to_numpy(), group["amplitude_m"].to_numpy(),
                                 group["drive_amplitude_m"].to_numpy() if has_drive else None)
         except ValueError as exc:
-            raise ValueError(f"impacter {name}: {exc}") from None
-        rows.append({"impacter": name, **asdict(fit)})
-    extra = [c for c in rows[0] if c not in MEASURED_COLUMNS] if rows else []
-    return pd.DataFrame(rows, columns=list(MEASURED_COLUMNS) + extra)
+            raise ValueError(f"impacter {label}: {exc}") from None
+        rows.append({"impacter": name, **({"half": half} if halves else {}), **asdict(fit)})
+    columns = list(MEASURED_COLUMNS) + (["half"] if halves else [])
+    extra = [c for c in rows[0] if c not in columns] if rows else []
+    return pd.DataFrame(rows, columns=columns + extra)
 
 
 def read_sweep(path) -> pd.DataFrame:
@@ -440,7 +448,8 @@ def read_sweep(path) -> pd.DataFrame:
     ----------
     path : str or os.PathLike
         A CSV file with the header ``impacter,frequency_hz,amplitude_um`` and
-        optionally ``drive_amplitude_um`` (any column order); one row a
+        optionally ``drive_amplitude_um`` and ``half`` (``a``/``b``: one cantilever of
+        the pair, each fitted on its own; any column order); one row a
         measurement: the impacter's name, the drive frequency [Hz], the impacter's
         steady amplitude relative to the die [um] (half the peak-to-peak) and the
         die's own amplitude at that frequency [um].  Blank lines and lines starting
@@ -474,8 +483,14 @@ def read_sweep(path) -> pd.DataFrame:
         if not values["impacter"]:
             raise fail(line, "impacter", "empty impacter name")
         rec = {"impacter": values["impacter"], "line": line}
+        if "half" in values:
+            half = values["half"].lower()
+            if half and half not in HALVES:
+                raise fail(line, "half", f"must be a or b (one cantilever of the pair) or "
+                                         f"blank, {values['half']!r} was given")
+            rec["half"] = half
         for column in header:
-            if column == "impacter":
+            if column in ("impacter", "half"):
                 continue
             text = values[column]
             x = csv_number(text, line, column, fail)
@@ -491,16 +506,30 @@ def read_sweep(path) -> pd.DataFrame:
         raise fail(header_line + 1, "impacter", "no measurements after the header")
 
     frame = pd.DataFrame.from_records(records)
-    for name, group in frame.groupby("impacter", sort=False):
+    halves = "half" in frame.columns and bool(frame["half"].str.len().any())
+    if halves:
+        # a pair is measured half by half or as a whole, not both
+        for name, group in frame.groupby("impacter", sort=False):
+            if set(group["half"]) & {""} and set(group["half"]) - {""}:
+                blank = group[group["half"] == ""]
+                raise fail(int(blank["line"].iloc[0]), "half",
+                           f"impacter {name!r} has rows with and without a half; give a "
+                           f"or b on every row of a pair measured half by half")
+    for key, group in frame.groupby(["impacter", "half"] if halves else ["impacter"],
+                                    sort=False):
+        name = key[0] if isinstance(key, tuple) else key
+        what = f"{name!r} half {key[1]}" if halves else f"{name!r}"
         distinct = group["frequency_hz"].nunique()
         if distinct < MIN_POINTS:
             rows = ", ".join(str(n) for n in group["line"])
             raise fail(int(group["line"].iloc[0]), "impacter",
-                       f"impacter {name!r} has {distinct} distinct frequencies (rows {rows}); "
+                       f"impacter {what} has {distinct} distinct frequencies (rows {rows}); "
                        f"fitting nu_n, Q and the scale needs at least {MIN_POINTS}")
     out = pd.DataFrame({"impacter": frame["impacter"].astype(str),
                         "frequency_hz": frame["frequency_hz"],
                         "amplitude_m": frame["amplitude_um"] * UM})
+    if halves:
+        out["half"] = frame["half"]
     if "drive_amplitude_um" in frame.columns:
         out["drive_amplitude_m"] = frame["drive_amplitude_um"] * UM
     out["line"] = frame["line"]
@@ -616,4 +645,5 @@ def write_measured(fits: pd.DataFrame, path) -> None:
     path : str or os.PathLike
         The CSV file; frequencies to 10 significant digits.
     """
-    fits.loc[:, list(MEASURED_COLUMNS)].to_csv(path, index=False, float_format="%.10g")
+    columns = list(MEASURED_COLUMNS) + (["half"] if "half" in fits.columns else [])
+    fits.loc[:, columns].to_csv(path, index=False, float_format="%.10g")

@@ -48,14 +48,18 @@ def command(sweep_csv, out, keep_flagged, force):
                           is assumed the SAME at every frequency and s = Z
                           cos(theta) [um] is fitted.  A sweep at constant
                           power (Z^2 w^3 fixed) needs this column.
+      half                optional: a or b, one cantilever of the pair, each
+                          fitted on its own (blank: the pair as a whole; a
+                          pair is measured one way or the other, not both)
     Other columns are errors (a misspelt unit would otherwise be ignored).
     Each impacter needs at least 5 distinct frequencies; in practice measure
     30-60, at least 3 of them inside the half-power band f_n (1 +- 1/(2Q)).
 
     \b
     measured.csv: impacter,natural_frequency_hz,quality_factor,
-                  natural_frequency_std_hz,quality_factor_std
-    (frequencies [Hz], Q [-], std = one standard error).
+                  natural_frequency_std_hz,quality_factor_std[,half]
+    (frequencies [Hz], Q [-], std = one standard error; half when the sweep
+    has it, which vibroplan replan reads as the pair's two halves).
 
     A fit is flagged, and by default not written, when the peak is at or beyond
     the sweep's end, fewer than 3 points lie in the half-power band, Q is not
@@ -76,9 +80,12 @@ def command(sweep_csv, out, keep_flagged, force):
         scale_text = "cos(theta) = {:.4g}".format
     else:
         scale_text = lambda s: f"Z cos(theta) = {s * 1e6:.4g} um"  # noqa: E731
-    width = max(len(str(n)) for n in fits["impacter"])
-    for fit in fits.itertuples(index=False):
-        name = f"{fit.impacter}:".ljust(width + 1)
+    halves = "half" in fits.columns
+    labels = [f"{n} ({h})" if halves and h else str(n)
+              for n, h in zip(fits["impacter"], fits["half"] if halves else fits["impacter"])]
+    width = max(len(x) for x in labels)
+    for label, fit in zip(labels, fits.itertuples(index=False)):
+        name = f"{label}:".ljust(width + 1)
         if fit.status == "fit_failed":
             click.echo(f"{name} no fit [{fit.status}]")
         else:
@@ -88,7 +95,7 @@ def command(sweep_csv, out, keep_flagged, force):
                        f"({fit.n_points} points, {fit.n_peak_points} in the "
                        f"half-power band, scatter {fit.residual_rms:.2%}) [{fit.status}]")
         if fit.status != "ok":
-            click.echo(f"warning: {fit.impacter}: {fit.message}", err=True)
+            click.echo(f"warning: {label}: {fit.message}", err=True)
 
     ok = fits["status"] == "ok"
     keep = fits if keep_flagged else fits[ok]

@@ -364,3 +364,47 @@ def test_help_explains_the_formats_with_units():
                  "natural_frequency_std_hz", "quality_factor_std", "half the", "SAME"):
         assert text in res.output
     assert "calibrate" in run("--help").output
+
+
+def test_each_half_of_a_pair_is_fitted_and_read_by_the_replan(tmp_path):
+    """A sweep with a ``half`` column (issue 26): each cantilever of a pair is fitted on its
+    own, measured.csv keeps the half, and the re-plan's reader takes it as two halves of
+    one pair (nu_n of each within its reported error); a pair given with and without a
+    half, or a half that is not a or b, is refused by row and column."""
+    from planner.planning.replan import read_measured
+
+    halves = {"a": air_impacter(9000.0), "b": air_impacter(9060.0)}
+    rng = np.random.default_rng(5)
+    parts = []
+    for half, imp in halves.items():
+        part = simulated_sweep({"A1.forward": imp}, rng, n=25)
+        part.insert(1, "half", half)
+        parts.append(part)
+    sweep = pd.concat(parts, ignore_index=True)
+    csv = tmp_path / "sweep.csv"
+    with open(csv, "w") as fh:
+        fh.write("impacter,half,frequency_hz,amplitude_um,drive_amplitude_um\n")
+        for r in sweep.itertuples(index=False):
+            fh.write(f"{r.impacter},{r.half},{r.frequency_hz!r},{r.amplitude_m * 1e6!r},"
+                     f"{r.drive_amplitude_m * 1e6!r}\n")
+    out = tmp_path / "measured.csv"
+    res = run("calibrate", csv, "--out", out)
+    assert res.exit_code == 0, res.output
+    assert "A1.forward (a):" in res.output and "A1.forward (b):" in res.output
+    fits = pd.read_csv(out, keep_default_na=False)
+    assert list(fits["half"]) == ["a", "b"]
+    for fit, imp in zip(fits.to_dict("records"), halves.values()):
+        assert abs(fit["natural_frequency_hz"] - imp.natural_frequency) \
+            < 3 * fit["natural_frequency_std_hz"]
+    got = read_measured(out, ["A1.forward"])["A1.forward"]
+    assert got["halves_hz"] == pytest.approx((9000.0, 9060.0), rel=2e-3)
+
+    lines = csv.read_text().splitlines()
+    for bad, column in ((lines[0] + "\n" + lines[1].replace(",a,", ",,", 1), "half"),
+                        (lines[0] + "\n" + lines[1].replace(",a,", ",c,", 1), "half")):
+        path = tmp_path / "bad.csv"
+        path.write_text(bad + "\n" + "\n".join(lines[2:]) + "\n")
+        res = run("calibrate", path, "--out", tmp_path / "m2.csv")
+        assert res.exit_code == 2, res.output
+        assert "row 2" in res.output and f"column {column}" in res.output
+        assert not (tmp_path / "m2.csv").exists()
