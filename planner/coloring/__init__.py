@@ -55,69 +55,6 @@ from planner.coloring.solve import color_bandwidth, solve_bandwidth
 from planner.coloring.strategies import STRATEGIES
 from planner.coloring.verify import Violation, span, verify_coloring
 
-# Every name that planner/coloring.py held before it became this package stays
-# importable from here (tuning constants, and the private helpers that tests and
-# benchmarks may reach for).  Rebinding one here does not reach the module that
-# uses it: patch it in its own module, e.g. planner.coloring.heuristic.TABU_CHUNK.
-from planner.coloring.bounds import (  # noqa: E402,F401
-    CLIQUE_ENUM_LIMIT,
-    CLIQUE_EXACT_MAX,
-    HELD_KARP_STEPS,
-    _clique_bound,
-    _lower_bound,
-)
-from planner.coloring.heuristic import (  # noqa: E402,F401
-    DEFAULT_SEED,
-    GREEDY_RANDOM_RESTARTS,
-    ORDER_CHUNK,
-    ORDER_HISTORY,
-    ORDER_SEARCH_MIN,
-    ORDER_SEARCH_PER_NODE,
-    TABU_CHUNK,
-    TABU_LEVEL_MIN,
-    TABU_LEVEL_PER_NODE,
-    TABU_PERTURB_FRACTION,
-    TABU_STALL_MIN,
-    TABU_STALL_PER_NODE,
-    TABU_TENURES,
-    _as_rng,
-    _compact,
-    _greedy,
-    _heuristic,
-    _order_descent,
-    _squeeze,
-    _tabu_descent,
-)
-from planner.coloring.kernels import (  # noqa: E402,F401
-    _clique_greedy_span_kernel,
-    _clique_span_kernel,
-    _dsatur_kernel,
-    _first_fit_kernel,
-    _held_karp_kernel,
-    _order_search_kernel,
-    _tabu_kernel,
-    _violation_table,
-)
-from planner.coloring.milp import _milp_component  # noqa: E402,F401
-from planner.coloring.problem import (  # noqa: E402,F401
-    _check_graph,
-    _check_separation,
-    _Problem,
-    _span_of,
-)
-from planner.coloring.result import _result  # noqa: E402,F401
-from planner.coloring.strategies import (  # noqa: E402,F401
-    AUTO_EXACT_MAX_NODES,
-    DEFAULT_EXACT_TIME_LIMIT,
-    DEFAULT_HEURISTIC_TIME_LIMIT,
-    EXACT_HEURISTIC_EFFORT,
-    HEURISTIC_SHARE,
-    LARGE_HEURISTIC_SHARE,
-    _check_time_limit,
-    _strategy_auto,
-    _strategy_dsatur,
-    _strategy_milp,
-)
 
 __all__ = [
     "ColoringResult",
