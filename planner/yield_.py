@@ -530,13 +530,19 @@ def _ordered(counts: dict, order) -> dict:
     return dict(sorted(counts.items(), key=lambda kv: (-kv[1], rank.get(kv[0], 99), kv[0])))
 
 
+def _tally(lists, order) -> dict:
+    """How many of ``lists`` (each a chip's causes or failing checks) name each item,
+    most frequent first (:func:`_ordered`)."""
+    counts = {}
+    for items in lists:
+        for k in items:
+            counts[k] = counts.get(k, 0) + 1
+    return _ordered(counts, order)
+
+
 def _summary(results, chips):
     passed = sum(r["passed"] for r in results)
-    kinds = {}
-    for r in results:
-        for k in r["failures"]:
-            kinds[k] = kinds.get(k, 0) + 1
-    failures = _ordered(kinds, KINDS)
+    failures = _tally((r["failures"] for r in results), KINDS)
     both = sum(r.get("carried_passed", r["passed"]) for r in results)
     out = {"chips": chips, "passed": passed, "yield": passed / chips,
            "ci95": wilson_interval(passed, chips), "failures": failures,
@@ -553,38 +559,27 @@ def _trim_summary(results, chips):
     """The yield with trims: chips the re-plan passed, or that a trim and a re-plan of
     the trimmed chip rescued."""
     ok = sum(r["trim"]["passed"] for r in results)
-    causes, kinds = {}, {}
-    for r in results:
-        if r["trim"]["passed"]:
-            continue
-        for c in r["trim"]["causes"]:
-            causes[c] = causes.get(c, 0) + 1
-        for k in r["trim"]["failures"]:
-            kinds[k] = kinds.get(k, 0) + 1
+    failed = [r["trim"] for r in results if not r["trim"]["passed"]]
     return {"chips": chips, "passed": ok, "yield": ok / chips,
             "ci95": wilson_interval(ok, chips),
             "trimmed": sum(1 for r in results if r["trim"]["trimmed"]),
             "rescued": sum(1 for r in results
                            if r["trim"]["passed"] and not r["replan"]["passed"]),
-            "causes": _ordered(causes, REPLAN_CAUSES + ("cannot be trimmed",)),
-            "failures": _ordered(kinds, KINDS)}
+            "causes": _tally((t["causes"] for t in failed),
+                             REPLAN_CAUSES + ("cannot be trimmed",)),
+            "failures": _tally((t["failures"] for t in failed), KINDS)}
 
 
 def _replan_summary(results, chips):
     """The re-plan's yield, its failure causes and the chips it rescued or lost."""
     ok = sum(r["replan"]["passed"] for r in results)
-    causes, kinds = {}, {}
-    for r in results:
-        for c in r["replan"]["causes"]:
-            causes[c] = causes.get(c, 0) + 1
-        for k in r["replan"]["failures"]:
-            kinds[k] = kinds.get(k, 0) + 1
     return {"chips": chips, "passed": ok, "yield": ok / chips,
             "ci95": wilson_interval(ok, chips),
             "rescued": sum(1 for r in results if r["replan"]["passed"] and not r["passed"]),
             "lost": sum(1 for r in results if r["passed"] and not r["replan"]["passed"]),
             "measured_passed": sum(r["replan"]["measured_passed"] for r in results),
-            "causes": _ordered(causes, REPLAN_CAUSES), "failures": _ordered(kinds, KINDS)}
+            "causes": _tally((r["replan"]["causes"] for r in results), REPLAN_CAUSES),
+            "failures": _tally((r["replan"]["failures"] for r in results), KINDS)}
 
 
 def _chip_record(r) -> dict:
