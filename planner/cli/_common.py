@@ -39,7 +39,7 @@ from planner._io import (
 from planner.errors import Interrupted, OutputError, PlanningError, SpecError
 
 __all__ = ["EXIT_CODES_HELP", "FORCE_FILES_HELP", "Finite", "check_output_files",
-           "check_output_folder", "handle_errors", "output_file", "output_files",
+           "check_output_folder", "chip_inputs", "handle_errors", "output_file", "output_files",
            "output_folder", "version_string"]
 
 EXIT_OK, EXIT_FAILED, EXIT_INPUT, EXIT_OS = 0, 1, 2, 3
@@ -198,3 +198,27 @@ def handle_errors(func):
                 raise
 
     return wrapper
+
+
+def chip_inputs(plan_path, measured_path, out_dir, *, command: str, force: bool, quiet: bool):
+    """What ``vibroplan replan`` and ``vibroplan trim`` start from: the plan, the chip's
+    measurement (read and checked), the inputs the output folder must not replace (the
+    folder checked before any work) and a progress callback printing each stage.
+
+    Returns
+    -------
+    (plan, measured, inputs, progress)
+    """
+    from planner.planning.plan_file import read_plan
+    from planner.planning.replan import read_measured
+
+    plan = read_plan(plan_path)
+    measured = read_measured(measured_path, plan.impacter_ids)
+    inputs = [plan.path, measured_path]
+    check_output_folder(out_dir, command=command, inputs=inputs, force=force)
+
+    def progress(stage, item=None, total=None):
+        if total is not None and not quiet:
+            click.echo(f"{stage}...", err=True)
+
+    return plan, measured, inputs, progress

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_errors
+from planner.cli._common import EXIT_CODES_HELP, chip_inputs, handle_errors
 
 
 @click.command("replan")
@@ -69,17 +69,10 @@ def command(plan_path, measured_path, out_dir, force, seed, no_figures, quiet):
     {EXIT}
     """
     from planner._io import output_folder
-    from planner.planning.plan_file import read_plan
-    from planner.planning.replan import read_measured, replan, write_replan_outputs
+    from planner.planning.replan import replan, write_replan_outputs
 
-    plan = read_plan(plan_path)
-    measured = read_measured(measured_path, plan.impacter_ids)
-    inputs = [plan.path, measured_path]
-    check_output_folder(out_dir, command="replan", inputs=inputs, force=force)
-
-    def progress(stage, item=None, total=None):
-        if total is not None and not quiet:
-            click.echo(f"{stage}...", err=True)
+    plan, measured, inputs, progress = chip_inputs(plan_path, measured_path, out_dir,
+                                                   command="replan", force=force, quiet=quiet)
 
     with output_folder(out_dir, command="replan", inputs=inputs, force=force) as tmp:
         result = replan(plan, measured, seed=seed, progress=progress)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_errors
+from planner.cli._common import EXIT_CODES_HELP, chip_inputs, handle_errors
 
 
 @click.command("trim")
@@ -54,19 +54,12 @@ def command(plan_path, measured_path, out_dir, seed, force, no_figures, quiet):
     {EXIT}
     """
     from planner._io import output_folder
-    from planner.planning.plan_file import read_plan
-    from planner.planning.replan import read_measured, write_replan_outputs
+    from planner.planning.replan import write_replan_outputs
     from planner.planning.trimming import trim_chip
     from planner.trim import write_trim_csv
 
-    plan = read_plan(plan_path)
-    measured = read_measured(measured_path, plan.impacter_ids)
-    inputs = [plan.path, measured_path]
-    check_output_folder(out_dir, command="trim", inputs=inputs, force=force)
-
-    def progress(stage, item=None, total=None):
-        if total is not None and not quiet:
-            click.echo(f"{stage}...", err=True)
+    plan, measured, inputs, progress = chip_inputs(plan_path, measured_path, out_dir,
+                                                   command="trim", force=force, quiet=quiet)
 
     with output_folder(out_dir, command="trim", inputs=inputs, force=force) as tmp:
         res = trim_chip(plan, measured, seed=seed, progress=progress)
