@@ -214,7 +214,13 @@ def _report(data: dict, spec: ArraySpec, plan_path: str, figures: list[str],
     lines += ["## Impacters", "",
               "Failure rate: the fraction of chips on which the impacter pair was implicated "
               "in a failed check (it responded while idle, its slider was too slow, or its "
-              "idle slider moved).", "", "![impacters](figures/impacters.png)", "",
+              "idle slider moved)." + (
+                  "  With --replan the plan's own drive is only the reference: its checks "
+                  "on each chip stop at its first failing step, so these rates (and the "
+                  "failing checks above) say which impacters fail first under the plan's "
+                  "drive, not how often each would fail; the re-planned drive's failures "
+                  "are in the re-plan section." if "replan" in data else ""),
+              "", "![impacters](figures/impacters.png)", "",
               "| impacter | failure rate |", "|---|---|"]
     lines += [f"| {n} | {r:.3f} |" for n, r in worst]
     lines.append("")
