@@ -34,6 +34,18 @@ NATURAL_RATIO = (0.4, 1.4)
 LONG_WINDOW_FACTOR = 10.0
 #: Two designs closer than this in z (max norm) are one design in the archive [-].
 ARCHIVE_SEPARATION = 0.02
+#: Search range of the gap c as a multiple kappa of the impacter's linear steady-state
+#: amplitude X at its own tone (eq. 1 without the wall: X = Z0 r^2 / |1 - r^2 + 2 i zeta r|,
+#: r = nu / nu_n).  Feasible designs need c below X (from rest the impacter must reach the
+#: wall at its tone) and not far below it (a forbidden tone's amplitude is a fraction of
+#: X, and the transient from x0 = +-c must not reach the wall): the feasible gaps of the
+#: default plan, 4.5-51 kHz, lie at kappa = 0.60-0.65, a sliver of the absolute gap
+#: range that moves with A and nu_n but not in kappa [-].
+GAP_AMPLITUDE_RATIO = (0.3, 1.2)
+#: A design projected onto the mass cap is aimed this far under it [-] ...
+MASS_CAP_MARGIN = 1e-6
+#: ... in at most this many fixed-point steps (each re-solves the beams).
+MASS_CAP_ITERATIONS = 6
 
 
 @dataclass
@@ -144,13 +156,25 @@ class _Problem:
                     f"ng, below the mass of the smallest area allowed ({bounds.area[0] * 1e12:g}"
                     " um^2): raise max_mass_ratio, lower the area bound or use a heavier slider")
         self.area_hi = area_hi
+        # z[3] is ln kappa, the gap over the linear amplitude at the target
+        # (GAP_AMPLITUDE_RATIO); the gap is then clipped to its bounds
         self.lo = np.log([bounds.area[0], bounds.width[0], ratio[0] * frequency,
-                          bounds.gap[0]])
+                          GAP_AMPLITUDE_RATIO[0]])
         self.hi = np.log([area_hi, bounds.width[1], ratio[1] * frequency,
-                          bounds.gap[1]])
+                          GAP_AMPLITUDE_RATIO[1]])
+        # b = mu A / d (eq. 3) is linear in A: its coefficient, for the amplitude
+        ref = factory(1e-9, bounds.width[0], bounds.length[0], bounds.gap[0])
+        self.damping_per_area = ref.damping / 1e-9
+        drive = tones.drive(frequency)
+        self.tone_amplitude = float(drive.amplitudes[0])
         self.evals = {}      # geometry -> _Eval (on the current grids)
         self.runs = {}       # (geometry, f, window, stop, u bytes) -> (r, status)
         self.impacters = {}  # geometry -> model.Impacter (validation costs as much as a run)
+        # whether the search's objective counts the target ensembles too: it starts
+        # without them (on the default plan they lowered r_min in 2 of ~400 evaluations,
+        # at ~400 us a run against ~50 us for the tone) and takes them in from the
+        # first re-check in which they lower r_min; the re-checks always count them
+        self.ensembles_in_search = False
         self.threads_full = numba.get_num_threads()
         self.threads_now = self.threads_full
         self.evaluations = 0
@@ -173,27 +197,75 @@ class _Problem:
         fixed, the area) is solved for it at the candidate's A (or w) and nu_n.
         """
         z = np.clip(np.asarray(z, dtype=float), 0.0, 1.0)
-        area, width, nu_n, gap = np.exp(self.lo + z * (self.hi - self.lo))
-        if self.sensitivity is None:
-            length = self.length_for(area, width, nu_n)
-        else:
+        area, width, nu_n, kappa = np.exp(self.lo + z * (self.hi - self.lo))
+        target = None
+        if self.sensitivity is not None:
             s_lo, s_hi = self.sensitivity
             target = s_lo * (s_hi / s_lo) ** z[1] if s_hi > s_lo else s_lo
-            if self.bounds.width[0] < self.bounds.width[1]:
-                width, length = self.line_width.width_for(area, nu_n, target,
-                                                          self.bounds.width, self.bounds.length)
-            else:
-                area, length = self.line_width.area_for(width, nu_n, target,
-                                                        (self.bounds.area[0], self.area_hi),
-                                                        self.bounds.length)
+        area, width, length = self._shape(area, width, nu_n, target)
+        area_free = self.sensitivity is None or self.bounds.width[0] < self.bounds.width[1]
+        if area_free and self.line_width.mass(area, width, length) > self.mass_cap:
+            area, width, length = self._onto_mass_cap(area, width, length, nu_n, target)
+        amplitude = self.linear_amplitude(area, width, length)
+        gap = min(max(kappa * amplitude, self.bounds.gap[0]), self.bounds.gap[1])
         imp = self.factory(area, width, length, gap)
         zz = z.copy()
+        zz[0] = min(1.0, max(0.0, (math.log(area) - self.lo[0]) / (self.hi[0] - self.lo[0])))
         zz[2] = (math.log(imp.natural_frequency) - self.lo[2]) / (self.hi[2] - self.lo[2])
+        zz[3] = min(1.0, max(0.0, (math.log(gap / amplitude) - self.lo[3])
+                             / (self.hi[3] - self.lo[3])))
         if self.sensitivity is not None and self.sensitivity[1] > self.sensitivity[0]:
             s = self.line_width.sensitivity(area, width, length)
             zz[1] = min(1.0, max(0.0, math.log(s / self.sensitivity[0])
                                  / math.log(self.sensitivity[1] / self.sensitivity[0])))
         return (float(area), float(width), float(length), float(gap)), zz
+
+    def _shape(self, area, width, nu_n, target):
+        """(A, w, l) for natural frequency ``nu_n``: l from nu_n, or with a sensitivity
+        ``target`` [1/m] the width (the area, when the width is fixed) solved for it."""
+        if target is None:
+            return area, width, self.length_for(area, width, nu_n)
+        if self.bounds.width[0] < self.bounds.width[1]:
+            width, length = self.line_width.width_for(area, nu_n, target,
+                                                      self.bounds.width, self.bounds.length)
+        else:
+            area, length = self.line_width.area_for(width, nu_n, target,
+                                                    (self.bounds.area[0], self.area_hi),
+                                                    self.bounds.length)
+        return area, width, length
+
+    def _onto_mass_cap(self, area, width, length, nu_n, target):
+        """(A, w, l) with the area lowered until m = c_A A + c_wl w l meets the mass cap.
+
+        The plate-only bound ``area_hi`` leaves the beams' mass out, so the largest
+        areas overshoot the cap, where the fastest designs sit (m/M at the cap: the
+        heavier impacter kicks harder).  A projection onto the cap instead of a penalty
+        keeps the search's largest-area samples (``Budget.area_face``) on that face.
+        Fixed-point iteration on A, the beams re-solved each time (their mass is a
+        small, slowly varying part of m); returned unchanged when it does not settle
+        under the cap (the energy's penalty then applies).
+        """
+        lw = self.line_width
+        goal = self.mass_cap * (1.0 - MASS_CAP_MARGIN)
+        for _ in range(MASS_CAP_ITERATIONS):
+            new_area = (goal - lw.c_wl * width * length) / lw.c_area
+            if not (new_area >= self.bounds.area[0]):
+                break
+            area, width, length = self._shape(new_area, width, nu_n, target)
+            if lw.mass(area, width, length) <= self.mass_cap:
+                return area, width, length
+        return area, width, length
+
+    def linear_amplitude(self, area, width, length):
+        """X [m]: steady-state amplitude of eq. (1) without the wall at the target tone,
+        for (A, w, l) by eqs. (2)-(4) in closed form."""
+        lw = self.line_width
+        m = lw.mass(area, width, length)
+        k = lw.k_coef * (width / length) ** 3
+        wn = math.sqrt(k / m)
+        r = 2.0 * math.pi * self.frequency / wn
+        zeta = self.damping_per_area * area / (2.0 * m * wn)
+        return self.tone_amplitude * r * r / math.hypot(1.0 - r * r, 2.0 * zeta * r)
 
     def sensitivity_miss(self, geometry):
         """|ln(S / band)| of ``geometry``'s line-width sensitivity outside the band, 0 inside."""
@@ -289,8 +361,9 @@ class _Problem:
                 base.natural_frequency * scale)
         return imp
 
-    def target(self, geometry, u, levels, window=None):
-        """(u, r) at the target frequency, refined by bisection where r jumps."""
+    def target(self, geometry, u, levels, window=None, ensembles=True):
+        """(u, r) at the target frequency, refined by bisection where r jumps; with
+        ``ensembles``, r is the least of the tone's and every target ensemble's."""
         window = self.window if window is None else window
         u = np.asarray(u, dtype=float)
         r = self.runs_of(geometry, self.frequency, u, window, False)[0]
@@ -305,7 +378,7 @@ class _Problem:
             r = np.concatenate([r, r_new])
             order = np.argsort(u, kind="stable")
             u, r = u[order], r[order]
-        for ens in self.target_ensembles:
+        for ens in (self.target_ensembles if ensembles else ()):
             # the slider must move under the step's summed drive from every x0 too
             r = np.minimum(r, self.runs_of(geometry, ens, u, window, False)[0])
         return u, r
@@ -380,7 +453,8 @@ class _Problem:
             ev = _Eval(zz, geometry, 2 * PENALTY + frac, frac, float(self.check_hz[j]), 0.0,
                        0.0, math.nan)
         else:
-            u, r = self.target(geometry, self.u, self.budget.refine_levels)
+            u, r = self.target(geometry, self.u, self.budget.refine_levels,
+                               ensembles=self.ensembles_in_search)
             i = int(np.argmin(r))
             zero = float(np.mean(r <= 0))
             energy = (PENALTY + zero if zero > 0 else

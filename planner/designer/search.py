@@ -126,6 +126,12 @@ def _recheck(problem, geometry):
     u_fine = _u_grid(b.verify_x0_points)
     u, r = problem.target(geometry, u_fine, b.verify_refine_levels)
     i = int(np.argmin(r))
+    if problem.target_ensembles and not problem.ensembles_in_search:
+        # the tone's runs are cached: free.  Where a target ensemble lowers r_min, the
+        # search counts the ensembles from now on
+        if float(r[i]) < float(np.min(problem.target(geometry, u_fine, b.verify_refine_levels,
+                                                      ensembles=False)[1])):
+            problem.ensembles_in_search = True
     r_max = []
     for f in problem.forbidden:
         rf = problem.runs_of(geometry, f, u_fine, problem.window, False)[0]
