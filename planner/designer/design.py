@@ -6,7 +6,7 @@ import math
 import numbers
 import time
 import warnings
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -184,9 +184,54 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
     >>> res.to_dict()["geometry"]                                 # doctest: +SKIP
     {'area_m2': ..., 'width_m': ..., 'length_m': ..., 'gap_m': ...}
     """
+    t_start = time.perf_counter()
+    a = _checked_inputs(frequency, forbidden, process, environment, bounds, window, slider,
+                        budget, x0_points, power, amplitude, seed, guard, impact_angle,
+                        restitution, forbidden_drives, target_drives, contact,
+                        max_mass_ratio, robust_shift, sensitivity)
+    problem = _Problem(a.frequency, a.forbidden, a.factory, a.tones, a.bounds, a.window,
+                       a.budget, a.guard, a.ensembles, mass_cap=a.mass_cap,
+                       q_per_kg=a.q_per_kg, robust_shift=a.robust_shift,
+                       target_ensembles=a.targets, sensitivity=a.sensitivity)
+    report = _progress_hook(progress)
+    ev, chk, status, history, rounds = _search(problem, a.rng, a.budget, report)
+    return _result(a, problem, ev, chk, status, history, rounds, report, slider=a.slider,
+                   speed_window=speed_window, speed_x0_points=speed_x0_points,
+                   seed=seed, t_start=t_start)
+
+
+@dataclass(frozen=True)
+class _Inputs:
+    """:func:`design_impacter`'s arguments, checked and converted (SI units)."""
+
+    frequency: float
+    forbidden: tuple
+    window: float
+    bounds: DesignBounds
+    slider: Slider
+    budget: object                 # planner.designer.budget.Budget
+    budget_name: str
+    tones: _Tones
+    rng: np.random.Generator
+    factory: object                # (A, w, l, c) -> model.Impacter
+    guard: float
+    ensembles: tuple
+    targets: tuple
+    contact: str
+    mass_cap: float
+    q_per_kg: float
+    robust_shift: object           # callable or None
+    sensitivity: tuple | None
+
+
+def _checked_inputs(frequency, forbidden, process, environment, bounds, window, slider,
+                    budget, x0_points, power, amplitude, seed, guard, impact_angle,
+                    restitution, forbidden_drives, target_drives, contact, max_mass_ratio,
+                    robust_shift, sensitivity):
+    """:class:`_Inputs` from :func:`design_impacter`'s arguments; ValueError naming the
+    first bad one."""
     from planner.config import EnvironmentConfig, ProcessConfig, SliderConfig, build_slider
 
-    t_start = time.perf_counter()
     frequency = float(frequency)
     if not (math.isfinite(frequency) and frequency > 0):
         raise ValueError(f"frequency must be finite and > 0, {frequency!r} was given")
@@ -257,12 +302,17 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
             raise ValueError(f"sensitivity must satisfy 0 < lo <= hi (finite) [1/m], "
                              f"{sensitivity!r} was given")
         sensitivity = (s_lo, s_hi)
-    problem = _Problem(frequency, forbidden, factory, tones, bounds, window, budget, guard,
-                       ensembles, mass_cap=mass_cap, q_per_kg=q_per_kg,
-                       robust_shift=robust_shift, target_ensembles=targets,
-                       sensitivity=sensitivity)
+    return _Inputs(frequency=frequency, forbidden=forbidden, window=window, bounds=bounds,
+                   slider=slider, budget=budget, budget_name=budget_name, tones=tones, rng=rng,
+                   factory=factory, guard=guard, ensembles=ensembles, targets=targets,
+                   contact=contact, mass_cap=mass_cap, q_per_kg=q_per_kg,
+                   robust_shift=robust_shift, sensitivity=sensitivity)
 
-    report = _progress_hook(progress)
+
+def _search(problem, rng, budget, report):
+    """Search and re-check; returns (evaluation, re-check, status, history, rounds) of
+    the design chosen: the first re-checked design that passes both checks, else the
+    best on the fine grid, else the least violating ("infeasible")."""
     expected = (budget.initial + budget.chains * budget.anneal_steps
                 + 12 * budget.sqp_maxiter + 10)
     count = [0]
@@ -277,8 +327,6 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         rounds = _search_and_recheck(problem, rng, budget, tick, history)
     # the first re-checked design that passes both checks (the search stops there)
     chosen = next(((ev, c) for ev, c in history if c["fine_ok"] and c["long_ok"]), None)
-    rejected = sum(1 for _, c in history if not c["fine_ok"])
-    rejected_long = sum(1 for _, c in history if c["fine_ok"] and not c["long_ok"])
     status = "ok"
     if chosen is None:
         fine = [(ev, c) for ev, c in history if c["fine_ok"]]
@@ -293,11 +341,20 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
                 chosen = (ev, _recheck(problem, ev.geometry))
             status = "infeasible"
     ev, chk = chosen
-    imp = factory(*ev.geometry)
-    feasible = bool(chk["fine_ok"])
-    if status == "ok" and not feasible:
+    if status == "ok" and not chk["fine_ok"]:
         status = "infeasible"
+    return ev, chk, status, history, rounds
 
+
+def _result(a, problem, ev, chk, status, history, rounds, report, *, slider, speed_window,
+            speed_x0_points, seed, t_start):
+    """The :class:`DesignResult` of the chosen design: band, margins, predicted slider
+    speed (the only slider simulation), the checks and the message."""
+    frequency, forbidden, window, budget, tones = (a.frequency, a.forbidden, a.window,
+                                                   a.budget, a.tones)
+    contact = a.contact
+    imp = a.factory(*ev.geometry)
+    feasible = bool(chk["fine_ok"])
     # report: band, margins and slider speed (the only slider simulation)
     nu_n = imp.natural_frequency
     band, margins = _band_and_margins(imp, tones, frequency, forbidden,
@@ -311,6 +368,27 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         speed = min(simulate_slider(imp, slider, tones.drive(frequency), x0,
                                     duration=speed_window or window,
                                     contact=contact).mean_velocity for x0 in starts)
+    checks = _checks(a, problem, ev, chk, history, rounds)
+    message = _message(a, chk, status, worst_x0, checks["violated_drives"])
+    report(1.0)
+    return DesignResult(
+        impacter=imp, frequency_hz=frequency, forbidden_hz=forbidden,
+        natural_frequency_hz=nu_n, mass_kg=imp.mass, stiffness_n_per_m=imp.stiffness,
+        damping_ns_per_m=imp.damping, gap_m=imp.gap, impact_angle_rad=imp.impact_angle,
+        restitution=imp.restitution, geometry=imp.geometry, worst_x0_m=worst_x0,
+        r_min_n=chk["r_min"], r_max_forbidden_n=tuple(chk["r_max"]), margins_hz=tuple(margins),
+        predicted_slider_speed_m_s=float(speed), feasible=feasible,
+        evaluations=problem.evaluations, seconds=time.perf_counter() - t_start,
+        simulations=problem.simulations, checks=checks, response_band_hz=band, status=status,
+        message=message, seed=seed if isinstance(seed, numbers.Integral) else None,
+        budget=a.budget_name, window_s=window, mass_ratio=imp.mass / slider.mass, contact=contact)
+
+
+def _checks(a, problem, ev, chk, history, rounds):
+    """DesignResult.checks: grids, re-check outcomes, rounds, faults, violated drives."""
+    window, sensitivity, robust_shift = a.window, a.sensitivity, a.robust_shift
+    rejected = sum(1 for _, c in history if not c["fine_ok"])
+    rejected_long = sum(1 for _, c in history if c["fine_ok"] and not c["long_ok"])
     checks = {
         "optimizer_x0_points": int(problem.u.size),
         "optimizer_forbidden_x0_points": int(problem.u_forbid.size),
@@ -335,6 +413,12 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         checks["sensitivity_band_per_um"] = [sensitivity[0] * UM, sensitivity[1] * UM]
     if robust_shift is not None:
         checks["robust_natural_frequency_scales"] = list(problem.nu_scales(ev.geometry))
+    return checks
+
+
+def _message(a, chk, status, worst_x0, violated_drives):
+    """DesignResult.message: what was met, or where the least violating design fails."""
+    frequency, forbidden, window = a.frequency, a.forbidden, a.window
     if status == "ok":
         message = (f"feasible: r_min = {chk['r_min']:.4g} N at x0 = {worst_x0 / UM:.4g} um; "
                    f"silent at {len(forbidden)} forbidden frequencies on {chk['points']} x0")
@@ -343,25 +427,14 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
                         f"{LONG_WINDOW_FACTOR * window * 1e3:g} ms re-check window")
     else:
         bad = [f"{f:g} Hz (r_max {r:.3g} N)" for f, r in zip(forbidden, chk["r_max"]) if r > 0]
-        bad += [f"the summed drive {label!r}" for label in checks["violated_drives"]]
+        bad += [f"the summed drive {label!r}" for label in violated_drives]
         message = ("no design met the constraints within the bounds and budget; the least "
                    "violating design is returned: "
                    + (f"responds at {', '.join(bad)}" if bad else "")
                    + ("" if chk["r_min"] > 0 else
                       (", and " if bad else "")
                       + f"does not respond at {frequency:g} Hz from every x0"))
-    report(1.0)
-    return DesignResult(
-        impacter=imp, frequency_hz=frequency, forbidden_hz=forbidden,
-        natural_frequency_hz=nu_n, mass_kg=imp.mass, stiffness_n_per_m=imp.stiffness,
-        damping_ns_per_m=imp.damping, gap_m=imp.gap, impact_angle_rad=imp.impact_angle,
-        restitution=imp.restitution, geometry=imp.geometry, worst_x0_m=worst_x0,
-        r_min_n=chk["r_min"], r_max_forbidden_n=tuple(chk["r_max"]), margins_hz=tuple(margins),
-        predicted_slider_speed_m_s=float(speed), feasible=feasible,
-        evaluations=problem.evaluations, seconds=time.perf_counter() - t_start,
-        simulations=problem.simulations, checks=checks, response_band_hz=band, status=status,
-        message=message, seed=seed if isinstance(seed, numbers.Integral) else None,
-        budget=budget_name, window_s=window, mass_ratio=imp.mass / slider.mass, contact=contact)
+    return message
 
 
 def design_pair(forward_hz, backward_hz, *, seed=0, progress=None, **kw):
