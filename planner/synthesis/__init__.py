@@ -24,12 +24,12 @@ Everything is in SI units: m, s, Hz, rad.  The phase optimisation evaluates the 
 oversampled FFT grid; the samples themselves are an exact sum of cosines, with the
 argument reduced in integers so the loop repeats bit for bit.
 
-Layout of this package (each module imports only those listed below it)
+Layout of this package (each module imports only those listed below it):
 
 - :mod:`~planner.synthesis.api`: the public functions, :func:`synthesize`,
   :func:`split_tones` and :func:`tones_from_power`.
 - :mod:`~planner.synthesis.phases`: :func:`optimise_phases` (L_p continuation and the
-  minimax polish) and :func:`schroeder_phases`.
+  minimax polish) and :func:`schroeder_phases`, with their references.
 - :mod:`~planner.synthesis.peak`: :func:`peak_of` and :func:`crest_factor`, the peak over
   continuous time.
 - :mod:`~planner.synthesis.waveform`: :class:`Waveform`, the drive-signal type.
@@ -38,13 +38,6 @@ Layout of this package (each module imports only those listed below it)
 - :mod:`~planner.synthesis.kernels`: sums of cosines over one loop, exact and on an FFT
   grid, in loop units.
 - :mod:`~planner.synthesis.validation`: the argument checks.
-
-References
-----------
-.. [1] M. R. Schroeder, "Synthesis of low-peak-factor signals and binary sequences with
-   low autocorrelation", IEEE Trans. Inf. Theory 16(1), 85-89, 1970.
-.. [2] P. Guillaume, J. Schoukens, R. Pintelon, I. Kollar, "Crest-factor minimization using
-   nonlinear Chebyshev approximation methods", IEEE Trans. Instrum. Meas. 40(6), 982-989, 1991.
 """
 
 from __future__ import annotations
@@ -57,6 +50,6 @@ from planner.synthesis.peak import crest_factor, peak_of
 from planner.synthesis.phases import optimise_phases, schroeder_phases
 from planner.synthesis.waveform import Waveform
 
-__all__ = ["Waveform", "LoopLengthError", "synthesize", "tones_from_power", "split_tones", "as_generator",
-           "optimise_phases", "schroeder_phases", "peak_of", "crest_factor", "check_loop_memory",
-           "DEFAULT_POWER", "FREQUENCY_TOLERANCE_REL", "MAX_LOOP_LENGTH"]
+__all__ = ["Waveform", "LoopLengthError", "synthesize", "tones_from_power", "split_tones",
+           "as_generator", "optimise_phases", "schroeder_phases", "peak_of", "crest_factor",
+           "check_loop_memory", "DEFAULT_POWER", "FREQUENCY_TOLERANCE_REL", "MAX_LOOP_LENGTH"]
