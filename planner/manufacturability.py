@@ -505,7 +505,7 @@ def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,
     errors (the line width's curvature is below 1e-4 relative at 0.05 um on 5 um
     beams; the tests hold it against chips sampled through the full equations).
     """
-    from planner.yield_ import wilson_interval
+    from planner.yield_.interval import wilson_interval
 
     nu = np.asarray(nu, dtype=float)
     tone = np.asarray(tone, dtype=float)

@@ -2,7 +2,8 @@
 intervals, the failing checks, the re-plan's and the trim's causes and cost) and the
 figures (yield against the sigma scale, failure rates over the array).
 
-Split from :mod:`planner.yield_`, which computes the numbers this module only writes.
+The numbers are :mod:`planner.yield_`'s (:func:`planner.yield_.run_yield`); this module
+only writes them.
 """
 
 from __future__ import annotations
@@ -12,17 +13,22 @@ from pathlib import Path
 
 import numpy as np
 
+from planner.nodes import Node
 from planner.spec import ArraySpec
 from planner.yield_ import scale_key
 
 
 def _grid(spec: ArraySpec, rates: dict, direction: str):
-    rows, cols = spec.array.rows, spec.array.cols
-    grid = np.full((rows, cols), np.nan)
-    for n, rate in rates.items():
-        dev, d = n.split(".")
-        if d == direction:
-            grid[ord(dev[0]) - ord("A"), int(dev[1:]) - 1] = rate
+    """The failure rates of the impacters of one direction on the array's (row, column)
+    grid, NaN where there is none; ``rates`` is yield.json's ``impacters`` (node text ->
+    rate)."""
+    cols = spec.array.cols
+    cell = {dev: divmod(i, cols) for i, dev in enumerate(spec.array.device_ids())}
+    grid = np.full((spec.array.rows, cols), np.nan)
+    for text, rate in rates.items():
+        node = Node.parse(text)
+        if node.direction == direction:
+            grid[cell[node.device]] = rate
     return grid
 
 

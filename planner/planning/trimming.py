@@ -80,7 +80,8 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
     from planner.planning.replan import measured_models, measured_resonances, replan
     from planner.planning.rescue import must_differ, separations_of
     from planner.planning.settings import resolve_settings
-    from planner.yield_ import _drive_of, check_drive
+    from planner.yield_ import check_drive
+    from planner.yield_.inputs import _drive_of
 
     spec = spec or plan.spec.trim or TrimSpec()
     seed = plan.seed if seed is None else int(seed)

@@ -94,6 +94,39 @@ def test_chip_results_depend_on_seed_and_index_only(tiny_plan_dir):
     assert forward == backward
 
 
+def test_failure_rates_count_the_impacters_each_chip_implicates(tiny_plan_dir):
+    """yield.json's per-impacter failure rate is the fraction of chips whose checks
+    implicated that impacter (a Node inside, its text in the file)."""
+    from planner.nodes import Node
+    from planner.planning.plan_file import read_plan
+    from planner.spec import load_spec
+    from planner.yield_ import make_payload, run_yield, verify_chip
+
+    payload = make_payload(read_plan(tiny_plan_dir), 5, load_spec(HUGE).spec.fabrication)
+    chips = [verify_chip(payload, 0, i, 1.0) for i in range(4)]
+    data = run_yield(payload, 4)
+    assert any(c["nodes"] for c in chips), "the huge tolerance must fail some impacter"
+    assert all(isinstance(n, Node) for c in chips for n in c["nodes"])
+    assert data["impacters"] == {
+        n.text: sum(n in c["nodes"] for c in chips) / 4 for n in payload.nodes}
+    assert data["failed_chips"] == [c["chip"] for c in chips if not c["passed"]]
+
+
+def test_failure_rates_land_on_their_devices_cells():
+    """The report's array figure puts each impacter's rate on its own device's cell,
+    two-digit columns included."""
+    from planner.spec import load_spec
+    from planner.yield_report import _grid
+
+    spec = load_spec("name: wide\narray: {rows: 2, cols: 11}\n").spec
+    rates = {"A2.forward": 0.5, "A10.forward": 1.0, "B11.backward": 0.25, "A1.backward": 0.0}
+    forward, backward = _grid(spec, rates, "forward"), _grid(spec, rates, "backward")
+    assert forward.shape == backward.shape == (2, 11)
+    assert forward[0, 1] == 0.5 and forward[0, 9] == 1.0
+    assert backward[1, 10] == 0.25 and backward[0, 0] == 0.0
+    assert np.isnan(forward).sum() == 20 and np.isnan(backward).sum() == 20
+
+
 def test_as_built_geometry_follows_the_documented_mapping(tiny_plan_dir):
     from planner.fabrication import ERRORS, _impacter, sample_chip
     from planner.planning.plan_file import read_plan

@@ -1,0 +1,159 @@
+"""The inputs of a yield run: the worker payload built from a plan, and the checks of
+the command's numbers (chip count, sigma scales, noise levels)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+from planner.fabrication import ChipDesign, design_from_plan
+from planner.nodes import Node
+from planner.planning.plan_file import PlanRecord, drives
+from planner.spec import FabricationSpec, LoadedSpec
+
+#: Memory one chip's task and result hold until the end of a run [bytes]: its result
+#: (a few hundred bytes, a few KB with --replan) and, on Dask, the scheduler's and the
+#: client's bookkeeping of its task (~10 KB); an upper estimate.
+CHIP_BYTES = 16 * 1024
+
+
+@dataclass(frozen=True)
+class Payload:
+    """Everything a worker needs to verify chips; sent to each worker once."""
+
+    design: ChipDesign
+    loaded: LoadedSpec
+    waveforms: dict
+    fabrication: FabricationSpec
+    seed: int
+    #: Numba threads per chip (None: numba's default); :func:`planner.yield_.run_yield`
+    #: sets 1.
+    threads: int | None = None
+    #: Settle dwell [s] of every step key (plan.json's ``settle_s``, the dwell the
+    #: plan's own carried-state check used).
+    dwells: dict = dataclasses.field(default_factory=dict)
+    #: Measure, re-plan and re-verify every chip (``--replan``).
+    replan: bool = False
+    #: One sigma of the relative measurement noise of a natural frequency [%].
+    measure_noise_pct: float = 0.0
+    #: The plan the re-plan starts from (only with ``replan``).
+    record: "PlanRecord | None" = None
+    #: Trim the chips the re-plan cannot rescue (``--trim``, needs ``replan``).
+    trim: bool = False
+    #: One sigma of a trim's error [%] (``--trim-precision``; None: the spec's
+    #: ``trim.precision_pct``).
+    trim_precision_pct: float | None = None
+
+    @property
+    def nodes(self) -> tuple[Node, ...]:
+        """The plan's impacters, in its order."""
+        return tuple(Node(n.device, n.direction) for n in self.design.nodes)
+
+
+def _drive_of(record: PlanRecord):
+    """(steps, step key -> recorded drive, step key -> settle dwell [s]) of a plan."""
+    return tuple(st.step for st in record.steps), drives(record), dict(record.dwells)
+
+
+def check_noise(pct, option: str = "--measure-noise") -> float:
+    """``pct`` as a relative sigma [%] (a measurement noise, a trim's precision): a finite
+    number >= 0.
+
+    Raises
+    ------
+    ValueError
+        Naming ``option``.
+    """
+    try:
+        x = float(pct)
+    except (TypeError, ValueError):
+        raise ValueError(f"{option}: {pct!r} is not a number") from None
+    if not (math.isfinite(x) and x >= 0):
+        raise ValueError(f"{option}: must be a finite number >= 0 [%], {pct} was given")
+    return x
+
+
+def make_payload(record: PlanRecord, seed: int, fabrication: FabricationSpec | None = None, *,
+                 replan: bool = False, measure_noise_pct: float = 0.0,
+                 allow_zero: bool = False, trim: bool = False,
+                 trim_precision_pct: float | None = None) -> Payload:
+    """The worker payload of a plan (:func:`planner.planning.plan_file.read_plan`);
+    ``fabrication`` overrides the plan's.
+
+    ``replan``: measure, re-plan and re-verify every chip; ``measure_noise_pct``: one
+    sigma of the relative noise of each measured natural frequency [%] (>= 0).
+    ``allow_zero``: accept a tolerance model whose every sigma is 0 (every chip is then
+    the nominal one: the yield is 1 or 0 by construction, not a measurement).
+
+    Raises
+    ------
+    ValueError
+        A zero tolerance model without ``allow_zero``; noise without ``replan``.
+    """
+    noise = check_noise(measure_noise_pct)
+    if noise and not replan:
+        raise ValueError("--measure-noise needs --replan (only a re-plan measures the chip)")
+    if trim and not replan:
+        raise ValueError("--trim needs --replan (a trimmed chip's drive is re-planned)")
+    if trim_precision_pct is not None:
+        trim_precision_pct = check_noise(trim_precision_pct, "--trim-precision")
+        if not trim:
+            raise ValueError("--trim-precision needs --trim")
+    fab = fabrication if fabrication is not None else record.spec.fabrication
+    if fab.zero and not allow_zero:
+        raise ValueError("every fabrication tolerance is 0 (the spec has no fabrication: "
+                         "section, or only zero sigmas): every chip would be the nominal one "
+                         "and the yield 1 or 0 by construction. Give the tolerances with "
+                         "--spec FILE (its fabrication: section), or pass --allow-zero to "
+                         "check the nominal chip alone")
+    steps, waveforms, dwells = _drive_of(record)
+    loaded = LoadedSpec(record.spec, steps, str(record.path or "plan.json"))
+    return Payload(design_from_plan(record), loaded, waveforms, fab, int(seed),
+                   dwells=dwells, replan=bool(replan), measure_noise_pct=noise,
+                   record=record if replan else None, trim=bool(trim),
+                   trim_precision_pct=trim_precision_pct)
+
+
+def parse_scales(text: str | None) -> list[float]:
+    """``"0.5,1,2"`` -> [0.5, 1.0, 2.0]; None -> [1.0].
+
+    Raises
+    ------
+    ValueError
+        An entry is not a finite number >= 0, or an entry repeats.
+    """
+    if text is None or str(text).strip() == "":
+        return [1.0]
+    out = []
+    for part in str(text).split(","):
+        try:
+            x = float(part)
+        except ValueError:
+            raise ValueError(f"--sigma-scale: {part.strip()!r} is not a number") from None
+        if not (math.isfinite(x) and x >= 0):
+            raise ValueError(f"--sigma-scale: {part.strip()} must be a finite number >= 0")
+        if x in out:
+            raise ValueError(f"--sigma-scale: {part.strip()} is given twice")
+        out.append(x)
+    return out
+
+
+def check_chip_count(chips: int, n_scales: int = 1) -> None:
+    """Refuse, before any work, a Monte Carlo whose chips the memory cannot hold.
+
+    Raises
+    ------
+    ValueError
+        ``chips`` < 1; :class:`planner.errors.LimitError` with the figures when
+        ``chips`` x ``n_scales`` chips (plus the nominal one) need more memory than the
+        machine has (:data:`CHIP_BYTES` each).
+    """
+    from planner._limits import check_memory
+
+    if int(chips) < 1:
+        raise ValueError(f"chips must be >= 1, {chips} was given")
+    n = int(chips) * int(n_scales) + 1
+    check_memory(n * CHIP_BYTES, f"--chips {chips} x {n_scales} sigma scale"
+                                 f"{'s' if n_scales != 1 else ''} ({n} chips in all)")
+
