@@ -20,18 +20,15 @@ micrometres once, at the file boundary.
 
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import asdict, dataclass
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares
 
-from planner.errors import SpecError
-
-from planner.units import UM  # noqa: E402
+from planner.lab_csv import csv_number, read_csv_rows
+from planner.units import UM
 
 #: Columns of a sweep file: required, then optional.
 SWEEP_COLUMNS = ("impacter", "frequency_hz", "amplitude_um")
@@ -45,13 +42,6 @@ HALVES = ("a", "b")
 #: columns are extra.
 MEASURED_COLUMNS = ("impacter", "natural_frequency_hz", "quality_factor",
                     "natural_frequency_std_hz", "quality_factor_std")
-
-#: Largest value of a lab file's column [its unit]: beyond it the number is no MEMS
-#: measurement (a typo, or another unit), and refused with its row and column before it
-#: reaches a fit or a model (frequencies: 1 GHz; amplitudes and gaps: 1 cm and 1 mm, the
-#: model's own bounds, :mod:`model.devices`; Q: the fit's search bound).
-MAX_VALUE = {"frequency_hz": 1e9, "natural_frequency_hz": 1e9, "amplitude_um": 1e4,
-             "drive_amplitude_um": 1e4, "gap_um": 1e3, "quality_factor": 1e6}
 
 #: Fewest distinct frequencies per impacter: three parameters are fitted, and two
 #: more points are the least that leave a residual to estimate the noise from.
@@ -257,6 +247,33 @@ def fit_resonance(frequency_hz, amplitude_m, drive_amplitude_m=None) -> Resonanc
     >>> fit.status, round(fit.natural_frequency_hz, 3), round(fit.quality_factor, 3)
     ('ok', 1000.0, 40.0)
     """
+    f, a = _checked(frequency_hz, amplitude_m, drive_amplitude_m)
+    problems = []
+    used = a > 0
+    if not np.all(used):
+        problems.append(f"{int(np.sum(~used))} zero amplitudes left out")
+    f, y = f[used], np.log(a[used])
+    order = np.argsort(f, kind="stable")
+    f, y = f[order], y[order]
+    n = f.size
+    if np.unique(f).size < MIN_POINTS:
+        return _failed(n, f"{np.unique(f).size} distinct frequencies with a positive "
+                          f"amplitude; the fit needs at least {MIN_POINTS}")
+    best = _least_squares(f, y)
+    if best is None:
+        return _failed(n, "the least-squares fit did not converge")
+
+    est = _estimate(f, best)
+    status = _judge(f, y, best.fun, est, problems)
+    worst = min(status, key=STATUSES.index) if status else "ok"
+    message = "; ".join(problems) if problems else f"fitted {n} points"
+    return ResonanceFit(est.nu, est.q, est.nu_std, est.q_std, est.s, est.s_std,
+                        est.residual_rms, n, est.n_peak, worst, message)
+
+
+def _checked(frequency_hz, amplitude_m, drive_amplitude_m):
+    """(frequencies [Hz], amplitudes [m], or relative to the drive [-]) as float arrays,
+    checked as :func:`fit_resonance` says (ValueError naming the argument)."""
     f = _array("frequency_hz", frequency_hz)
     a = _array("amplitude_m", amplitude_m)
     if a.shape != f.shape:
@@ -274,19 +291,13 @@ def fit_resonance(frequency_hz, amplitude_m, drive_amplitude_m=None) -> Resonanc
         if np.any(z <= 0):
             raise ValueError(f"drive_amplitude_m must be > 0, {z[z <= 0].tolist()!r} was given")
         a = a / z
+    return f, a
 
-    problems = []
-    used = a > 0
-    if not np.all(used):
-        problems.append(f"{int(np.sum(~used))} zero amplitudes left out")
-    f, y = f[used], np.log(a[used])
-    order = np.argsort(f, kind="stable")
-    f, y = f[order], y[order]
-    n = f.size
-    if np.unique(f).size < MIN_POINTS:
-        return _failed(n, f"{np.unique(f).size} distinct frequencies with a positive "
-                          f"amplitude; the fit needs at least {MIN_POINTS}")
 
+def _least_squares(f, y):
+    """The best least-squares fit of :func:`_log_model` to log amplitudes ``y`` at the
+    sorted frequencies ``f`` [Hz], from the peak's guess and Q three times higher and
+    lower (scipy's ``OptimizeResult``), or None if no start converged."""
     nu0, q0 = _initial_guess(f, y)
     best = None
     for q_start in (q0, q0 * 3.0, q0 / 3.0):
@@ -303,19 +314,52 @@ def fit_resonance(frequency_hz, amplitude_m, drive_amplitude_m=None) -> Resonanc
             continue
         if sol.success and np.all(np.isfinite(sol.fun)) and (best is None or sol.cost < best.cost):
             best = sol
-    if best is None:
-        return _failed(n, "the least-squares fit did not converge")
+    return best
 
+
+@dataclass(frozen=True)
+class _Estimate:
+    """What a least-squares solution says: nu_n [Hz], Q [-], the scale s and their
+    standard errors, the residual rms [-], the points in the half-power band, whether
+    Q ended on its search bound and whether the data leave nu_n and Q undetermined
+    (J^T J singular, or Q on the bound)."""
+
+    nu: float
+    q: float
+    s: float
+    nu_std: float
+    q_std: float
+    s_std: float
+    residual_rms: float
+    n_peak: int
+    q_bound: bool
+    undetermined: bool
+
+
+def _estimate(f, best) -> _Estimate:
+    """The parameters of the solution ``best`` on the frequencies ``f`` [Hz], with
+    their standard errors (the Jacobian's, scaled by the residual variance)."""
     p = best.x
     nu, q, s = (math.exp(v) for v in p)
-    dof = n - p.size
+    dof = f.size - p.size
     residual_rms = float(np.sqrt(np.mean(best.fun**2)))
     variance = float(2.0 * best.cost / dof) if dof > 0 else math.nan
     std_log, singular = _parameter_std(best.jac, variance)
     nu_std, q_std, s_std = (float(v * e) for v, e in zip((nu, q, s), std_log))
-
     half_band = nu / (2.0 * q)
     n_peak = int(np.sum(np.abs(f - nu) <= half_band))
+    q_bound = p[1] >= math.log(Q_MAX) - 1e-6 or p[1] <= math.log(Q_MIN) + 1e-6
+    return _Estimate(nu, q, s, nu_std, q_std, s_std, residual_rms, n_peak, q_bound,
+                     singular or q_bound)
+
+
+def _judge(f, y, residuals, est: _Estimate, problems) -> list:
+    """The problems of a fit (:data:`STATUSES` but ``ok`` and ``fit_failed``), in the
+    order they are checked; each is also said in words, with what to measure to fix
+    it, on ``problems``."""
+    nu, q, nu_std, q_std = est.nu, est.q, est.nu_std, est.q_std
+    residual_rms, n = est.residual_rms, f.size
+    half_band = nu / (2.0 * q)
     status = []
     i_max = int(np.argmax(y))
     # the largest amplitude on the sweep's first or last point means the peak may lie
@@ -327,18 +371,17 @@ def fit_resonance(frequency_hz, amplitude_m, drive_amplitude_m=None) -> Resonanc
                         f"{'lower' if low else 'upper'} end ({f[0]:.6g}-{f[-1]:.6g} Hz, "
                         f"fitted nu_n {nu:.6g} Hz): extend the sweep "
                         f"{'down' if low else 'up'}")
-    if n_peak < MIN_PEAK_POINTS:
+    if est.n_peak < MIN_PEAK_POINTS:
         status.append("peak_unresolved")
-        problems.append(f"only {n_peak} points within the half-power band "
+        problems.append(f"only {est.n_peak} points within the half-power band "
                         f"{nu - half_band:.6g}-{nu + half_band:.6g} Hz (need "
                         f"{MIN_PEAK_POINTS}): sweep more finely around the peak")
-    q_bound = p[1] >= math.log(Q_MAX) - 1e-6 or p[1] <= math.log(Q_MIN) + 1e-6
-    if singular or q_bound or not q_std <= MAX_Q_REL_STD * q or not nu_std <= MAX_NU_REL_STD * nu:
+    if est.undetermined or not q_std <= MAX_Q_REL_STD * q or not nu_std <= MAX_NU_REL_STD * nu:
         status.append("q_unbounded")
         problems.append(f"the data do not determine nu_n and Q (nu_n = {nu:.6g} +- "
                         f"{nu_std:.3g} Hz, Q = {q:.4g} +- {q_std:.3g}"
-                        + (", on the search bound" if q_bound else "") + ")")
-    runs_z = _runs_z(best.fun) if residual_rms > RUNS_MIN_RMS else 0.0
+                        + (", on the search bound" if est.q_bound else "") + ")")
+    runs_z = _runs_z(residuals) if residual_rms > RUNS_MIN_RMS else 0.0
     if residual_rms > MAX_RESIDUAL_RMS or runs_z < MIN_RUNS_Z:
         status.append("poor_fit")
         why = (f"residual scatter {residual_rms:.1%} exceeds {MAX_RESIDUAL_RMS:.0%}"
@@ -346,10 +389,7 @@ def fit_resonance(frequency_hz, amplitude_m, drive_amplitude_m=None) -> Resonanc
                f"the residuals keep their sign over long stretches (runs z = {runs_z:.1f})")
         problems.append(f"{why}: the data are not a linear resonance (impacting? then lower "
                         f"the drive; a second mode? a drifting drive?)")
-    worst = min(status, key=STATUSES.index) if status else "ok"
-    message = "; ".join(problems) if problems else f"fitted {n} points"
-    return ResonanceFit(nu, q, nu_std, q_std, s, s_std, residual_rms, n, n_peak, worst,
-                        message)
+    return status
 
 
 def _parameter_std(jac, variance):
@@ -534,105 +574,6 @@ def read_sweep(path) -> pd.DataFrame:
         out["drive_amplitude_m"] = frame["drive_amplitude_um"] * UM
     out["line"] = frame["line"]
     return out
-
-
-def csv_number(text, line, column, fail):
-    """A cell of a lab CSV file (:func:`read_csv_rows`) as a finite float [its column's
-    unit], at most :data:`MAX_VALUE` of its column; else the ``fail(line, column,
-    message)`` error is raised."""
-    try:
-        x = float(text)
-    except ValueError:
-        x = math.nan
-    if not math.isfinite(x):
-        raise fail(line, column, f"{text!r} is not a finite number")
-    high = MAX_VALUE.get(column)
-    if high is not None and x > high:
-        unit = {"hz": " Hz", "um": " um"}.get(column.rsplit("_", 1)[-1], "")
-        raise fail(line, column, f"{text} is beyond any MEMS measurement (at most "
-                                 f"{high:g}{unit}): a typo, or another unit?")
-    return x
-
-
-def read_csv_rows(path, required, optional=(), *, what="the file", ignore=None):
-    """A lab CSV file's checked header, its rows and a row/column error maker.
-
-    Parameters
-    ----------
-    path : path
-        The CSV file (UTF-8, an optional BOM; blank lines and ``#`` comments skipped).
-    required, optional : sequence of str
-        The columns the file needs and those it may have (units are in the names).
-    what : str
-        The file's kind in messages ("a sweep", "measured.csv").
-    ignore : callable(str) -> bool, optional
-        Extra columns to accept and leave alone (e.g. calibrate's ``*_std``).
-
-    Returns
-    -------
-    header_line : int
-        1-based line of the header.
-    header : list of str
-        The column names, stripped.
-    rows : list of (int, list of str)
-        (1-based line, fields) of every data row.
-    fail : callable(line, column, message) -> SpecError
-        An error naming the file, the row and the column.
-
-    Raises
-    ------
-    SpecError
-        Not a CSV text file, empty, or a header with an unknown, repeated or missing
-        column.
-    """
-    import io
-
-    from planner._io import read_input
-
-    path = Path(path)
-    source = str(path)
-
-    def fail(line, column, message):
-        return SpecError(message, path=f"row {line}, column {column}", source=source)
-
-    raw = read_input(path)
-    if b"\0" in raw:
-        raise SpecError("not a CSV text file (it holds binary data)", source=source)
-    try:
-        with io.StringIO(raw.decode("utf-8-sig"), newline="") as fh:
-            lines = list(_csv_rows(fh))
-    except (UnicodeDecodeError, csv.Error) as exc:
-        raise SpecError(f"not a CSV text file: {exc}", source=source) from None
-    if not lines:
-        raise SpecError(f"empty file: {what} needs the header {','.join(required)}",
-                        source=source)
-    header_line, header = lines[0]
-    header = [h.strip() for h in header]
-    for column in header:
-        if ignore is not None and ignore(column):
-            continue
-        if column not in list(required) + list(optional):
-            raise fail(header_line, column or "(empty)",
-                       f"unknown column ({what} has {', '.join(required)} and optionally "
-                       f"{', '.join(optional)}; units are in the names)")
-        if header.count(column) > 1:
-            raise fail(header_line, column, "column given twice")
-    for column in required:
-        if column not in header:
-            raise fail(header_line, column, f"missing (the header has: {','.join(header)})")
-    return header_line, header, lines[1:], fail
-
-
-def _csv_rows(fh):
-    """(1-based line, fields) of each non-blank, non-comment row of a CSV file."""
-    reader = csv.reader(fh)
-    start = 1
-    for row in reader:
-        # reader.line_num is the line the row ended on; a row starts one past the last
-        line, start = start, reader.line_num + 1
-        if not row or all(not v.strip() for v in row) or row[0].lstrip().startswith("#"):
-            continue
-        yield line, row
 
 
 def write_measured(fits: pd.DataFrame, path) -> None:

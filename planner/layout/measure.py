@@ -31,7 +31,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from planner.fabrication import NodeDesign, nominal_impacter
-from planner.layout.geometry import cantilever_cell_name, polygon_area, slider_cell_name
+from planner.layout.geometry import cantilever_cell_name, slider_cell_name
+from planner.layout.shapes import polygon_area
 
 #: Largest relative difference between the plan's natural frequency and the one the
 #: measured geometry gives (the issue's round-trip criterion) [-].

@@ -357,7 +357,8 @@ def _rules(**process):
 def test_a_cantilever_is_drawn_to_its_design():
     """Legs of width w and length l/2 at +-phi from the beams' axis, a mass of area A,
     and its tip nearer the wall than anything else."""
-    from planner.layout.geometry import cantilever, polygon_area
+    from planner.layout.cantilever import cantilever
+    from planner.layout.shapes import polygon_area
 
     phi, theta = math.radians(15.0), math.radians(45.0)
     half = cantilever("A1.forward", 2.5e4 * UM**2, 3.3e-6, 400e-6, phi, theta, _rules())
@@ -381,7 +382,7 @@ def test_a_cantilever_is_drawn_to_its_design():
     (2.5e4 * UM**2, 10e-6, 15.0, "too short"),
 ])
 def test_undrawable_designs_are_refused_by_name(area, length, angle, match):
-    from planner.layout.geometry import cantilever
+    from planner.layout.cantilever import cantilever
 
     with pytest.raises(ValueError, match=match) as err:
         cantilever("B2.backward", area, 3e-6, length, math.radians(angle),

@@ -1,30 +1,22 @@
-"""The array spec: devices on a grid, process, drive, design and scenes (YAML).
+"""The array spec's schema: every section and field of the YAML, its units and defaults.
 
-Devices are named like a well plate: rows A, B, ... and columns 1, 2, ... (A1 ... E5 on
-the default 5 x 5 array).  Every device has a forward and a backward impacter pair.
-A *scene* is a named sequence of steps; a step lists which devices move forward and
-which backward, for how long (or how far), or where each device must end
-(``targets_um``, docs/targets.md); every other device must stay idle.  With
-``independent: true`` (the default when no scenes are given) every impacter must also
-be drivable on its own, which adds one implicit step per impacter.
-
-Selectors in a step's ``forward``/``backward`` lists: a device id (``C3``), a row
-letter (``B`` = B1 ... B5), a column number as text (``"3"`` = A3 ... E3), or ``all``.
-
-Validation names the field and the YAML line: ``drive.band_hz: band_hz[1] must be
-greater than band_hz[0] (line 14)``.
+Pydantic models (unknown keys refused, :class:`planner._pydantic.Strict`) of the
+sections of an array spec (:class:`ArraySpec`): the array's grid, the device defaults
+and per-device overrides, the drive, the designer, the verification, the fabrication
+tolerances, the trim and the scenes' steps.  A field's unit is in its name; its
+default is in the model.  Checks that need the whole spec (device ids, a step's
+targets against the largest travel) are :mod:`planner.spec.steps`'s; reading the YAML
+and placing an error on its line is :mod:`planner.spec.load`'s.
 """
 
 from __future__ import annotations
 
-import math
 import string
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
 
+from planner._pydantic import Strict
 from planner.config import (
     DEFAULT_IMPACTER,
     EnvironmentConfig,
@@ -32,23 +24,13 @@ from planner.config import (
     ProcessConfig,
     SliderConfig,
 )
-from planner.errors import SpecError
-from planner.nodes import DIRECTIONS  # noqa: F401  (re-exported)
-from planner._pydantic import Strict
-from planner.yamlio import check_kind, format_loc, line_of, load_yaml, validate
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
 
 
-_Strict = Strict
-
-#: Longest burst [s] of a ``travel_um`` step without ``duration_ms``.
-DEFAULT_MAX_BURST_S = 0.1
-
-
-class ArrayConfig(_Strict):
+class ArrayConfig(Strict):
     """Grid of devices: ``rows`` x ``cols`` at ``pitch_um``."""
 
     rows: Annotated[int, Field(ge=1, le=26)] = 5
@@ -60,7 +42,7 @@ class ArrayConfig(_Strict):
                 for c in range(self.cols)]
 
 
-class DeviceDefaults(_Strict):
+class DeviceDefaults(Strict):
     """Impacter (both pairs) and slider defaults; ``forward``/``backward`` override per pair."""
 
     impacter: ImpacterConfig = DEFAULT_IMPACTER
@@ -73,7 +55,7 @@ class DeviceDefaults(_Strict):
     contact: Literal["paper", "two_body"] = "two_body"
 
 
-class ChannelGrid(_Strict):
+class ChannelGrid(Strict):
     """The channel grid inside the band: ``count`` channels, log- or linearly spaced, or
     spaced by the fabrication tolerance.
 
@@ -121,7 +103,7 @@ DEFAULT_CHANNELS = 240
 DEFAULT_SEPARATION_HZ = 400.0
 
 
-class GuardRules(_Strict):
+class GuardRules(Strict):
     """How far apart tones must be.
 
     separation_channels : the default separation [channels] between impacters that must
@@ -144,7 +126,7 @@ class GuardRules(_Strict):
     intermodulation: bool = True
 
 
-class DriveSpec(_Strict):
+class DriveSpec(Strict):
     """The piezo drive: band, tone amplitude convention, limits and sampling."""
 
     band_hz: tuple[PositiveFloat, PositiveFloat] = (2000.0, 20000.0)
@@ -176,7 +158,7 @@ class DriveSpec(_Strict):
         return self
 
 
-class DesignBoundsSpec(_Strict):
+class DesignBoundsSpec(Strict):
     """Upper and lower bounds of the design variables, [lo, hi] each (paper's (17) below)."""
 
     area_um2: tuple[PositiveFloat, PositiveFloat] | None = None
@@ -185,7 +167,7 @@ class DesignBoundsSpec(_Strict):
     gap_um: tuple[PositiveFloat, PositiveFloat] | None = None
 
 
-class DesignSpec(_Strict):
+class DesignSpec(Strict):
     """Designer settings for every impacter of the array."""
 
     bounds: DesignBoundsSpec = DesignBoundsSpec()
@@ -226,7 +208,7 @@ class DesignSpec(_Strict):
         return self
 
 
-class VerificationSpec(_Strict):
+class VerificationSpec(Strict):
     """Pass criteria of the verification by simulation."""
 
     x0_points: Annotated[int, Field(ge=3, le=201)] = 9
@@ -242,7 +224,7 @@ class VerificationSpec(_Strict):
     position_tolerance_um: PositiveFloat = 2.0
 
 
-class Tolerance(_Strict):
+class Tolerance(Strict):
     """One fabrication tolerance: standard deviations of a normal error, split in two.
 
     die : the per-die part, one draw shared by every device of a chip (a wafer-to-wafer
@@ -265,7 +247,7 @@ class Tolerance(_Strict):
         return self.die == 0.0 and self.device == 0.0 and self.pair == 0.0
 
 
-class FabricationSpec(_Strict):
+class FabricationSpec(Strict):
     """The fabrication tolerance model used by ``vibroplan yield`` (docs/yield.md).
 
     Each field is ``{die: sigma, device: sigma}`` (normal errors, mean 0); the as-built
@@ -299,7 +281,7 @@ class FabricationSpec(_Strict):
                    if isinstance(getattr(self, k), Tolerance))
 
 
-class TrimSpec(_Strict):
+class TrimSpec(Strict):
     """Post-fabrication trimming of the impacters' resonances (``vibroplan trim``).
 
     range_pct : the largest move of one resonance [%] (a laser or FIB cut).
@@ -314,7 +296,7 @@ class TrimSpec(_Strict):
     precision_pct: Annotated[float, Field(ge=0, le=5, allow_inf_nan=False)] = 0.1
 
 
-class StepSpec(_Strict):
+class StepSpec(Strict):
     """One step of a scene: who moves which way, for how long, how far or to where.
 
     ``duration_ms`` is the burst's length; ``travel_um`` asks the planner to size the
@@ -368,7 +350,7 @@ class StepSpec(_Strict):
         return self
 
 
-class DeviceOverride(_Strict):
+class DeviceOverride(Strict):
     """Per-device overrides of the device defaults."""
 
     impacter: ImpacterConfig | None = None
@@ -378,7 +360,7 @@ class DeviceOverride(_Strict):
     contact: Literal["paper", "two_body"] | None = None
 
 
-class ArraySpec(_Strict):
+class ArraySpec(Strict):
     """A whole array spec; see the module docstring."""
 
     name: str = "array"
@@ -423,292 +405,3 @@ class ArraySpec(_Strict):
             data.update(over.slider.model_dump(exclude_unset=True))
             return SliderConfig(**data)
         return self.device.slider
-
-
-@dataclass(frozen=True)
-class Step:
-    """A resolved step: device ids in each direction, duration in SI."""
-
-    scene: str
-    name: str
-    index: int
-    duration_s: float
-    forward: tuple[str, ...]
-    backward: tuple[str, ...]
-    #: Travel [m] the burst is sized for (step ``travel_um``), or None.
-    travel_m: float | None = None
-    #: Longest burst [s] a ``travel_um`` or ``targets_um`` step may get (its
-    #: ``duration_ms``), or None.
-    max_duration_s: float | None = None
-    #: A ``targets_um`` step's targets: (device, position [m]) in the frame of
-    #: ``relative_to``, in device order; None for any other step.
-    targets_m: tuple[tuple[str, float], ...] | None = None
-    #: ``scene_start`` or ``previous_step`` (``targets_um`` steps).
-    relative_to: str = "scene_start"
-    #: (device, move [m]) of every targeted device: the spec's nominal move (its target
-    #: minus its previous target); the planner replaces it by the move from where the
-    #: carried-state scene simulation finds the slider when the step starts.
-    moves_m: tuple[tuple[str, float], ...] = ()
-
-    @property
-    def key(self) -> str:
-        return f"{self.scene}/{self.name}"
-
-    @property
-    def targets(self) -> dict[str, float]:
-        """Device -> target [m] (empty unless a ``targets_um`` step)."""
-        return dict(self.targets_m or ())
-
-    @property
-    def moves(self) -> dict[str, float]:
-        """Device -> move [m] of a ``targets_um`` step (see ``moves_m``)."""
-        return dict(self.moves_m)
-
-    def active_nodes(self) -> set[tuple[str, str]]:
-        return {(d, "forward") for d in self.forward} | {(d, "backward") for d in self.backward}
-
-
-@dataclass(frozen=True)
-class LoadedSpec:
-    """A validated spec with its resolved steps and source."""
-
-    spec: ArraySpec
-    steps: tuple[Step, ...]
-    source: str
-    #: YAML location -> line, for errors found after validation (None if unknown).
-    lines: dict | None = field(default=None, compare=False, repr=False)
-
-    @property
-    def device_ids(self) -> list[str]:
-        return self.spec.array.device_ids()
-
-
-def _select(sel, ids, rows, cols, loc, lines, source):
-    """The device ids one selector names (see the module docstring)."""
-    sel = str(sel).strip()
-    if sel.lower() == "all":
-        return list(ids)
-    if sel in ids:
-        return [sel]
-    if len(sel) == 1 and sel.upper() in rows:
-        return [i for i in ids if i[0] == sel.upper()]
-    if sel.isdigit() and sel in cols:
-        return [i for i in ids if i[1:] == sel]
-    raise SpecError(f"unknown device {sel!r} (devices are {ids[0]} ... {ids[-1]}, a row "
-                    "letter, a column number or 'all')", path=format_loc(loc),
-                    line=line_of(lines, loc), source=source)
-
-
-def _resolve(selectors, ids, rows, cols, where, lines, source):
-    out = []
-    for k, sel in enumerate(selectors):
-        for c in _select(sel, ids, rows, cols, where + (k,), lines, source):
-            if c not in out:
-                out.append(c)
-    return tuple(out)
-
-
-def _max_travel_m(spec: ArraySpec) -> float:
-    """``verification.max_travel_um`` [m], or half the pitch."""
-    ver = spec.verification
-    return (ver.max_travel_um if ver.max_travel_um is not None
-            else 0.5 * spec.array.pitch_um) * 1e-6
-
-
-def _targets(st, base, ids, rows, cols, nominal, sized, max_travel, lines, source):
-    """(targets, moves) of a ``targets_um`` step, both ((device, [m]), ...) in device
-    order; updates the scene's ``nominal`` positions [m] in place.
-
-    ``sized``: device -> the earlier step that moved it by an amount the planner
-    sizes (its position in the scene frame is then unknown).
-    """
-    where = base + ("targets_um",)
-    rel = st.relative_to or "scene_start"
-    named = {}
-    for key, value in st.targets_um.items():
-        loc = where + (key,)
-        for dev in _select(key, ids, rows, cols, loc, lines, source):
-            if dev in named:
-                raise SpecError(f"device {dev} is given twice (keys {named[dev][0]!r} and "
-                                f"{key!r})", path=format_loc(loc), line=line_of(lines, loc),
-                                source=source)
-            named[dev] = (key, value * 1e-6)
-    targets, moves = [], []
-    for dev in [i for i in ids if i in named]:
-        key, target = named[dev]
-        loc = where + (key,)
-        if rel == "scene_start":
-            if dev in sized:
-                raise SpecError(f"{dev} was moved by step {sized[dev]!r} by an amount the "
-                                "planner sizes (duration_ms or travel_um), so where it is "
-                                "relative to the scene start is not known: give this step "
-                                "relative_to: previous_step", path=format_loc(loc),
-                                line=line_of(lines, loc), source=source)
-            move = target - nominal[dev]
-        else:
-            move = target
-        if abs(move) > max_travel * (1 + 1e-12):
-            raise SpecError(f"{dev}: a move of {move * 1e6:+.4g} um in one step exceeds "
-                            f"verification.max_travel_um ({max_travel * 1e6:g} um); split "
-                            "it over two steps or raise max_travel_um", path=format_loc(loc),
-                            line=line_of(lines, loc), source=source)
-        nominal[dev] += move
-        targets.append((dev, target))
-        moves.append((dev, move))
-    if not any(m != 0.0 for _, m in moves):
-        raise SpecError("a step must move at least one device: every target is where its "
-                        "device already is", path=format_loc(where),
-                        line=line_of(lines, where), source=source)
-    return tuple(targets), tuple(moves)
-
-
-def resolve_steps(spec: ArraySpec, lines=None, source=None) -> tuple[Step, ...]:
-    """Resolve every scene's steps to device ids, checking ids and contradictions.
-
-    A ``targets_um`` step's devices move forward or backward by the sign of their
-    nominal move (target minus the previous target of the scene, or the target itself
-    with ``relative_to: previous_step``); a move beyond the largest travel of one step
-    (``verification.max_travel_um``) is refused here, naming the device.
-    """
-    lines = lines or {}
-    ids = spec.array.device_ids()
-    rows = {i[0] for i in ids}
-    cols = {i[1:] for i in ids}
-    max_travel = _max_travel_m(spec)
-    for dev in spec.devices:
-        if dev not in ids:
-            loc = ("devices", dev)
-            raise SpecError(f"unknown device {dev!r} (devices are {ids[0]} ... {ids[-1]})",
-                            path=format_loc(loc), line=line_of(lines, loc), source=source)
-    steps = []
-    for scene, step_list in spec.scenes.items():
-        if not step_list:
-            loc = ("scenes", scene)
-            raise SpecError("a scene needs at least one step", path=format_loc(loc),
-                            line=line_of(lines, loc), source=source)
-        names = set()
-        # where each slider should be relative to the scene start [m], as the targets
-        # ask, and the devices an earlier step moved by an amount the planner sizes
-        nominal = {i: 0.0 for i in ids}
-        sized = {}
-        for i, st in enumerate(step_list):
-            base = ("scenes", scene, i)
-            if st.name in names:
-                raise SpecError(f"duplicate step name {st.name!r} in scene {scene!r}",
-                                path=format_loc(base + ("name",)),
-                                line=line_of(lines, base + ("name",)), source=source)
-            names.add(st.name)
-            cap = st.duration_ms * 1e-3 if st.duration_ms is not None else None
-            if st.targets_um is not None:
-                targets, moves = _targets(st, base, ids, rows, cols, nominal, sized,
-                                          max_travel, lines, source)
-                fwd = tuple(d for d, m in moves if m > 0)
-                bwd = tuple(d for d, m in moves if m < 0)
-                # the planner gates the burst (planning.targets); until then its
-                # duration is its cap, or the default cap
-                steps.append(Step(scene, st.name, len(steps),
-                                  cap if cap is not None else DEFAULT_MAX_BURST_S, fwd, bwd,
-                                  max_duration_s=cap, targets_m=targets,
-                                  relative_to=st.relative_to or "scene_start",
-                                  moves_m=moves))
-                continue
-            fwd = _resolve(st.forward, ids, rows, cols, base + ("forward",), lines, source)
-            bwd = _resolve(st.backward, ids, rows, cols, base + ("backward",), lines, source)
-            both = sorted(set(fwd) & set(bwd))
-            if both:
-                loc = base + ("backward",)
-                raise SpecError(f"device(s) {', '.join(both)} cannot move both forward and "
-                                "backward in one step", path=format_loc(loc),
-                                line=line_of(lines, loc), source=source)
-            if not fwd and not bwd:
-                raise SpecError("a step must move at least one device", path=format_loc(base),
-                                line=line_of(lines, base), source=source)
-            sized.update({d: st.name for d in fwd + bwd})
-            travel = st.travel_um * 1e-6 if st.travel_um is not None else None
-            # a travel_um step gets its burst from the planner (planning.motion); until
-            # then its duration is its cap, or the default cap
-            duration = cap if cap is not None else DEFAULT_MAX_BURST_S
-            steps.append(Step(scene, st.name, len(steps), duration, fwd, bwd,
-                              travel_m=travel, max_duration_s=cap if travel else None))
-    return tuple(steps)
-
-
-def _check_units(data, lines, source):
-    """Catch keys with the wrong unit suffix early, with a hint (e.g. band_khz)."""
-    if not isinstance(data, dict):
-        return
-    hints = {"band_khz": "band_hz", "gap_nm": "gap_um", "duration_s": "duration_ms",
-             "viscosity_pa_s": "viscosity_mpa_s", "pitch_mm": "pitch_um"}
-
-    def walk(node, path):
-        if isinstance(node, dict):
-            for key, value in node.items():
-                if key in hints:
-                    loc = path + (key,)
-                    raise SpecError(f"wrong unit: use {hints[key]} (in its unit)",
-                                    path=format_loc(loc), line=line_of(lines, loc), source=source)
-                walk(value, path + (key,))
-        elif isinstance(node, list):
-            for i, item in enumerate(node):
-                walk(item, path + (i,))
-    walk(data, ())
-
-
-def load_spec(path_or_text: str | Path, *, source: str | None = None) -> LoadedSpec:
-    """Read, validate and resolve an array spec.
-
-    Parameters
-    ----------
-    path_or_text : str or Path
-        A YAML file, or YAML text.
-
-    Raises
-    ------
-    SpecError
-        With the field path and YAML line of the first problem.
-    """
-    data, lines = load_yaml(path_or_text, source=source)
-    src = source or (str(path_or_text) if isinstance(path_or_text, Path)
-                     or "\n" not in str(path_or_text) else "<spec>")
-    if data is not None and not isinstance(data, dict):
-        raise SpecError("an array spec must be a YAML mapping", line=1, source=src)
-    check_kind(data, "array spec", source=src)
-    _check_units(data, lines, src)
-    spec = validate(ArraySpec, data, lines, source=src)
-    return LoadedSpec(spec, resolve_steps(spec, lines, src), src, lines)
-
-
-def default_spec_path() -> Path:
-    """The embedded default spec (a copy of configs/array_5x5.yaml shipped in the package)."""
-    return Path(__file__).resolve().parent / "data" / "array_5x5.yaml"
-
-
-def channel_grid(spec: ArraySpec):
-    """Channel centre frequencies [Hz] inside the band, ndarray shape (count,)."""
-    import numpy as np
-
-    if spec.drive.channels.spacing == "tolerance":
-        from planner.manufacturability import spec_tolerance_grid
-
-        return spec_tolerance_grid(spec)
-    lo, hi = spec.drive.band_hz
-    n = spec.drive.channels.channel_count
-    if spec.drive.channels.spacing == "log":
-        return np.geomspace(lo, hi, n)
-    return np.linspace(lo, hi, n)
-
-
-def separation_for_bandwidth(spec: ArraySpec, relative_halfwidth: float) -> int:
-    """Channels needed between two tones so neither lies in the other's response band.
-
-    On a log grid with channel ratio rho, tones k channels apart are rho^k apart; a band of
-    relative half-width b around each needs rho^k >= (1 + b) / (1 - b).
-    """
-    lo, hi = spec.drive.band_hz
-    n = spec.drive.channels.channel_count
-    b = min(max(relative_halfwidth, 1e-6), 0.99)
-    if spec.drive.channels.spacing == "log":
-        rho = (hi / lo) ** (1.0 / (n - 1))
-        return max(1, math.ceil(math.log((1 + b) / (1 - b)) / math.log(rho) - 1e-9))
-    step = (hi - lo) / (n - 1)
-    return max(1, math.ceil(2 * b * hi / step - 1e-9))
