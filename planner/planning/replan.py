@@ -91,7 +91,7 @@ def read_measured(path, impacter_ids) -> dict:
         column, an unknown or repeated impacter, a value that is not a finite number, or
         a frequency, quality factor or gap <= 0.
     """
-    from planner.calibrate import csv_number, read_csv_rows
+    from planner.lab_csv import csv_number, read_csv_rows
 
     known = set(impacter_ids)
     # calibrate writes uncertainties beside the values: accepted and left alone
