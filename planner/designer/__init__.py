@@ -50,13 +50,13 @@ them (nu_n then follows from the clipped l).
 
 The gap is not searched in metres but as kappa = c / X, X the linear steady-state
 amplitude of eq. (1) at the target tone (no wall), in GAP_AMPLITUDE_RATIO, then clipped
-to the gap bounds.  The feasible gaps form a sliver (silent under a neighbour 2-3 %
-away needs c not far below X, responding from rest needs c below X) whose position in c
-moves with A and nu_n but hardly in kappa: the default plan's designs, 4.5-51 kHz, all
-sit at kappa = 0.60-0.65.  Searched in c, a first fast try found no feasible design on
-16 of the default plan's 50 impacters (and escalated to wider searches on 32); in kappa, on none (none escalated).  A proposal over the
-mass cap is projected onto it (the area lowered until m meets the cap), where the
-fastest designs sit, instead of being penalised.
+to the gap bounds. The feasible gaps form a sliver (silent under a neighbour 2-3 % away
+needs c not far below X, responding from rest needs c below X) whose position in c moves
+with A and nu_n but hardly in kappa: the default plan's designs, 4.5-51 kHz, all sit at
+kappa = 0.60-0.65. Searched in c, a first fast try found no feasible design on 16 of the
+default plan's 50 impacters (and escalated to wider searches on 32); in kappa, on none
+(none escalated). A proposal over the mass cap is projected onto it (the area lowered
+until m meets the cap), where the fastest designs sit, instead of being penalised.
 
 **Constraint handling.**  The annealer minimises a tiered energy (feasibility first,
 Deb's rule made scalar):
