@@ -213,8 +213,14 @@ def main(argv=None):
     ap.add_argument("--profile-tasks", default="0,25,49",
                     help="indices of the default plan's design tasks to profile ('' for none)")
     ap.add_argument("--out", type=Path, default=HERE / "results" / "plan_speed.md")
+    ap.add_argument("--skip-after", action="store_true",
+                    help="measure only --before (for a later run's --include)")
+    ap.add_argument("--include", type=Path, action="append", default=[],
+                    help="rows of an earlier run (its .csv) to put in this table first")
     args = ap.parse_args(argv)
     rows, lines = [], []
+    for csv in args.include:
+        rows += pd.read_csv(csv).to_dict("records")
     load0 = os.getloadavg()
     if args.before:
         tmp = Path(tempfile.mkdtemp(prefix="plan_speed_before_"))
@@ -228,8 +234,9 @@ def main(argv=None):
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(wt)],
                            capture_output=True)
             shutil.rmtree(tmp, ignore_errors=True)
-    rows += measure(ROOT, args.configs, seed=args.seed, jobs=args.jobs, label="after")
-    if args.profile_tasks:
+    if not args.skip_after:
+        rows += measure(ROOT, args.configs, seed=args.seed, jobs=args.jobs, label="after")
+    if args.profile_tasks and not args.skip_after:
         lines = profile_designs(ROOT, [int(i) for i in args.profile_tasks.split(",")],
                                 seed=args.seed)
     load1 = os.getloadavg()

@@ -259,7 +259,7 @@ def _guard_note(spec, grid, sep, positions):
 
 def _tolerance_note(spec, n, fit, grid, sep):
     """Why a tolerance grid cannot hold ``n`` independent impacters, and what would."""
-    from planner.manufacturability import pair_sigma_rel, z_for
+    from planner.manufacturability.grid import pair_sigma_rel, z_for
 
     lo, hi = spec.drive.band_hz
     fab = spec.fabrication
