@@ -13,7 +13,9 @@ Layout of this package (each module imports only those listed above it)
 - :mod:`~planner.coloring.kernels`: numba kernels (``_*_kernel``), plain
   functions of int64 arrays -- the graph in CSR form (``indptr``, ``adj``,
   ``adjsep``) and colour vectors.  They know nothing of networkx and are
-  documented with their array shapes.
+  documented with their array shapes.  :mod:`~planner.coloring.cliques`: the
+  clique kernels (exact span, achievable span, Held-Karp), of a dense separation
+  matrix.
 - :mod:`~planner.coloring.problem`: ``_Problem``, the networkx graph turned
   into those arrays once, with the validation of the caller's graph.
 - :mod:`~planner.coloring.bounds`: exact spans of small cliques (branch and

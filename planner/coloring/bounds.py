@@ -7,7 +7,7 @@ import math
 import networkx as nx
 import numpy as np
 
-from planner.coloring.kernels import (
+from planner.coloring.cliques import (
     _clique_greedy_span_kernel,
     _clique_span_kernel,
     _held_karp_kernel,
