@@ -32,7 +32,7 @@ def main():
                     help="leave out the summed drives of the multi-tone steps")
     args = ap.parse_args()
     s = resolve_settings(load_spec(args.spec), args.plan_seed)
-    a = assign(s.loaded, s.steps, separation=s.separation_channels)
+    a = assign(s, s.steps)
     wf, _ = limit_acceleration(s, synthesize_steps(s, s.steps, a))
     # the single tones as they play, as the planner gives them to the designer
     forb = played_tones(s.steps, a.frequencies, wf)

@@ -30,7 +30,7 @@ import pandas as pd
 from planner.errors import PlanningError
 from planner.nodes import DIRECTIONS, Node
 from planner.separation import guard_onset_hz, position_grid
-from planner.spec import LoadedSpec, Step, channel_grid
+from planner.spec import LoadedSpec, Step
 
 
 
@@ -246,35 +246,36 @@ def _mapping_candidates(span: int, count: int, max_candidates=64):
     return out
 
 
-def _guard_note(spec, grid, sep, positions):
+def _guard_note(settings, grid, sep, positions):
     """Why the band holds fewer positions than channels (empty if it does not)."""
     if positions >= grid.size:
         return ""
-    g = spec.design.guard
+    g = settings.guard
     onset = guard_onset_hz(grid, sep, g)
     return (f" (above {onset:g} Hz, {sep} channels are inside the designer's guard band: "
             f"tones there must be more than {100 * g:g} % apart (design.guard {g:g}), so "
             f"the {grid.size} channels hold only {positions} positions {sep} apart)")
 
 
-def _tolerance_note(spec, n, fit, grid, sep):
+def _tolerance_note(settings, n, fit, grid, sep):
     """Why a tolerance grid cannot hold ``n`` independent impacters, and what would."""
-    from planner.manufacturability import pair_sigma_rel, z_for
+    from planner.manufacturability import z_for
 
-    lo, hi = spec.drive.band_hz
-    fab = spec.fabrication
-    sigma = pair_sigma_rel(spec)
-    z = z_for(fab.target_yield, n - 1)
+    lo, hi = settings.band_hz
+    target = settings.fabrication.target_yield
+    sigma = settings.pair_sigma_rel
+    spacing = settings.resonance_separation_hz
+    z = z_for(target, n - 1)
     top = grid[-1] if len(grid) else lo
     return (f"{n} impacters must each be independently addressable (independent: true), "
             f"but the band {lo:g}-{hi:g} Hz, spaced for the fabrication scatter "
-            f"(drive.channels.spacing: tolerance: {spec.drive.channels.resonance_separation_hz:g} Hz "
+            f"(drive.channels.spacing: tolerance: {spacing:g} Hz "
             f"plus {z:.2f} sigma between neighbours, sigma {100 * sigma:.2f} % of the "
             f"frequency for the difference of two as-built resonances, for a "
-            f"collision-free yield of {fab.target_yield:g}), holds only {fit}: neighbours "
+            f"collision-free yield of {target:g}), holds only {fit}: neighbours "
             f"({sep} channels) are {grid[min(sep, len(grid) - 1)] - grid[0]:.0f} Hz apart at "
             f"{lo:g} Hz and "
-            f"{(spec.drive.channels.resonance_separation_hz + z * sigma * top):.0f} Hz at {top:.0f} Hz. "
+            f"{(spacing + z * sigma * top):.0f} Hz at {top:.0f} Hz. "
             f"Fixes: a wider band (drive.band_hz), a lower fabrication.target_yield, "
             f"smaller tolerances (fabrication), a smaller line-width sensitivity (wider "
             f"beams: design.sensitivity_per_um or design.beam_width_um), a narrower "
@@ -282,7 +283,7 @@ def _tolerance_note(spec, n, fit, grid, sep):
             f"scenes in which devices move together and share channels.")
 
 
-def _check_capacity(spec, steps, sep, grid=None, positions=None):
+def _check_capacity(settings, steps, sep, grid, positions):
     """Refuse, in well under a second, a spec whose independently addressable impacters
     cannot fit the band whatever the colouring.
 
@@ -294,22 +295,18 @@ def _check_capacity(spec, steps, sep, grid=None, positions=None):
     (a 26 x 99 array: 5148 impacters, 13 million edges) takes minutes and gigabytes
     before the same answer; this bound gives it at once.
     """
-    if not spec.all_independent:
+    if not settings.all_independent:
         return
-    if grid is None:
-        grid = channel_grid(spec)
-    if positions is None:
-        positions = position_grid(grid, sep, spec.design.guard)
     nodes = {n for st in steps for n in st.active_nodes()}
     need = (len(nodes) - 1) * sep + 1
     count = len(positions)
     if need > count:
-        lo, hi = spec.drive.band_hz
+        lo, hi = settings.band_hz
         fit = (count - 1) // sep + 1
-        if spec.drive.channels.spacing == "tolerance":
-            raise PlanningError(_tolerance_note(spec, len(nodes), fit, grid, sep))
+        if settings.channel_spacing == "tolerance":
+            raise PlanningError(_tolerance_note(settings, len(nodes), fit, grid, sep))
         what = (f"{count} channels" if count == grid.size else
-                f"{count} positions{_guard_note(spec, grid, sep, count)}")
+                f"{count} positions{_guard_note(settings, grid, sep, count)}")
         raise PlanningError(
             f"{len(nodes)} impacters must each be independently addressable (independent: "
             f"true), so every pair must be {sep} channels apart and outside each other's "
@@ -323,19 +320,45 @@ def _check_capacity(spec, steps, sep, grid=None, positions=None):
             f"a wider band (drive.band_hz).")
 
 
-def assign(loaded: LoadedSpec, steps, *, separation=None, pair_separation=None,
-           method="auto", time_limit=None) -> Assignment:
+def _span_error(settings, graph, result, grid, sep, count):
+    """The refusal of a colouring whose span the band's positions cannot hold."""
+    lo, hi = settings.band_hz
+    what = (f"{grid.size} channels" if count == grid.size else
+            f"{count} positions{_guard_note(settings, grid, sep, count)}")
+    fixes = ("a wider band (drive.band_hz), a lower fabrication.target_yield, smaller "
+             "tolerances (fabrication), wider beams (design.sensitivity_per_um), a "
+             "narrower drive.channels.separation_hz or ensemble separation "
+             "(drive.guard.ensemble_separation_channels)"
+             if settings.channel_spacing == "tolerance" else
+             "a wider band (drive.band_hz), more channels (drive.channels.count) with a "
+             "narrower response band (drive.guard.separation_channels), a narrower "
+             "design guard (design.guard)")
+    return PlanningError(
+        f"the band {lo:g}-{hi:g} Hz holds {what}, but the conflict graph "
+        f"({graph.number_of_nodes()} channel groups that must be told apart, separation "
+        f"{sep} channels) needs a span of {result.span} (lower bound {result.lower_bound}). "
+        f"Fixes: {fixes}, fewer independently addressable devices (independent: false), "
+        f"or scenes in which devices move together and share a channel.")
+
+
+def assign(settings, steps, *, separation=None, pair_separation=None, method="auto",
+           time_limit=None) -> Assignment:
     """Give every driven impacter a channel and a frequency.
 
     Parameters
     ----------
-    loaded : LoadedSpec
+    settings : planner.planning.settings.Settings
+        The channel grid, the band, the guard rules, the ensemble separation, the
+        design guard and the seed of the colouring.
     steps : sequence of Step
         From :func:`plan_steps`.
     separation : int, optional
-        Default edge separation [channels]; the spec's ``guard.separation_channels``.
+        Default edge separation [channels]; ``settings.separation_channels``.
     pair_separation : dict, optional
         Per-pair overrides, see :func:`conflict_graph`.
+    method, time_limit :
+        The colouring's strategy and time limit [s]
+        (:func:`planner.coloring.solve_bandwidth`).
 
     Raises
     ------
@@ -345,37 +368,20 @@ def assign(loaded: LoadedSpec, steps, *, separation=None, pair_separation=None,
     """
     from planner.coloring import solve_bandwidth
 
-    spec = loaded.spec
-    sep = spec.drive.guard.separation_channels if separation is None else int(separation)
-    grid = channel_grid(spec)
+    sep = settings.separation_channels if separation is None else int(separation)
+    grid = np.asarray(settings.channel_grid_hz, dtype=float)
     # every edge is >= sep positions: on these positions that keeps the designer's guard
-    positions = position_grid(grid, sep, spec.design.guard)
-    _check_capacity(spec, steps, sep, grid, positions)
+    positions = position_grid(grid, sep, settings.guard)
+    _check_capacity(settings, steps, sep, grid, positions)
     graph, groups = conflict_graph(steps, sep, pair_separation,
-                                   spec.drive.guard.ensemble_separation_channels)
+                                   settings.ensemble_separation_channels)
     if graph.number_of_nodes() == 0:
         raise PlanningError("no step drives any impacter: nothing to assign")
-    result = solve_bandwidth(graph, "sep", method=method, time_limit=time_limit, seed=0)
+    result = solve_bandwidth(graph, "sep", method=method, time_limit=time_limit,
+                             seed=settings.seed)
     count = len(positions)
     if result.span > count:
-        n_groups = graph.number_of_nodes()
-        lo, hi = spec.drive.band_hz
-        what = (f"{grid.size} channels" if count == grid.size else
-                f"{count} positions{_guard_note(spec, grid, sep, count)}")
-        fixes = ("a wider band (drive.band_hz), a lower fabrication.target_yield, smaller "
-                 "tolerances (fabrication), wider beams (design.sensitivity_per_um), a "
-                 "narrower drive.channels.separation_hz or ensemble separation "
-                 "(drive.guard.ensemble_separation_channels)"
-                 if spec.drive.channels.spacing == "tolerance" else
-                 "a wider band (drive.band_hz), more channels (drive.channels.count) with a "
-                 "narrower response band (drive.guard.separation_channels), a narrower "
-                 "design guard (design.guard)")
-        raise PlanningError(
-            f"the band {lo:g}-{hi:g} Hz holds {what}, but the conflict graph "
-            f"({n_groups} channel groups that must be told apart, separation {sep} channels) "
-            f"needs a span of {result.span} (lower bound {result.lower_bound}). Fixes: "
-            f"{fixes}, fewer independently addressable devices (independent: false), or "
-            f"scenes in which devices move together and share a channel.")
+        raise _span_error(settings, graph, result, grid, sep, count)
     # layout: a colouring read upward or downward is equally valid, and so is any order
     # of its blocks (runs of channels set apart by wide gaps) that keeps every
     # separation within the span; choose the one whose multi-tone steps stir their
@@ -396,7 +402,7 @@ def assign(loaded: LoadedSpec, steps, *, separation=None, pair_separation=None,
                 where[n] = o + q * colour
                 chans[n] = int(positions[where[n]])
                 freqs[n] = float(grid[chans[n]])
-        viol = guard_violations(steps, freqs, spec.drive.guard)
+        viol = guard_violations(steps, freqs, settings.tone_rules)
         if best is None or len(viol) < len(best[4]):
             best = (q, o, chans, freqs, viol, where)
         if not viol:

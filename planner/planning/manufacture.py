@@ -18,7 +18,6 @@ from planner.manufacturability import (
     CHIPS,
     collision_free_yield,
     measure_separation,
-    pair_sigma_rel,
     sensitivities,
     z_for,
 )
@@ -78,14 +77,13 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
         ``pair_sigma_rel`` (the grid's prediction of the scatter of a resonance
         difference), ``model``.
     """
-    spec = settings.spec
     nodes = sorted(designs, key=node_key)
     fab = settings.fabrication
     amps = _tone_amplitudes(steps, assignment, waveforms)
     sens, seps = {}, {}
     for n in nodes:
         d = designs[n]
-        sens[n] = sensitivities(spec, _node_design(n, d))
+        sens[n] = sensitivities(settings.chip_spec, _node_design(n, d))
         seps[n] = measure_separation(
             d.impacter, assignment.frequencies[n], power=settings.power_m2_s3,
             amplitude=settings.amplitude_m, tone_amplitude=amps.get(n), window=settings.window_s,
@@ -128,6 +126,6 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
         device_only_yield=pred.device_only, closest_pair_hz=pred.closest_pair_hz,
         limiting_pairs=pred.limiting_pairs, nominal_collisions=pred.nominal_collisions,
         meets_target=bool(pred.value >= fab.target_yield),
-        pair_sigma_rel=pair_sigma_rel(spec),
+        pair_sigma_rel=settings.pair_sigma_rel,
         z_for_target=z_for(fab.target_yield, max(len(nodes) - 1, 1)))
     return out

@@ -76,7 +76,7 @@ def _figures(result, out_dir):
     figs = out_dir / "figures"
     figs.mkdir(exist_ok=True)
     settings = result.settings
-    rp.array_map(settings.spec, result.impacters, figs / "array_map.png")
+    rp.array_map(settings, result.impacters, figs / "array_map.png")
     tones = [float(c) for c in result.coupling.columns]
     rp.coupling_heatmap(result.coupling.to_numpy(), list(result.coupling.index), tones,
                         figs / "coupling.png")
@@ -104,8 +104,7 @@ def _figures(result, out_dir):
     if result.data["scenes"]:
         rp.slider_positions(result.data["scenes"], figs / "slider_positions.png")
     for scene, rows in _target_scenes(result.data["scenes"]).items():
-        rp.target_map(settings.spec, scene, rows, settings.position_tolerance_m,
-                      figs / _pattern_figure_name(scene))
+        rp.target_map(settings, scene, rows, figs / _pattern_figure_name(scene))
     if result.data.get("manufacturability"):
         rp.manufacturability(result.data["impacters"], result.data["manufacturability"],
                              figs / "manufacturability.png")

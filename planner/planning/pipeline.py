@@ -91,7 +91,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     for round_ in range(settings.repair_rounds + 1):
         ts = time.perf_counter()
         try:
-            assignment = assign(settings.loaded, steps, separation=sep, pair_separation=pair_sep)
+            assignment = assign(settings, steps, separation=sep, pair_separation=pair_sep)
         except PlanningError as exc:
             if round_ == 0:
                 raise

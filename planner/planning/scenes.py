@@ -5,7 +5,6 @@ from __future__ import annotations
 from planner.nodes import Node, device_key
 from planner.planning.drives import program_of
 from planner.planning.motion import REST, rest_state, run_program, settle
-from planner.planning.settings import SETTLE_S  # noqa: F401  (re-exported)
 
 #: Step name of the undriven tail in the scene rows (``"driven": false``).
 SETTLE_NAME = "(drive off)"
@@ -88,9 +87,6 @@ def simulate_scenes(settings, steps, waveforms, impacters, sliders, dwells=None,
     not change); the step then plays what it returns (the pipeline finds the step's
     gates there, :func:`planner.planning.targets.place_targets`).
 
-    ``settings`` is a :class:`~planner.planning.settings.Settings` (a
-    :class:`~planner.spec.LoadedSpec` is converted).
-
     Returns
     -------
     list of dict
@@ -104,10 +100,6 @@ def simulate_scenes(settings, steps, waveforms, impacters, sliders, dwells=None,
         overshoot).  The per-step verification starts every impacter from rest or
         the x0 grid; this is where the state a previous step left shows.
     """
-    from planner.planning.settings import Settings, resolve_settings
-
-    if not isinstance(settings, Settings):
-        settings = resolve_settings(settings)
     settle_s = settings.settle_s
     rows = []
     for scene in settings.scenes:

@@ -79,12 +79,12 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
     """
     from planner.planning.replan import measured_models, measured_resonances, replan
     from planner.planning.rescue import must_differ, separations_of
-    from planner.planning.settings import resolve_settings
+    from planner.planning.settings import plan_settings
     from planner.yield_ import _drive_of, check_drive
 
-    spec = spec or plan.spec.trim or TrimSpec()
     seed = plan.seed if seed is None else int(seed)
-    settings = resolve_settings(plan.loaded, seed)
+    settings = plan_settings(plan, seed)
+    spec = spec or settings.trim
     full = {r.id: measured.get(r.id) or {"natural_frequency_hz": r.natural_frequency_hz}
             for r in plan.impacters}
     resonances = measured_resonances(plan, full)

@@ -226,9 +226,9 @@ def test_seed_reaches_the_designs():
     from planner.spec import load_spec
 
     loaded = load_spec(TRAVEL)
-    assert resolve_settings(loaded).design_seed == 0
+    assert resolve_settings(loaded).seed == 0
     s = resolve_settings(loaded, 3)
-    assert s.seed == 3 and s.design_seed == 3
+    assert s.seed == 3          # one seed: the colouring's, the designs' and the phases'
     assert s.design_kwargs("A1.forward")["seed"] == 3
 
 
@@ -335,7 +335,7 @@ def test_repair_redesigns_a_too_slow_impacter_alone():
 
     settings = resolve_settings(load_spec(TRAVEL), 0)
     steps = settings.steps
-    a = assign(settings.loaded, steps, separation=settings.separation_channels)
+    a = assign(settings, steps)
     waveforms = synthesize_steps(settings, steps, a)
     cache = {}
     first = design_all(settings, steps, a, cache, waveforms=waveforms)
@@ -419,7 +419,7 @@ def test_designs_are_silent_at_the_tones_as_played():
 
     settings = resolve_settings(load_spec(TRAVEL), 0)
     steps = settings.steps
-    a = assign(settings.loaded, steps, separation=settings.separation_channels)
+    a = assign(settings, steps)
     waveforms = synthesize_steps(settings, steps, a)
     push, pull = (next(st for st in steps if st.name == k) for k in ("push", "pull"))
     (pusher,), (puller,) = ([f"{d}.{dr}" for d, dr in st.active_nodes()] for st in (push, pull))
@@ -449,7 +449,7 @@ def test_repair_redesigns_an_idle_responder_once_then_widens():
 
     settings = resolve_settings(load_spec(TRAVEL), 0)
     steps = settings.steps
-    a = assign(settings.loaded, steps, separation=settings.separation_channels)
+    a = assign(settings, steps)
     waveforms = synthesize_steps(settings, steps, a)
     designs = design_all(settings, steps, a, {}, waveforms=waveforms)
     pull = next(st for st in steps if st.name == "pull")

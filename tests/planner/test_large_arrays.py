@@ -75,7 +75,7 @@ def test_old_7x7_spec_is_refused_with_the_reason_not_left_to_the_designer():
     loaded = load_spec(_old_7x7_text(), source="old_7x7")
     settings = resolve_settings(loaded)
     with pytest.raises(PlanningError) as err:
-        assign(loaded, settings.steps, separation=settings.separation_channels)
+        assign(settings, settings.steps)
     msg = str(err.value)
     assert "guard band" in msg and "design.guard" in msg and "Fixes" in msg
     assert "49500 Hz" in msg or "positions" in msg
@@ -97,7 +97,7 @@ def test_capacity_counts_the_guard_band():
     positions = position_grid(grid, 5, loaded.spec.design.guard)
     assert len(positions) < need <= grid.size     # the case the old bound let through
     with pytest.raises(PlanningError) as err:
-        assign(loaded, steps, separation=5)
+        assign(resolve_settings(loaded), steps, separation=5)
     msg = str(err.value)
     assert f"needs at least {need} positions" in msg
     assert f"{len(positions)} positions" in msg and "design.guard" in msg
@@ -108,7 +108,7 @@ def test_capacity_counts_the_guard_band():
 def test_no_assigned_target_is_forbidden_to_the_designer(name):
     loaded = load_spec(CONFIGS / name)
     settings = resolve_settings(loaded)
-    a = assign(loaded, settings.steps, separation=settings.separation_channels)
+    a = assign(settings, settings.steps)
     forbidden = forbidden_tones(settings.steps, a.frequencies)
     assert len(a.frequencies) == 2 * loaded.spec.array.rows * loaded.spec.array.cols
     for n, f in a.frequencies.items():
@@ -119,7 +119,7 @@ def test_no_assigned_target_is_forbidden_to_the_designer(name):
 def test_estimate_counts_the_work_left():
     loaded = load_spec(CONFIGS / "array_10x10_rows.yaml")
     settings = resolve_settings(loaded)
-    a = assign(loaded, settings.steps, separation=settings.separation_channels)
+    a = assign(settings, settings.steps)
     one = estimate(settings, settings.steps, a, jobs=1)
     two = estimate(settings, settings.steps, a, jobs=2)
     # a row's ten devices share their tone, forbidden set and settings: one design each
@@ -135,7 +135,7 @@ def test_estimate_range_covers_retries_repair_rounds_and_compilation():
 
     loaded = load_spec(CONFIGS / "row_assembly.yaml")
     settings = resolve_settings(loaded)
-    a = assign(loaded, settings.steps, separation=settings.separation_channels)
+    a = assign(settings, settings.steps)
     e = estimate(settings, settings.steps, a, jobs=1)
     assert e.tries == 1 + DESIGN_RETRIES
     assert e.rounds == 1 + settings.repair_rounds

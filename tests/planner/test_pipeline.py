@@ -206,7 +206,7 @@ def test_scene_counts_the_overshoot_after_the_drive_stops():
     imp = model.Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6).with_natural_frequency(5200)
     slider = build_slider(spec.slider_config("A1"), spec.process, spec.environment)
     w = synthesize([6200.0], model.amplitude_from_power([6200.0], 50.0), 200_000, seed=0)
-    rows = simulate_scenes(loaded, steps, {steps[0].key: w}, {"A1.forward": imp},
+    rows = simulate_scenes(settings, steps, {steps[0].key: w}, {"A1.forward": imp},
                            {"A1": slider})
     assert [r["step"] for r in rows] == ["go", SETTLE_NAME]
     go, tail = rows

@@ -8,6 +8,7 @@ from click.testing import CliRunner
 from planner.assign import activity, assign, conflict_graph, plan_steps, verify_assignment
 from planner.cli import main
 from planner.errors import SpecError
+from planner.planning.settings import resolve_settings
 from planner.spec import default_spec_path, load_spec, separation_for_bandwidth
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -95,7 +96,7 @@ def test_conflict_graph_rules():
 def test_assignment_meets_every_separation():
     loaded = load_spec(GOOD)
     steps = plan_steps(loaded, 0.01)
-    result = assign(loaded, steps, separation=5)
+    result = assign(resolve_settings(loaded), steps, separation=5)
     assert verify_assignment(result) == []
     lo, hi = loaded.spec.drive.band_hz
     assert all(lo <= f <= hi for f in result.frequencies.values())
@@ -169,7 +170,7 @@ def test_default_layout_puts_multi_tone_steps_below_their_idle_impacters():
 
     loaded = load_spec(default_spec_path())
     steps = plan_steps(loaded, 0.01)
-    a = assign(loaded, steps)
+    a = assign(resolve_settings(loaded), steps)
     assert verify_assignment(a) == []
     f = a.frequencies
     position, release = steps[0], steps[1]
