@@ -523,6 +523,19 @@ def _ensemble_exposure(steps, groups, coloring):
     return count
 
 
+def told_apart_pairs(assignment: Assignment, nodes) -> np.ndarray:
+    """Index pairs (into ``nodes``) of the impacters the conflict graph keeps apart,
+    ndarray shape (n_pairs, 2), each pair ascending, the pairs in order."""
+    index = {n: k for k, n in enumerate(nodes)}
+    out = set()
+    for a, b in assignment.graph.edges():
+        for u in assignment.groups[a]:
+            for v in assignment.groups[b]:
+                if u in index and v in index:
+                    out.add(tuple(sorted((index[u], index[v]))))
+    return np.array(sorted(out), dtype=np.int64).reshape(-1, 2)
+
+
 def verify_assignment(assignment: Assignment) -> list[str]:
     """Independent check: every edge's separation holds on the channels actually used."""
     problems = []

@@ -584,7 +584,7 @@ def predict_from_channels(spec, assignment, *, chips=CHIPS, seed=0) -> YieldPred
     resonances come closer than ``drive.channels.separation_hz`` (400 Hz by default
     when the grid is not a tolerance grid).  None without tolerances.
     """
-    from planner.planning.manufacture import told_apart_pairs
+    from planner.assign import told_apart_pairs
 
     fab = spec.fabrication
     if fab.zero:

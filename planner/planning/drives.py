@@ -1,4 +1,5 @@
-"""Stage 4, drives: the summed-tone drive of every step (tone amplitudes, synthesis)."""
+"""Stage 4, drives: the summed-tone drive of every step (tone amplitudes, synthesis), its
+peaks and the acceleration limit."""
 
 from __future__ import annotations
 
@@ -92,8 +93,6 @@ def limit_acceleration(settings: Settings, waveforms):
         ``notes``: step key -> {"peak_displacement_m", "peak_acceleration_m_s2"
         (after any lowering), "acceleration_scale" (1 if none)}.
     """
-    from planner.planning.motion import drive_peaks
-
     out, notes = {}, {}
     limit = settings.max_acceleration_m_s2
     for key, w in waveforms.items():
@@ -111,3 +110,15 @@ def limit_acceleration(settings: Settings, waveforms):
         notes[key] = {"peak_displacement_m": zp, "peak_acceleration_m_s2": ap,
                       "acceleration_scale": scale}
     return out, notes
+
+
+def drive_peaks(waveform):
+    """(peak |zeta| [m], peak |zeta''| [m/s^2]) of a summed drive over its loop, or of
+    a gated burst (:class:`planner.gating.Burst`) over its length
+    (:func:`planner.gating.tone_peaks`)."""
+    from planner.gating import Burst, burst_peaks, tone_peaks
+
+    if isinstance(waveform, Burst):
+        return burst_peaks(waveform)
+    return tone_peaks(waveform.frequencies, waveform.amplitudes, waveform.phases,
+                      waveform.loop_length)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from planner.assign import told_apart_pairs
 from planner.fabrication import ERRORS, NodeDesign
 from planner.manufacturability import (
     BAND_MARGIN,
@@ -22,18 +23,6 @@ from planner.manufacturability import (
     z_for,
 )
 from planner.nodes import Node, node_key
-
-
-def told_apart_pairs(assignment, nodes):
-    """Index pairs (into ``nodes``) of the impacters the conflict graph keeps apart."""
-    index = {n: k for k, n in enumerate(nodes)}
-    out = set()
-    for a, b in assignment.graph.edges():
-        for u in assignment.groups[a]:
-            for v in assignment.groups[b]:
-                if u in index and v in index:
-                    out.add(tuple(sorted((index[u], index[v]))))
-    return np.array(sorted(out), dtype=np.int64).reshape(-1, 2)
 
 
 def _node_design(n, design):

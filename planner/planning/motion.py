@@ -1,5 +1,5 @@
 """Slider motion under a step's summed drive: phases with carried state, the settle
-dwell after a burst, burst sizing for ``travel_um`` steps and the drive's peaks.
+dwell after a burst and burst sizing for ``travel_um`` steps.
 
 Every slider simulation of the plan goes through :func:`run_phase`, which kicks each
 slider by its device's contact law (``device.contact``): impacts are collected as
@@ -37,6 +37,7 @@ import numpy as np
 import model
 from model import Drive
 from planner.nodes import Node
+from planner.planning.drives import drive_of
 
 #: Chunk [s] of the undriven settle simulation, and the dwell's granularity.
 SETTLE_CHUNK_S = 5e-4
@@ -222,7 +223,7 @@ def probe_speeds(settings, step, drive, impacters, sliders, window=PROBE_S):
     return out
 
 
-def size_bursts(settings, steps, waveforms, impacters, sliders, drive_of):
+def size_bursts(settings, steps, waveforms, impacters, sliders):
     """Steps with their bursts sized from ``travel_m`` (see the module docstring).
 
     Returns
@@ -251,14 +252,3 @@ def size_bursts(settings, steps, waveforms, impacters, sliders, drive_of):
         out.append(dataclasses.replace(st, duration_s=float(duration)))
     return tuple(out), notes
 
-
-def drive_peaks(waveform):
-    """(peak |zeta| [m], peak |zeta''| [m/s^2]) of a summed drive over its loop, or of
-    a gated burst (:class:`planner.gating.Burst`) over its length
-    (:func:`planner.gating.tone_peaks`)."""
-    from planner.gating import Burst, burst_peaks, tone_peaks
-
-    if isinstance(waveform, Burst):
-        return burst_peaks(waveform)
-    return tone_peaks(waveform.frequencies, waveform.amplitudes, waveform.phases,
-                      waveform.loop_length)

@@ -18,7 +18,7 @@ from planner.errors import PlanningError
 from planner.nodes import Node, device_key
 from planner.planning.design_store import DesignStore
 from planner.planning.designs import design_all
-from planner.planning.drives import drive_of, limit_acceleration, synthesize_steps
+from planner.planning.drives import limit_acceleration, synthesize_steps
 from planner.planning.manufacture import assess
 from planner.planning.motion import size_bursts
 from planner.planning.record import build_record
@@ -116,8 +116,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         sliders = {d: settings.sliders[d] for d in devices}
         ts = time.perf_counter()
         # steps that give travel_um get their burst from the predicted speed
-        run_steps, sizing = size_bursts(settings, steps, waveforms, impacters, sliders,
-                                        drive_of)
+        run_steps, sizing = size_bursts(settings, steps, waveforms, impacters, sliders)
         # targets steps play a gated burst, found from the carried state of their scene;
         # its tones play one after the other, so at their amplitudes as synthesised, not
         # as lowered for the peak of their whole sum

@@ -379,7 +379,7 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict) -> Rescu
         The chip's models as measured (:func:`as_built_models`) and its sliders: the
         bursts are sized for their speeds.
     """
-    from planner.planning.drives import drive_of, limit_acceleration, synthesize_steps
+    from planner.planning.drives import limit_acceleration, synthesize_steps
     from planner.planning.motion import size_bursts
 
     measured = {n: measured.get(n, plan.design_natural_frequency_hz[n])
@@ -410,7 +410,7 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict) -> Rescu
                                                              phases=phases))
 
     waveforms, notes = synthesize_and_limit(tuple(base), tones)
-    steps, sizing = size_bursts(settings, tuple(base), waveforms, models, sliders, drive_of)
+    steps, sizing = size_bursts(settings, tuple(base), waveforms, models, sliders)
     dwells = {st.key: plan.dwells.get(st.key, 0.0) for st in steps}
     return RescuedDrive(steps, waveforms, notes, dwells, tones, bad, {}, sizing,
                         weakened(steps, notes, scales), synthesize_and_limit)
@@ -432,7 +432,6 @@ def split_weak(settings, drive: RescuedDrive, rows, failures, models, sliders, c
         The drive with its kept splits (steps renumbered in play order), and the checks
         of every step as it now stands.
     """
-    from planner.planning.drives import drive_of
     from planner.planning.motion import size_bursts
     from planner.planning.verify import TOO_SLOW
 
@@ -444,7 +443,7 @@ def split_weak(settings, drive: RescuedDrive, rows, failures, models, sliders, c
     for st in tries:
         subs, w, nt = split_step(st, drive.tones, drive.weak[st.key],
                                  drive.synthesize_and_limit)
-        subs, _ = size_bursts(settings, tuple(subs), w, models, sliders, drive_of)
+        subs, _ = size_bursts(settings, tuple(subs), w, models, sliders)
         checked = [check([sub], w) for sub in subs]          # per sub-step
         before = sum(1 for r in rows if r["index"] == st.index and not r["passed"])
         after = sum(1 for sub_rows, _ in checked for r in sub_rows if not r["passed"])
@@ -515,8 +514,8 @@ def quieten(settings, drive: RescuedDrive, rows, failures, models, sliders, chec
         The drive with the weakened steps (their notes say by how much), and the checks
         of every step as it now stands.
     """
-    from planner.planning.drives import drive_of, scaled
-    from planner.planning.motion import drive_peaks, size_bursts
+    from planner.planning.drives import drive_peaks, scaled
+    from planner.planning.motion import size_bursts
     from planner.planning.verify import IDLE_RESPONSE, TRAVEL_OVER, UNSETTLED
 
     def serious(fails):
@@ -536,7 +535,7 @@ def quieten(settings, drive: RescuedDrive, rows, failures, models, sliders, chec
         for factor in QUIET_FACTORS:
             w = scaled(waveforms[st.key], factor, f"every amplitude lowered by x{factor:g} "
                        "more: an idle impacter answered the step on this chip")
-            (sub,), _ = size_bursts(settings, (st,), {st.key: w}, models, sliders, drive_of)
+            (sub,), _ = size_bursts(settings, (st,), {st.key: w}, models, sliders)
             got_rows, got_fails = check([sub], {st.key: w})
             bad = serious(got_fails)
             if best is None or bad < best[0]:

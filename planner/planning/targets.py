@@ -83,6 +83,7 @@ from planner.gating import burst_peaks, gate
 from planner.nodes import Node
 from planner.planning.drives import scaled
 from planner.planning.motion import run_phase, run_program, settle
+from planner.planning.scenes import simulate_scenes
 from planner.units import UM
 
 #: Fade-in and fade-out of every tone of a gated burst [s]: many beat periods of an
@@ -162,8 +163,6 @@ def place_targets(settings, steps, waveforms, frequencies, impacters, sliders, p
     PlanningError
         A slider cannot reach its target within the longest its tone may play.
     """
-    from planner.planning.scenes import simulate_scenes
-
     bursts, moves, notes = {}, {}, {}
 
     def place(step, states, sl_states):
