@@ -197,7 +197,7 @@ def guard_violations(steps, frequencies: dict, rules) -> list[Violation]:
     return out
 
 
-@dataclass
+@dataclass(frozen=True)
 class Assignment:
     """Channels and frequencies of every driven impacter, and how they were found."""
 

@@ -18,6 +18,7 @@ function ``planner.plan`` is never shadowed by a submodule.)
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from planner._io import output_folder
@@ -73,6 +74,7 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, job
     Returns
     -------
     Plan
+        With ``out_dir`` when written there (and the ``outputs`` time in ``timings``).
     """
     if isinstance(spec, LoadedSpec):
         loaded = spec
@@ -89,9 +91,9 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, job
     with output_folder(out_dir, command="plan", inputs=inputs, force=force) as tmp:
         result = run_plan(loaded, seed=seed, progress=progress, jobs=jobs, settings=settings,
                           on_assignment=on_assignment, scheduler=scheduler, cache_dir=cache_dir)
-        write_outputs(result, tmp, figures=figures)
-    result.out_dir = Path(out_dir)
-    return result
+        seconds = write_outputs(result, tmp, figures=figures)
+    return dataclasses.replace(result, out_dir=Path(out_dir),
+                               timings={**result.timings, "outputs": seconds})
 
 
 def step_tones(spec_path):

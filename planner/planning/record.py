@@ -127,10 +127,13 @@ def step_travels(ver_rows):
 
 
 def build_record(settings, steps, assignment, designs, sliders, waveforms, ver_rows, passed,
-                 rounds, scene_rows, motion=None, manufacturability=None):
+                 rounds, scene_rows, motion=None, manufacturability=None, sections=None):
     """(plan.json dict, impacter records, device records, step records).
 
     ``manufacturability``: the block of :func:`planner.planning.manufacture.assess`.
+
+    ``sections`` (optional): further top-level blocks, last and in their order (a
+    re-plan's ``as_built`` and ``replan``).
 
     ``motion``: {"sizing", "drive", "settle_s", "repairs", "gating"} of the pipeline
     (burst sizing notes, drive peaks and acceleration scales, settle dwells by step key,
@@ -174,4 +177,5 @@ def build_record(settings, steps, assignment, designs, sliders, waveforms, ver_r
     }
     if manufacturability is not None:
         data["manufacturability"] = manufacturability
+    data.update(sections or {})
     return round_floats(data), impacter_recs, device_recs, step_recs

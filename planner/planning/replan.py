@@ -44,7 +44,7 @@ from model import Drive
 from planner.assign import Assignment, conflict_graph, guard_violations
 from planner.nodes import Node, device_key, node_key
 from planner.planning.plan_file import PlanRecord, drives
-from planner.planning.record import build_record, round_floats
+from planner.planning.record import build_record
 from planner.planning.repair import scenes_and_motion
 from planner.planning.rescue import (REPLAN_TRAVEL_MARGIN, as_built_models, quieten, rescue,
                                      split_weak)
@@ -370,9 +370,10 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
                "failures": sum(1 for r in ver_rows if not r["passed"])}]
     data, impacter_recs, device_recs, step_recs = build_record(
         settings, steps, assignment, designs, sliders, drive.waveforms, ver_rows, passed,
-        rounds, scene_rows, motion)
-    data["as_built"] = round_floats(params)
-    data["replan"] = round_floats(_replan_record(plan, settings, params, drive, orig_passed, orig_rows))
+        rounds, scene_rows, motion,
+        sections={"as_built": params,
+                  "replan": _replan_record(plan, settings, params, drive, orig_passed,
+                                           orig_rows)})
     timings["total"] = time.perf_counter() - t0
     return Plan(
         impacters=pd.DataFrame(impacter_recs), devices=pd.DataFrame(device_recs),
@@ -528,7 +529,7 @@ def write_replan_outputs(result: Plan, out_dir, *, figures=True):
 def replan_report_lines(data) -> list:
     """The report's re-plan section: as-built against design, tones moved, the original
     drive on this chip, impacters that can no longer be told apart."""
-    from planner.planning.outputs import _fmt, _md_table
+    from planner.planning.report import fmt, md_table
 
     rp = data["replan"]
     od = rp["original_drive"]
@@ -549,15 +550,14 @@ def replan_report_lines(data) -> list:
         lines += ["", "</details>", ""]
     rows = []
     for m in rp["moved"]:
-        rows.append([m["id"], _fmt(m["design_natural_frequency_hz"], ".1f"),
-                     _fmt(m["natural_frequency_hz"], ".1f"),
-                     _fmt(100 * m["natural_frequency_shift"], "+.2f"),
-                     _fmt(m["original_frequency_hz"], ".1f"), _fmt(m["frequency_hz"], ".1f"),
-                     _fmt(100 * m["tone_shift"], "+.2f")])
+        rows.append([m["id"], fmt(m["design_natural_frequency_hz"], ".1f"),
+                     fmt(m["natural_frequency_hz"], ".1f"),
+                     fmt(100 * m["natural_frequency_shift"], "+.2f"),
+                     fmt(m["original_frequency_hz"], ".1f"), fmt(m["frequency_hz"], ".1f"),
+                     fmt(100 * m["tone_shift"], "+.2f")])
     lines += ["### What moved", ""]
-    lines += _md_table(["impacter", "design nu_n [Hz]", "as-built nu_n [Hz]", "shift [%]",
-                        "original tone [Hz]", "new tone [Hz]", "tone shift [%]"],
-                       rows)
+    lines += md_table(["impacter", "design nu_n [Hz]", "as-built nu_n [Hz]", "shift [%]",
+                       "original tone [Hz]", "new tone [Hz]", "tone shift [%]"], rows)
     lines.append("")
     if rp.get("outside_band"):
         lo, hi = data["spec"]["drive"]["band_hz"]

@@ -32,6 +32,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -326,7 +327,7 @@ def plan_phases(plan) -> dict:
     return out
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class RescuedDrive:
     """A chip's re-planned drive before its verification.
 
@@ -361,7 +362,7 @@ class RescuedDrive:
     splits: dict
     sizing: dict
     weak: dict = dataclasses.field(default_factory=dict)
-    synthesize_and_limit: object = None
+    synthesize_and_limit: Callable | None = None
 
 
 def rescue(plan, measured: dict, settings, models: dict, sliders: dict) -> RescuedDrive:
