@@ -1,7 +1,8 @@
 """Frequency assignment: conflict graph -> bandwidth colouring -> channels -> frequencies.
 
 Stage 2 and 3 of the plan pipeline.  Each impacter pair that some step drives is a
-node (``"C3.forward"``).  Two nodes must be told apart -- an edge, weighted by the
+node (:class:`planner.nodes.Node`, ``Node("C3", "forward")``; every mapping here is keyed
+by it).  Two nodes must be told apart -- an edge, weighted by the
 separation they need in channels -- when some step drives one and not the other;
 nodes in the same state in every step may share a channel (they are merged into one
 colouring node).  A device's forward and backward pairs are never driven together,
@@ -28,15 +29,16 @@ import numpy as np
 import pandas as pd
 
 from planner.errors import PlanningError
-from planner.nodes import DIRECTIONS, Node
+from planner.nodes import DIRECTIONS, Node, device_key
 from planner.separation import guard_onset_hz, position_grid
 from planner.spec import LoadedSpec, Step
 
 
 
-def node_id(device: str, direction: str) -> str:
-    """``("C3", "forward")`` -> ``"C3.forward"`` (:class:`planner.nodes.Node`'s text)."""
-    return Node(device, direction).text
+def node_order(node: Node):
+    """Sort key of a node: its device's row and column (``A2`` before ``A10``), then its
+    direction (the order of :func:`planner.nodes.node_key` on the node's text)."""
+    return (*device_key(node.device), node.direction)
 
 
 def split_node(node: str) -> tuple[str, str]:
@@ -66,19 +68,17 @@ def plan_steps(loaded: LoadedSpec, single_step_s: float) -> tuple[Step, ...]:
     for dev, direction in alone:
         fwd = (dev,) if direction == "forward" else ()
         bwd = (dev,) if direction == "backward" else ()
-        steps.append(Step("independent", node_id(dev, direction), len(steps),
+        steps.append(Step("independent", Node(dev, direction).text, len(steps),
                           single_step_s, fwd, bwd))
     return tuple(steps)
 
 
-def activity(steps) -> dict[str, tuple[bool, ...]]:
+def activity(steps) -> dict[Node, tuple[bool, ...]]:
     """Node -> tuple of "driven in step i" for every node driven in some step."""
-    nodes = sorted({node_id(d, dr) for st in steps for d, dr in st.active_nodes()})
-    out = {}
-    for n in nodes:
-        dev, direction = split_node(n)
-        out[n] = tuple((dev, direction) in st.active_nodes() for st in steps)
-    return out
+    nodes = sorted({Node(d, dr) for st in steps for d, dr in st.active_nodes()})
+    active = [st.active_nodes() for st in steps]
+    # a Node equals its (device, direction) tuple
+    return {n: tuple(n in act for act in active) for n in nodes}
 
 
 def conflict_graph(steps, separation=1, pair_separation=None,
@@ -121,7 +121,7 @@ def conflict_graph(steps, separation=1, pair_separation=None,
     ensemble = set()
     if ensemble_separation:
         for st in steps:
-            playing = {member_of[node_id(d, dr)] for d, dr in st.active_nodes()}
+            playing = {member_of[Node(d, dr)] for d, dr in st.active_nodes()}
             if len(playing) < 2 or st.targets_m is not None:
                 continue
             for idle in set(groups) - playing:
@@ -143,7 +143,7 @@ class Violation:
     """A guard-rule violation: a product of playing tones in an idle impacter's band."""
 
     step: str
-    node: str
+    node: Node      # the idle impacter
     kind: str       # "harmonic" or "intermodulation"
     product_hz: float
     node_hz: float
@@ -165,7 +165,7 @@ def guard_violations(steps, frequencies: dict, rules) -> list[Violation]:
     out = []
     bw = rules.relative_bandwidth
     for st in steps:
-        active = [node_id(d, dr) for d, dr in sorted(st.active_nodes())]
+        active = {Node(d, dr) for d, dr in st.active_nodes()}
         tones = np.array(sorted({frequencies[n] for n in active if n in frequencies}))
         idle = {n: f for n, f in frequencies.items() if n not in active}
         if tones.size == 0 or not idle:
@@ -201,8 +201,8 @@ def guard_violations(steps, frequencies: dict, rules) -> list[Violation]:
 class Assignment:
     """Channels and frequencies of every driven impacter, and how they were found."""
 
-    graph: nx.Graph
-    groups: dict
+    graph: nx.Graph           # one vertex per channel group, named by its first Node
+    groups: dict              # group -> its Nodes
     coloring: dict            # group -> colour
     span: int
     lower_bound: int
@@ -221,10 +221,8 @@ class Assignment:
     def table(self) -> pd.DataFrame:
         """One row per impacter: device, direction, channel, frequency_hz."""
         rows = []
-        for n in sorted(self.channels, key=lambda n: (split_node(n)[0][0],
-                                                      int(split_node(n)[0][1:]), n)):
-            dev, direction = split_node(n)
-            rows.append({"id": n, "device": dev, "direction": direction,
+        for n in sorted(self.channels, key=node_order):
+            rows.append({"id": n.text, "device": n.device, "direction": n.direction,
                          "channel": self.channels[n], "frequency_hz": self.frequencies[n]})
         return pd.DataFrame(rows)
 
@@ -493,8 +491,8 @@ def _ensemble_severity(steps, groups, freqs):
     member_of = {n: g for g, members in groups.items() for n in members}
     total = 0.0
     for st in steps:
-        playing = {member_of[node_id(d, dr)] for d, dr in st.active_nodes()
-                   if node_id(d, dr) in member_of}
+        playing = {member_of[Node(d, dr)] for d, dr in st.active_nodes()
+                   if (d, dr) in member_of}
         if len(playing) < 2:
             continue
         fp = np.array(sorted(freqs[p] for p in playing))
@@ -514,8 +512,8 @@ def _ensemble_exposure(steps, groups, coloring):
     member_of = {n: g for g, members in groups.items() for n in members}
     count = 0
     for st in steps:
-        playing = {member_of[node_id(d, dr)] for d, dr in st.active_nodes()
-                   if node_id(d, dr) in member_of}
+        playing = {member_of[Node(d, dr)] for d, dr in st.active_nodes()
+                   if (d, dr) in member_of}
         if len(playing) < 2:
             continue
         for g in set(groups) - playing:

@@ -597,7 +597,7 @@ def predict_from_channels(spec, assignment, *, chips=CHIPS, seed=0) -> YieldPred
     sens = s[None, :] + (rng.random((len(nodes), len(ERRORS))) - 0.5) * spread[None, :]
     sep = spec.drive.channels.resonance_separation_hz
     edge = np.full(len(nodes), float(sep))
-    return collision_free_yield(nodes, f, f, sens,
+    return collision_free_yield([str(n) for n in nodes], f, f, sens,
                                 [getattr(fab, k).die for k in ERRORS],
                                 [getattr(fab, k).device for k in ERRORS],
                                 told_apart_pairs(assignment, nodes), silent_below=edge,

@@ -70,32 +70,30 @@ def array_map(settings, table, path):
 def response_curves(curves, tones, path, title):
     """Every designed impacter's response band against frequency with all tones marked.
 
-    Forward and backward impacters (labels ending in ``.forward`` / ``.backward``) get a
-    panel each, so neighbouring peaks stay apart.
+    Forward and backward impacters get a panel each, so neighbouring peaks stay apart.
 
     Parameters
     ----------
-    curves : list of (label, frequencies [Hz], worst r [N], own frequency [Hz])
+    curves : list of (Node, frequencies [Hz], worst r [N], own frequency [Hz])
         The own frequency should be one of the frequencies (its dot is read off exactly).
     tones : sequence of float
         Every tone of the plan [Hz].
     """
     groups = {}
     for c in curves:
-        kind = c[0].rsplit(".", 1)[-1] if c[0].endswith((".forward", ".backward")) else ""
-        groups.setdefault(kind, []).append(c)
+        groups.setdefault(c[0].direction, []).append(c)
     fig, axes = plt.subplots(len(groups), 1, figsize=(10, 3.6 * len(groups) + 0.6),
                              squeeze=False, sharex=True)
     cmap = plt.get_cmap("tab10")
     for ax, (kind, group) in zip(axes[:, 0], groups.items()):
-        for i, (label, f, r, own) in enumerate(group):
+        for i, (_, f, r, own) in enumerate(group):
             color = cmap(i % 10)
             ax.semilogx(f, r * 1e9, color=color, lw=0.9)
             ax.plot([own], [np.interp(own, f, r) * 1e9], "o", color=color, ms=3.5)
         for t in tones:
             ax.axvline(t, color="0.75", lw=0.4, zorder=0)
         ax.set_ylabel("worst r over x0 [nN]")
-        ax.set_title(f"{kind} impacters" if kind else "impacters", fontsize=10, loc="left")
+        ax.set_title(f"{kind} impacters", fontsize=10, loc="left")
         ax.grid(alpha=0.3, which="both")
     axes[-1, 0].set_xlabel("drive frequency [Hz] (grey lines: every tone of the plan)")
     fig.suptitle(title, fontsize=11)

@@ -15,10 +15,10 @@ SINGLE_TONE_TOLERANCE_REL = 1e-4
 def synthesize_steps(settings: Settings, steps, assignment, seed=None, phases=None):
     """Waveform of every step (the sum of its active impacters' tones), by step key.
 
-    ``assignment``: an :class:`~planner.assign.Assignment`, or a mapping impacter id ->
-    tone [Hz] (a re-plan's tones).  Step ``i`` is seeded with ``seed + i`` (``seed``
-    default ``settings.seed``).  ``phases`` (optional): step key -> {impacter id ->
-    phase [rad]}; a step whose every impacter has one plays its tones at those phases
+    ``assignment``: an :class:`~planner.assign.Assignment`, or a mapping Node -> tone
+    [Hz] (a re-plan's tones).  Step ``i`` is seeded with ``seed + i`` (``seed``
+    default ``settings.seed``).  ``phases`` (optional): step key -> {Node -> phase
+    [rad]}; a step whose every impacter has one plays its tones at those phases
     instead of optimised ones (a re-plan keeps the phases its designs were verified
     under).
     """
@@ -28,7 +28,7 @@ def synthesize_steps(settings: Settings, steps, assignment, seed=None, phases=No
     frequencies = getattr(assignment, "frequencies", assignment)
     out = {}
     for st in steps:
-        nodes = sorted(Node(d, dr).text for d, dr in st.active_nodes())
+        nodes = sorted(Node(d, dr) for d, dr in st.active_nodes())
         freqs = sorted({frequencies[n] for n in nodes})
         amps = tone_amplitudes(settings, freqs)
         # one tone: played within 0.01 %, inside the 10-80 Hz an impacter designed for

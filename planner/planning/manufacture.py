@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from planner.assign import told_apart_pairs
+from planner.assign import node_order, told_apart_pairs
 from planner.fabrication import ERRORS, NodeDesign
 from planner.manufacturability import (
     BAND_MARGIN,
@@ -22,13 +22,12 @@ from planner.manufacturability import (
     sensitivities,
     z_for,
 )
-from planner.nodes import Node, node_key
+from planner.nodes import Node
 
 
-def _node_design(n, design):
+def _node_design(n: Node, design):
     g = design.geometry
-    node = Node.parse(n)
-    return NodeDesign(n, node.device, node.direction, g.area, g.width, g.length, g.gap,
+    return NodeDesign(n.text, n.device, n.direction, g.area, g.width, g.length, g.gap,
                       design.impact_angle_rad, design.restitution)
 
 
@@ -42,7 +41,7 @@ def _tone_amplitudes(steps, assignment, waveforms):
         w = waveforms[st.key]
         req = np.asarray(w.requested_frequencies, dtype=float)
         for d, r in st.active_nodes():
-            n = Node(d, r).text
+            n = Node(d, r)
             f = assignment.frequencies.get(n)
             if f is None or req.size == 0:
                 continue
@@ -57,7 +56,8 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
     Returns
     -------
     dict
-        ``sensitivity`` (impacter id -> {parameter: d ln nu / d unit}),
+        Keyed by the impacters' text (plan.json): ``sensitivity`` (impacter id ->
+        {parameter: d ln nu / d unit}),
         ``line_width_sensitivity_per_um`` ({min, max, spread}), ``separation_hz``
         (impacter id -> :meth:`planner.manufacturability.Separation.to_dict`),
         ``collision_free_yield`` ({value, ci95, chips}, None without tolerances),
@@ -66,7 +66,7 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
         ``pair_sigma_rel`` (the grid's prediction of the scatter of a resonance
         difference), ``model``.
     """
-    nodes = sorted(designs, key=node_key)
+    nodes = sorted(designs, key=node_order)
     fab = settings.fabrication
     amps = _tone_amplitudes(steps, assignment, waveforms)
     sens, seps = {}, {}
@@ -82,11 +82,11 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
         "model": ("first-order Monte Carlo of as-built natural frequencies (planner."
                   "manufacturability); a pair collides when one impacter's tone window "
                   "lies inside the other's silent band on the chip"),
-        "sensitivity": sens,
+        "sensitivity": {n.text: sens[n] for n in nodes},
         "line_width_sensitivity_per_um": {
             "min": float(lw.min()), "max": float(lw.max()),
             "spread": float(lw.max() / lw.min() - 1.0) if lw.min() > 0 else None},
-        "separation_hz": {n: seps[n].to_dict() for n in nodes},
+        "separation_hz": {n.text: seps[n].to_dict() for n in nodes},
         "target_yield": fab.target_yield,
         "sensitivity_band_per_um": (None if settings.sensitivity_band is None else
                                     [b * 1e-6 for b in settings.sensitivity_band]),
@@ -103,7 +103,7 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
     sd_die = np.array([getattr(fab, e).die for e in ERRORS])
     sd_dev = np.array([getattr(fab, e).device for e in ERRORS])
     pred = collision_free_yield(
-        nodes, nu, tone, s_mat, sd_die, sd_dev, pairs,
+        [n.text for n in nodes], nu, tone, s_mat, sd_die, sd_dev, pairs,
         silent_below=[(1 + BAND_MARGIN) * seps[n].silent_below_hz for n in nodes],
         silent_above=[(1 + BAND_MARGIN) * seps[n].silent_above_hz for n in nodes],
         responds_below=[seps[n].responds_below_hz for n in nodes],

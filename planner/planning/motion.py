@@ -55,13 +55,23 @@ def _empty_kicks():
     return np.empty(0), np.empty(0)
 
 
+def by_node(models: dict) -> dict:
+    """``models`` keyed by :class:`~planner.nodes.Node`, as every stage keys them; a
+    mapping keyed by the nodes' text (a chip sampled by
+    :func:`planner.fabrication.sample_chip`, read from plan.json's ids) is re-keyed
+    here, once, at the entry of the verification and the scene simulation."""
+    if all(isinstance(n, Node) for n in models):
+        return models
+    return {n if isinstance(n, Node) else Node.parse(n): m for n, m in models.items()}
+
+
 def run_phase(impacters, sliders, contacts, drive, duration, states, sl_states):
     """Advance impacters and sliders through one phase of ``duration`` [s].
 
     Parameters
     ----------
     impacters : dict
-        Node text -> model.Impacter.
+        :class:`~planner.nodes.Node` -> model.Impacter.
     sliders : dict
         Device id -> model.Slider (only these sliders move; each is kicked by its
         own impacters among ``impacters``).
@@ -83,13 +93,12 @@ def run_phase(impacters, sliders, contacts, drive, duration, states, sl_states):
     """
     per_device = {d: [] for d in sliders}
     hits = {}
-    for n, imp in impacters.items():
-        node = Node.parse(n)
+    for node, imp in impacters.items():
         if node.device not in sliders:
             continue
         parts = model.halves(imp)
         # a pair of unequal halves carries one state per half
-        prior = states.get(n)
+        prior = states.get(node)
         if len(parts) == 1:
             starts = (prior,)
         elif prior is None or not isinstance(prior[0], tuple):
@@ -105,8 +114,8 @@ def run_phase(impacters, sliders, contacts, drive, duration, states, sl_states):
             per_device[node.device].append(
                 model.Kicks.from_impacts(half, sliders[node.device], res, node.sign, share))
             count += int(res.times.size + res.chatter_times.size)
-        states[n] = after[0] if len(parts) == 1 else tuple(after)
-        hits[n] = count
+        states[node] = after[0] if len(parts) == 1 else tuple(after)
+        hits[node] = count
     for dev, slider in sliders.items():
         z0, v0 = sl_states.get(dev, (0.0, 0.0))
         if per_device[dev]:
@@ -138,7 +147,7 @@ def settled(impacters, sliders, states, sl_states):
     if any(sl_states.get(d, (0.0, 0.0))[1] != 0.0 for d in sliders):
         return False
     return not any(can_hit(imp, states.get(n, rest_state(imp)))
-                   for n, imp in impacters.items() if Node.parse(n).device in sliders)
+                   for n, imp in impacters.items() if n.device in sliders)
 
 
 def rest_state(impacter):
@@ -212,7 +221,7 @@ def probe_speeds(settings, step, drive, impacters, sliders, window=PROBE_S):
     from rest, under the step's summed drive (every driven device)."""
     out = {}
     for d, direction in sorted(step.active_nodes()):
-        own = {n: imp for n, imp in impacters.items() if Node.parse(n).device == d}
+        own = {n: imp for n, imp in impacters.items() if n.device == d}
         states, sl = {}, {d: (0.0, 0.0)}
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", model.SolverWarning)

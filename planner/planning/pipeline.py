@@ -16,7 +16,7 @@ import pandas as pd
 
 from planner.assign import Assignment, assign
 from planner.errors import PlanningError
-from planner.nodes import Node, device_key
+from planner.nodes import device_key
 from planner.planning.design_store import DesignStore
 from planner.planning.designs import design_all
 from planner.planning.drives import limit_acceleration, synthesize_steps
@@ -52,7 +52,7 @@ def design_problems(designs, settings):
         if getattr(d, "mass_ratio", 0.0) >= 0.99 * settings.max_mass_ratio:
             advice += (f"; it sits at the mass-ratio cap m/M = {settings.max_mass_ratio:g} "
                        "(design.max_mass_ratio, or a heavier slider)")
-        out.append({"impacter": n, "frequency_hz": d.frequency_hz, "why": d.message,
+        out.append({"impacter": n.text, "frequency_hz": d.frequency_hz, "why": d.message,
                     "what_to_change": advice})
     return out
 
@@ -116,7 +116,7 @@ def _design_round(settings, steps, assignment, clock, tick, design_cache, **desi
                           progress=lambda n: tick("design", n), waveforms=waveforms,
                           **design_kw)
     impacters = {n: d.impacter for n, d in designs.items()}
-    devices = sorted({Node.parse(n).device for n in impacters}, key=device_key)
+    devices = sorted({n.device for n in impacters}, key=device_key)
     sliders = {d: settings.sliders[d] for d in devices}
     # steps that give travel_um get their burst from the predicted speed
     run_steps, sizing = clock.timed("verify", size_bursts, settings, steps, waveforms,
@@ -187,9 +187,9 @@ def _repair_rounds(settings, clock, tick, on_assignment, design_kw):
                                     sep, skip=answered)
         reseeded = reseed_slow(got.failures, got.designs, steps, reseed)
         if reseeded:
-            rounds[-1]["redesigned_slow"] = reseeded
+            rounds[-1]["redesigned_slow"] = [n.text for n in reseeded]
         if answered:
-            rounds[-1]["redesigned_idle"] = answered
+            rounds[-1]["redesigned_idle"] = [n.text for n in answered]
         if not (widened or reseeded or answered):
             break
     kept, kept_round = best

@@ -42,7 +42,7 @@ import pandas as pd
 import model
 from model import Drive
 from planner.assign import Assignment, conflict_graph, guard_violations
-from planner.nodes import Node, device_key, node_key
+from planner.nodes import device_key, node_key
 from planner.planning.plan_file import PlanRecord, drives
 from planner.planning.record import build_record
 from planner.planning.repair import scenes_and_motion
@@ -224,8 +224,8 @@ def verify_drive(plan: PlanRecord, as_built: dict, settings=None):
     if settings is None:
         settings = plan_settings(plan)
     params = as_built_parameters(plan, as_built)
-    models = {r.id: _impacter(r, params[r.id]) for r in plan.impacters}
-    devices = sorted({Node.parse(n).device for n in models}, key=device_key)
+    models = {r.node: _impacter(r, params[r.id]) for r in plan.impacters}
+    devices = sorted({r.device for r in plan.impacters}, key=device_key)
     sliders = {d: settings.sliders[d] for d in devices}
     waves = drives(plan)
     rows = []
@@ -307,10 +307,11 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
     timings = {}
     if settings is None:
         settings = plan_settings(plan, seed)
-    plan_imps = {r.id: r for r in plan.impacters}
+    plan_imps = {r.node: r for r in plan.impacters}
     params = as_built_parameters(plan, measured)
-    models = measured_models(plan, measured, params)
-    devices = sorted({Node.parse(n).device for n in models}, key=device_key)
+    built = measured_models(plan, measured, params)
+    models = {n: built[r.id] for n, r in plan_imps.items()}
+    devices = sorted({n.device for n in models}, key=device_key)
     sliders = {d: settings.sliders[d] for d in devices}
 
     # the original drive on this chip
@@ -441,7 +442,7 @@ def _replan_record(plan, settings, params, drive, orig_passed, orig_rows):
         n = rec.id
         # the design's resonance (a re-planned plan's impacters are as built already)
         nu0, nu1 = plan.design_natural_frequency_hz[n], params[n]["natural_frequency_hz"]
-        f0, f1 = rec.frequency_hz, drive.tones[n]
+        f0, f1 = rec.frequency_hz, drive.tones[rec.node]
         moved.append({"id": n, "design_natural_frequency_hz": nu0,
                       "natural_frequency_hz": nu1, "natural_frequency_shift": nu1 / nu0 - 1,
                       "original_frequency_hz": f0, "frequency_hz": f1,

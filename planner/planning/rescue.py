@@ -191,8 +191,8 @@ def _sub_steps(step, groups):
     """``step`` split into one sub-step per group of its active nodes."""
     out = []
     for k, group in enumerate(groups):
-        fwd = tuple(d for d in step.forward if Node(d, "forward").text in group)
-        bwd = tuple(d for d in step.backward if Node(d, "backward").text in group)
+        fwd = tuple(d for d in step.forward if Node(d, "forward") in group)
+        bwd = tuple(d for d in step.backward if Node(d, "backward") in group)
         out.append(dataclasses.replace(step, name=f"{step.name}.{k + 1}", forward=fwd,
                                        backward=bwd))
     return out
@@ -207,12 +207,12 @@ def split_step(step, tones, need, synthesize_and_limit):
     (sub-steps, waveforms, notes)
         Their indices are the step's (renumber them when placing them).
     """
-    nodes = sorted((Node(d, r).text for d, r in step.active_nodes()), key=lambda n: tones[n])
+    nodes = sorted((Node(d, r) for d, r in step.active_nodes()), key=lambda n: tones[n])
     chosen = None
     for k in range(2, min(MAX_SPLIT, len(nodes)) + 1):
         # k runs of neighbouring tones: an impacter of another run is idle next to a
         # run's edge only, never between its tones (the verification decides)
-        groups = [set(g) for g in np.array_split(np.array(nodes, dtype=object), k)]
+        groups = [{nodes[i] for i in run} for run in np.array_split(np.arange(len(nodes)), k)]
         subs = _sub_steps(step, groups)
         w, nt = synthesize_and_limit(subs, tones)
         chosen = (subs, w, nt)
@@ -296,7 +296,7 @@ def separations_of(plan, settings) -> Separations:
 
 
 def plan_phases(plan) -> dict:
-    """Step key -> {impacter id -> the phase [rad] its tone played at in the plan}.
+    """Step key -> {Node -> the phase [rad] its tone played at in the plan}.
 
     The designs were made silent under each multi-tone step's drive as it was played,
     phases included; a re-plan that moves the tones by a fraction of a per cent and
@@ -307,9 +307,7 @@ def plan_phases(plan) -> dict:
     with the plan's phases none did.  A gated burst's tones (``start_s`` given) and a
     step whose tones cannot be matched to its impacters keep optimised phases.
     """
-    from planner.nodes import Node
-
-    tone_of = {r.id: r.frequency_hz for r in plan.impacters}
+    tone_of = {r.node: r.frequency_hz for r in plan.impacters}
     out = {}
     for st in plan.steps:
         if not st.tones or any(t.start_s is not None for t in st.tones):
@@ -317,7 +315,7 @@ def plan_phases(plan) -> dict:
         freqs = np.array([t.frequency_hz for t in st.tones])
         got = {}
         for d, r in st.step.active_nodes():
-            n = Node(d, r).text
+            n = Node(d, r)
             k = int(np.argmin(np.abs(freqs - tone_of[n])))
             # the played tone is the planned one snapped by at most 0.1 %
             if abs(freqs[k] - tone_of[n]) <= 2e-3 * tone_of[n]:
@@ -340,7 +338,7 @@ class RescuedDrive:
     dwells : dict
         Step key -> settle dwell after it [s] (the plan's; a sub-step takes its step's).
     tones : dict
-        Impacter id -> tone [Hz].
+        Node -> tone [Hz].
     inseparable : list of dict
         :func:`inseparable`'s pairs (no drive tells them apart).
     splits : dict
@@ -387,7 +385,8 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict) -> Rescu
                 for n in (r.id for r in plan.impacters)}
     seps = separations_of(plan, settings)
     pairs = must_differ(settings.steps)
-    tones, blocked = choose_tones(seps, rescaled_tones(plan, measured, seps), measured, pairs)
+    chosen, blocked = choose_tones(seps, rescaled_tones(plan, measured, seps), measured, pairs)
+    tones = {rec.node: chosen[rec.id] for rec in plan.impacters}
     # what blocks a tone is named pair by pair, with the separation each would need
     bad = inseparable(seps, measured, pairs)
     named = {n for c in bad for n in c["pair"]}

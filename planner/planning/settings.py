@@ -163,7 +163,8 @@ class Settings:
     robust_k : float or None
         ``design.robust_k`` when ``design.robust`` is on, else None [-].
     impacters : dict
-        Node text -> :class:`ImpacterSettings`, every impacter of every device.
+        :class:`~planner.nodes.Node` -> :class:`ImpacterSettings`, every impacter of
+        every device.
     sliders : dict
         Device id -> model.Slider, every device, in device order.
     x0_points : int
@@ -259,7 +260,7 @@ class Settings:
     chip_spec: ArraySpec = field(repr=False)
     spec_record: dict = field(repr=False)
 
-    def design_kwargs(self, node: str) -> dict:
+    def design_kwargs(self, node: Node) -> dict:
         """Keyword arguments of :func:`planner.designer.design_impacter` for ``node``,
         besides its frequency, forbidden tones and drives."""
         imp = self.impacters[node]
@@ -411,7 +412,7 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
                 "(a fabrication section with a non-zero sigma) to be robust against")
     devices = sorted(loaded.device_ids, key=device_key)
     drive, ver, des = spec.drive, spec.verification, spec.design
-    impacters = {Node(d, r).text: _impacter_settings(spec, d, r)
+    impacters = {Node(d, r): _impacter_settings(spec, d, r)
                  for d in devices for r in DIRECTIONS}
     return Settings(
         name=spec.name,

@@ -10,6 +10,7 @@ import yaml
 
 from planner.design_config import DesignConfig
 from planner.errors import SpecError
+from planner.nodes import Node
 from planner.planning.settings import resolve_settings
 from planner.spec import load_spec
 
@@ -48,25 +49,25 @@ CASES = [
     ("array.rows", 2, lambda s: tuple(s.sliders)),
     ("array.cols", 3, lambda s: tuple(s.sliders)),
     ("array.pitch_um", 500.0, lambda s: s.array_pitch_m),
-    ("process.density_kg_m3", 2000.0, lambda s: s.impacters["A1.forward"].process),
-    ("process.mass_thickness_um", 3.0, lambda s: s.impacters["A1.forward"].process),
+    ("process.density_kg_m3", 2000.0, lambda s: s.impacters[Node("A1", "forward")].process),
+    ("process.mass_thickness_um", 3.0, lambda s: s.impacters[Node("A1", "forward")].process),
     ("process.slider_thickness_um", 3.0, lambda s: s.sliders["A1"].mass),
     # the layout's rules reach the designer through its bounds (issue 30); the layer map
     # and the anchor enclosure only the layout (LAYOUT_ONLY)
     ("process.min_line_um", 3.0, lambda s: s.bounds),
     ("process.min_space_um", 2.0, lambda s: s.bounds),
     ("environment.viscosity_mpa_s", 0.01, lambda s: s.environment),
-    ("device.impacter.restitution", 0.7, _imp("A1.forward", "restitution")),
-    ("device.impacter.impact_angle_deg", 30.0, _imp("A2.backward", "impact_angle_rad")),
-    ("device.impacter.mass_thickness_um", 3.0, _imp("A1.forward", "process")),
-    ("device.forward.restitution", 0.7, _imp("A1.forward", "restitution")),
-    ("device.backward.impact_angle_deg", 30.0, _imp("A1.backward", "impact_angle_rad")),
-    ("devices.A2.impacter.restitution", 0.7, _imp("A2.forward", "restitution")),
-    ("devices.A2.backward.restitution", 0.7, _imp("A2.backward", "restitution")),
+    ("device.impacter.restitution", 0.7, _imp(Node("A1", "forward"), "restitution")),
+    ("device.impacter.impact_angle_deg", 30.0, _imp(Node("A2", "backward"), "impact_angle_rad")),
+    ("device.impacter.mass_thickness_um", 3.0, _imp(Node("A1", "forward"), "process")),
+    ("device.forward.restitution", 0.7, _imp(Node("A1", "forward"), "restitution")),
+    ("device.backward.impact_angle_deg", 30.0, _imp(Node("A1", "backward"), "impact_angle_rad")),
+    ("devices.A2.impacter.restitution", 0.7, _imp(Node("A2", "forward"), "restitution")),
+    ("devices.A2.backward.restitution", 0.7, _imp(Node("A2", "backward"), "restitution")),
     ("device.slider.area_um2", 5e4, lambda s: s.sliders["A1"].mass),
     ("device.slider.static_friction_un", 10.0, lambda s: s.sliders["A2"].static_friction),
     ("devices.A2.slider.dynamic_friction_un", 2.0, lambda s: s.sliders["A2"].dynamic_friction),
-    ("device.slider.thickness_um", 3.0, _imp("A1.forward", "slider")),
+    ("device.slider.thickness_um", 3.0, _imp(Node("A1", "forward"), "slider")),
     ("drive.band_hz", [3000.0, 20000.0], lambda s: s.band_hz),
     ("drive.power_m2_s3", 30.0, lambda s: s.power_m2_s3),
     ("drive.amplitude_um", 0.1, lambda s: s.amplitude_m),
@@ -104,13 +105,13 @@ CASES = [
     ("verification.min_speed_mm_s", 1.0, lambda s: s.min_speed_m_s),
     ("verification.idle_tolerance_um", 0.1, lambda s: s.idle_tolerance_m),
     ("verification.repair_rounds", 1, lambda s: s.repair_rounds),
-    ("process.youngs_modulus_gpa", 150.0, lambda s: s.impacters["A1.forward"].process),
-    ("process.beam_height_um", 3.0, lambda s: s.impacters["A1.forward"].process),
-    ("process.substrate_gap_um", 3.0, lambda s: s.impacters["A1.forward"].process),
-    ("process.beam_angle_deg", 30.0, lambda s: s.impacters["A1.forward"].process),
-    ("device.forward.mass_thickness_um", 3.0, _imp("A1.forward", "process")),
-    ("device.forward.impact_angle_deg", 30.0, _imp("A1.forward", "impact_angle_rad")),
-    ("device.backward.mass_thickness_um", 3.0, _imp("A1.backward", "process")),
+    ("process.youngs_modulus_gpa", 150.0, lambda s: s.impacters[Node("A1", "forward")].process),
+    ("process.beam_height_um", 3.0, lambda s: s.impacters[Node("A1", "forward")].process),
+    ("process.substrate_gap_um", 3.0, lambda s: s.impacters[Node("A1", "forward")].process),
+    ("process.beam_angle_deg", 30.0, lambda s: s.impacters[Node("A1", "forward")].process),
+    ("device.forward.mass_thickness_um", 3.0, _imp(Node("A1", "forward"), "process")),
+    ("device.forward.impact_angle_deg", 30.0, _imp(Node("A1", "forward"), "impact_angle_rad")),
+    ("device.backward.mass_thickness_um", 3.0, _imp(Node("A1", "backward"), "process")),
     ("device.contact", "paper", lambda s: s.contacts),
     ("devices.A2.contact", "paper", lambda s: s.contacts),
     ("design.bounds.area_um2", [100.0, 40000.0], lambda s: s.bounds),
@@ -133,11 +134,11 @@ def test_robust_design_reaches_the_designer_or_is_refused():
     frequency under the fabrication tolerances goes to the designer."""
     fab = ("fabrication.line_width_um", {"die": 0.05, "device": 0.02})
     s = _settings(("design.robust", True), ("design.robust_k", 3.0), fab)
-    shift = s.design_kwargs("A1.forward")["robust_shift"]
+    shift = s.design_kwargs(Node("A1", "forward"))["robust_shift"]
     assert s.robust_k == 3.0 and shift.k == 3.0
     # 3 sigma of a 4.6 um beam's line width error: about 4.7 % (1.6 % per sigma)
     assert 0.03 < shift((1.5e-8, 4.6e-6, 1.2e-3, 3e-6)) < 0.07
-    assert "robust_shift" not in _settings(fab).design_kwargs("A1.forward")
+    assert "robust_shift" not in _settings(fab).design_kwargs(Node("A1", "forward"))
     # robust design without tolerances to be robust against is refused
     with pytest.raises(SpecError) as err:
         _settings(("design.robust", True))
@@ -156,10 +157,10 @@ def test_every_field_changes_the_settings(case):
 
 def test_pair_and_device_overrides_stay_local():
     s = _settings(("devices.A2.forward.restitution", 0.8))
-    assert s.impacters["A2.forward"].restitution == 0.8
-    assert s.impacters["A2.backward"].restitution == s.impacters["A1.forward"].restitution == 0.5
+    assert s.impacters[Node("A2", "forward")].restitution == 0.8
+    assert s.impacters[Node("A2", "backward")].restitution == s.impacters[Node("A1", "forward")].restitution == 0.5
     s = _settings(("device.impacter.impact_angle_deg", 30.0))
-    assert s.impacters["A1.forward"].impact_angle_rad == pytest.approx(math.radians(30.0))
+    assert s.impacters[Node("A1", "forward")].impact_angle_rad == pytest.approx(math.radians(30.0))
 
 
 @pytest.mark.parametrize("path", ["device.impacter.area_um2", "device.forward.gap_um",
@@ -185,7 +186,7 @@ def test_restitution_changes_the_design_and_its_verification():
     results = []
     for e in (0.5, 0.9):
         s = _settings(("device.impacter.restitution", e), ("design.budget", "fast"))
-        res = design_impacter(6000.0, (9000.0,), **s.design_kwargs("A1.forward"))
+        res = design_impacter(6000.0, (9000.0,), **s.design_kwargs(Node("A1", "forward")))
         assert res.impacter.restitution == e
         x0s = np.linspace(-res.impacter.gap, res.impacter.gap, 5)
         results.append(model.responses(res.impacter, model.Drive.tone(6000.0, 50.0), x0s,
@@ -282,11 +283,11 @@ def test_the_layer_map_does_not_reach_the_designs():
     (or enclosure) leaves every design task, and so its cache key, as it was."""
     from planner.planning.design_store import task_digest
 
-    base = _settings().design_kwargs("A1.forward")
+    base = _settings().design_kwargs(Node("A1", "forward"))
     other = _settings(("process.layers", {"POLY2": [50, 1]}),
-                      ("process.anchor_enclosure_um", 4.0)).design_kwargs("A1.forward")
+                      ("process.anchor_enclosure_um", 4.0)).design_kwargs(Node("A1", "forward"))
     assert task_digest(base) == task_digest(other)
-    narrowed = _settings(("process.min_line_um", 3.0)).design_kwargs("A1.forward")
+    narrowed = _settings(("process.min_line_um", 3.0)).design_kwargs(Node("A1", "forward"))
     assert task_digest(narrowed) != task_digest(base)
 
 
