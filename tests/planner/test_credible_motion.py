@@ -345,7 +345,7 @@ def test_repair_redesigns_a_too_slow_impacter_alone():
     first = design_all(settings, steps, a, cache, waveforms=waveforms)
     push = next(st for st in steps if st.name == "push")
     (dev, direction), = sorted(push.active_nodes())
-    node = f"{dev}.{direction}"
+    node = Node(dev, direction)
     reseed = {}
     fails = [Failure(push.index, dev, None, TOO_SLOW, 1e-6)]
     assert reseed_slow(fails, first, steps, reseed) == [node]

@@ -22,6 +22,7 @@ from planner.spec import channel_grid, load_spec
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = ROOT / "configs"
+_TINY = (CONFIGS / "tiny_1x2.yaml").read_text()
 
 
 def _old_7x7_text():
@@ -129,21 +130,12 @@ def test_estimate_counts_the_work_left():
     assert "estimate" in one.lines()[1]
 
 
-#: Two devices that always move together: four impacters, two designs (each direction's
-#: pair shares its tone, forbidden tones and settings).
-SHARED = """\
-name: shared
-array: {rows: 1, cols: 2}
-independent: false
-drive:
-  band_hz: [5000, 14000]
-  channels: {count: 60}
-verification: {repair_rounds: 0, x0_points: 5}
-scenes:
-  s:
-    - {name: push, duration_ms: 5, forward: [A1, A2]}
-    - {name: pull, duration_ms: 5, backward: [A1, A2]}
-"""
+#: The tiny 1 x 2 spec with its two devices always moving together: four impacters, two
+#: designs (each direction's pair shares its tone, forbidden tones and settings).
+SHARED = (_TINY[:_TINY.index("scenes:")].replace("name: tiny", "name: shared")
+          + "scenes:\n  s:\n"
+            "    - {name: push, duration_ms: 5, forward: [A1, A2]}\n"
+            "    - {name: pull, duration_ms: 5, backward: [A1, A2]}\n")
 
 
 @pytest.fixture(scope="module")

@@ -175,7 +175,7 @@ def test_a_weakened_multi_tone_step_splits_into_runs_that_keep_the_scale(plan_da
 
     record = plan_record(plan_data)
     settings = resolve_settings(record.loaded)
-    tones = {r.id: r.frequency_hz for r in record.impacters}
+    tones = {r.node: r.frequency_hz for r in record.impacters}
     both = Step("s", "both", 0, 0.005, ("A1",), ("A2",))
     single = Step("s", "one", 1, 0.005, ("A1",), ())
 
