@@ -56,13 +56,17 @@ def _empty_kicks():
 
 
 def by_node(models: dict) -> dict:
-    """``models`` keyed by :class:`~planner.nodes.Node`, as every stage keys them; a
-    mapping keyed by the nodes' text (a chip sampled by
-    :func:`planner.fabrication.sample_chip`, read from plan.json's ids) is re-keyed
-    here, once, at the entry of the verification and the scene simulation."""
-    if all(isinstance(n, Node) for n in models):
+    """``models`` keyed by :class:`~planner.nodes.Node`, as every stage keys them.
+
+    Two other keys are re-keyed here, once, at the entry of the verification and the
+    scene simulation: a node's text (a chip sampled by
+    :func:`planner.fabrication.sample_chip` is keyed by plan.json's ids) and a plain
+    ``(device, direction)`` tuple (what a Node key becomes when Dask scatters a dict to
+    its worker processes: ``client.scatter`` sends a dict of plain types by msgpack).
+    """
+    if all(type(n) is Node for n in models):
         return models
-    return {n if isinstance(n, Node) else Node.parse(n): m for n, m in models.items()}
+    return {Node(*n) if isinstance(n, tuple) else Node.parse(n): m for n, m in models.items()}
 
 
 def run_phase(impacters, sliders, contacts, drive, duration, states, sl_states):

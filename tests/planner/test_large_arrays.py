@@ -300,17 +300,19 @@ def test_serial_process_pool_and_local_cluster_give_the_same_plan_json(tmp_path)
     in a two-process pool (--jobs 2) and a serial run give a byte-identical plan.json.
 
     No BLAS environment variables: every design runs with BLAS pinned to one thread
-    (planner._workers.single_thread_blas), whatever the process's default."""
+    (planner._workers.single_thread_blas), whatever the process's default.  No design
+    cache (--no-cache): every run computes its designs, so the cluster runs them too."""
     distributed = pytest.importorskip("distributed")
     spec = _tiny_spec(tmp_path)
-    serial = _plan_in_subprocess(spec, tmp_path / "serial", "--jobs", "1")
+    serial = _plan_in_subprocess(spec, tmp_path / "serial", "--jobs", "1", "--no-cache")
     assert serial.returncode in (0, 1), serial.stderr
-    pool = _plan_in_subprocess(spec, tmp_path / "pool", "--jobs", "2")
+    pool = _plan_in_subprocess(spec, tmp_path / "pool", "--jobs", "2", "--no-cache")
     assert pool.returncode == serial.returncode, pool.stderr
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster:
         remote = CliRunner().invoke(main, ["plan", str(spec), "--out", str(tmp_path / "dask"),
                                            "--jobs", "1", "--no-figures", "--quiet",
+                                           "--no-cache",
                                            "--scheduler", cluster.scheduler_address])
         # the cluster ran the designs and the verification steps
         prefixes = set(cluster.scheduler.task_prefixes)
