@@ -16,7 +16,8 @@ import time
 
 from planner.assign import assign
 from planner.designer import Ensemble, design_impacter
-from planner.planning.designs import driven_ensembles, idle_ensembles, played_tones
+from planner.nodes import Node
+from planner.planning.exposure import driven_ensembles, idle_ensembles, played_tones
 from planner.planning.drives import drive_of, limit_acceleration, synthesize_steps
 from planner.planning.settings import resolve_settings
 from planner.spec import load_spec
@@ -32,13 +33,13 @@ def main():
                     help="leave out the summed drives of the multi-tone steps")
     args = ap.parse_args()
     s = resolve_settings(load_spec(args.spec), args.plan_seed)
-    a = assign(s.loaded, s.steps, separation=s.separation_channels)
+    a = assign(s, s.steps)
     wf, _ = limit_acceleration(s, synthesize_steps(s, s.steps, a))
     # the single tones as they play, as the planner gives them to the designer
     forb = played_tones(s.steps, a.frequencies, wf)
     idle = idle_ensembles(s.steps, a.frequencies)
     driven = driven_ensembles(s.steps, a.frequencies)
-    for n in args.impacters.split(","):
+    for n in map(Node.parse, args.impacters.split(",")):
         out = []
         for seed in range(args.seeds):
             kw = {**s.design_kwargs(n), "seed": seed}

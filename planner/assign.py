@@ -1,7 +1,8 @@
 """Frequency assignment: conflict graph -> bandwidth colouring -> channels -> frequencies.
 
 Stage 2 and 3 of the plan pipeline.  Each impacter pair that some step drives is a
-node (``"C3.forward"``).  Two nodes must be told apart -- an edge, weighted by the
+node (:class:`planner.nodes.Node`, ``Node("C3", "forward")``; every mapping here is keyed
+by it).  Two nodes must be told apart -- an edge, weighted by the
 separation they need in channels -- when some step drives one and not the other;
 nodes in the same state in every step may share a channel (they are merged into one
 colouring node).  A device's forward and backward pairs are never driven together,
@@ -28,15 +29,16 @@ import numpy as np
 import pandas as pd
 
 from planner.errors import PlanningError
-from planner.nodes import DIRECTIONS, Node
+from planner.nodes import DIRECTIONS, Node, device_key
 from planner.separation import guard_onset_hz, position_grid
-from planner.spec import LoadedSpec, Step, channel_grid
+from planner.spec import LoadedSpec, Step
 
 
 
-def node_id(device: str, direction: str) -> str:
-    """``("C3", "forward")`` -> ``"C3.forward"`` (:class:`planner.nodes.Node`'s text)."""
-    return Node(device, direction).text
+def node_order(node: Node):
+    """Sort key of a node: its device's row and column (``A2`` before ``A10``), then its
+    direction (the order of :func:`planner.nodes.node_key` on the node's text)."""
+    return (*device_key(node.device), node.direction)
 
 
 def split_node(node: str) -> tuple[str, str]:
@@ -66,19 +68,17 @@ def plan_steps(loaded: LoadedSpec, single_step_s: float) -> tuple[Step, ...]:
     for dev, direction in alone:
         fwd = (dev,) if direction == "forward" else ()
         bwd = (dev,) if direction == "backward" else ()
-        steps.append(Step("independent", node_id(dev, direction), len(steps),
+        steps.append(Step("independent", Node(dev, direction).text, len(steps),
                           single_step_s, fwd, bwd))
     return tuple(steps)
 
 
-def activity(steps) -> dict[str, tuple[bool, ...]]:
+def activity(steps) -> dict[Node, tuple[bool, ...]]:
     """Node -> tuple of "driven in step i" for every node driven in some step."""
-    nodes = sorted({node_id(d, dr) for st in steps for d, dr in st.active_nodes()})
-    out = {}
-    for n in nodes:
-        dev, direction = split_node(n)
-        out[n] = tuple((dev, direction) in st.active_nodes() for st in steps)
-    return out
+    nodes = sorted({Node(d, dr) for st in steps for d, dr in st.active_nodes()})
+    active = [st.active_nodes() for st in steps]
+    # a Node equals its (device, direction) tuple
+    return {n: tuple(n in act for act in active) for n in nodes}
 
 
 def conflict_graph(steps, separation=1, pair_separation=None,
@@ -121,7 +121,7 @@ def conflict_graph(steps, separation=1, pair_separation=None,
     ensemble = set()
     if ensemble_separation:
         for st in steps:
-            playing = {member_of[node_id(d, dr)] for d, dr in st.active_nodes()}
+            playing = {member_of[Node(d, dr)] for d, dr in st.active_nodes()}
             if len(playing) < 2 or st.targets_m is not None:
                 continue
             for idle in set(groups) - playing:
@@ -143,7 +143,7 @@ class Violation:
     """A guard-rule violation: a product of playing tones in an idle impacter's band."""
 
     step: str
-    node: str
+    node: Node      # the idle impacter
     kind: str       # "harmonic" or "intermodulation"
     product_hz: float
     node_hz: float
@@ -165,7 +165,7 @@ def guard_violations(steps, frequencies: dict, rules) -> list[Violation]:
     out = []
     bw = rules.relative_bandwidth
     for st in steps:
-        active = [node_id(d, dr) for d, dr in sorted(st.active_nodes())]
+        active = {Node(d, dr) for d, dr in st.active_nodes()}
         tones = np.array(sorted({frequencies[n] for n in active if n in frequencies}))
         idle = {n: f for n, f in frequencies.items() if n not in active}
         if tones.size == 0 or not idle:
@@ -197,12 +197,12 @@ def guard_violations(steps, frequencies: dict, rules) -> list[Violation]:
     return out
 
 
-@dataclass
+@dataclass(frozen=True)
 class Assignment:
     """Channels and frequencies of every driven impacter, and how they were found."""
 
-    graph: nx.Graph
-    groups: dict
+    graph: nx.Graph           # one vertex per channel group, named by its first Node
+    groups: dict              # group -> its Nodes
     coloring: dict            # group -> colour
     span: int
     lower_bound: int
@@ -221,10 +221,8 @@ class Assignment:
     def table(self) -> pd.DataFrame:
         """One row per impacter: device, direction, channel, frequency_hz."""
         rows = []
-        for n in sorted(self.channels, key=lambda n: (split_node(n)[0][0],
-                                                      int(split_node(n)[0][1:]), n)):
-            dev, direction = split_node(n)
-            rows.append({"id": n, "device": dev, "direction": direction,
+        for n in sorted(self.channels, key=node_order):
+            rows.append({"id": n.text, "device": n.device, "direction": n.direction,
                          "channel": self.channels[n], "frequency_hz": self.frequencies[n]})
         return pd.DataFrame(rows)
 
@@ -246,35 +244,36 @@ def _mapping_candidates(span: int, count: int, max_candidates=64):
     return out
 
 
-def _guard_note(spec, grid, sep, positions):
+def _guard_note(settings, grid, sep, positions):
     """Why the band holds fewer positions than channels (empty if it does not)."""
     if positions >= grid.size:
         return ""
-    g = spec.design.guard
+    g = settings.guard
     onset = guard_onset_hz(grid, sep, g)
     return (f" (above {onset:g} Hz, {sep} channels are inside the designer's guard band: "
             f"tones there must be more than {100 * g:g} % apart (design.guard {g:g}), so "
             f"the {grid.size} channels hold only {positions} positions {sep} apart)")
 
 
-def _tolerance_note(spec, n, fit, grid, sep):
+def _tolerance_note(settings, n, fit, grid, sep):
     """Why a tolerance grid cannot hold ``n`` independent impacters, and what would."""
-    from planner.manufacturability.grid import pair_sigma_rel, z_for
+    from planner.manufacturability.grid import z_for
 
-    lo, hi = spec.drive.band_hz
-    fab = spec.fabrication
-    sigma = pair_sigma_rel(spec)
-    z = z_for(fab.target_yield, n - 1)
+    lo, hi = settings.band_hz
+    target = settings.fabrication.target_yield
+    sigma = settings.pair_sigma_rel
+    spacing = settings.resonance_separation_hz
+    z = z_for(target, n - 1)
     top = grid[-1] if len(grid) else lo
     return (f"{n} impacters must each be independently addressable (independent: true), "
             f"but the band {lo:g}-{hi:g} Hz, spaced for the fabrication scatter "
-            f"(drive.channels.spacing: tolerance: {spec.drive.channels.resonance_separation_hz:g} Hz "
+            f"(drive.channels.spacing: tolerance: {spacing:g} Hz "
             f"plus {z:.2f} sigma between neighbours, sigma {100 * sigma:.2f} % of the "
             f"frequency for the difference of two as-built resonances, for a "
-            f"collision-free yield of {fab.target_yield:g}), holds only {fit}: neighbours "
+            f"collision-free yield of {target:g}), holds only {fit}: neighbours "
             f"({sep} channels) are {grid[min(sep, len(grid) - 1)] - grid[0]:.0f} Hz apart at "
             f"{lo:g} Hz and "
-            f"{(spec.drive.channels.resonance_separation_hz + z * sigma * top):.0f} Hz at {top:.0f} Hz. "
+            f"{(spacing + z * sigma * top):.0f} Hz at {top:.0f} Hz. "
             f"Fixes: a wider band (drive.band_hz), a lower fabrication.target_yield, "
             f"smaller tolerances (fabrication), a smaller line-width sensitivity (wider "
             f"beams: design.sensitivity_per_um or design.beam_width_um), a narrower "
@@ -282,7 +281,7 @@ def _tolerance_note(spec, n, fit, grid, sep):
             f"scenes in which devices move together and share channels.")
 
 
-def _check_capacity(spec, steps, sep, grid=None, positions=None):
+def _check_capacity(settings, steps, sep, grid, positions):
     """Refuse, in well under a second, a spec whose independently addressable impacters
     cannot fit the band whatever the colouring.
 
@@ -294,22 +293,18 @@ def _check_capacity(spec, steps, sep, grid=None, positions=None):
     (a 26 x 99 array: 5148 impacters, 13 million edges) takes minutes and gigabytes
     before the same answer; this bound gives it at once.
     """
-    if not spec.all_independent:
+    if not settings.all_independent:
         return
-    if grid is None:
-        grid = channel_grid(spec)
-    if positions is None:
-        positions = position_grid(grid, sep, spec.design.guard)
     nodes = {n for st in steps for n in st.active_nodes()}
     need = (len(nodes) - 1) * sep + 1
     count = len(positions)
     if need > count:
-        lo, hi = spec.drive.band_hz
+        lo, hi = settings.band_hz
         fit = (count - 1) // sep + 1
-        if spec.drive.channels.spacing == "tolerance":
-            raise PlanningError(_tolerance_note(spec, len(nodes), fit, grid, sep))
+        if settings.channel_spacing == "tolerance":
+            raise PlanningError(_tolerance_note(settings, len(nodes), fit, grid, sep))
         what = (f"{count} channels" if count == grid.size else
-                f"{count} positions{_guard_note(spec, grid, sep, count)}")
+                f"{count} positions{_guard_note(settings, grid, sep, count)}")
         raise PlanningError(
             f"{len(nodes)} impacters must each be independently addressable (independent: "
             f"true), so every pair must be {sep} channels apart and outside each other's "
@@ -323,19 +318,45 @@ def _check_capacity(spec, steps, sep, grid=None, positions=None):
             f"a wider band (drive.band_hz).")
 
 
-def assign(loaded: LoadedSpec, steps, *, separation=None, pair_separation=None,
-           method="auto", time_limit=None) -> Assignment:
+def _span_error(settings, graph, result, grid, sep, count):
+    """The refusal of a colouring whose span the band's positions cannot hold."""
+    lo, hi = settings.band_hz
+    what = (f"{grid.size} channels" if count == grid.size else
+            f"{count} positions{_guard_note(settings, grid, sep, count)}")
+    fixes = ("a wider band (drive.band_hz), a lower fabrication.target_yield, smaller "
+             "tolerances (fabrication), wider beams (design.sensitivity_per_um), a "
+             "narrower drive.channels.separation_hz or ensemble separation "
+             "(drive.guard.ensemble_separation_channels)"
+             if settings.channel_spacing == "tolerance" else
+             "a wider band (drive.band_hz), more channels (drive.channels.count) with a "
+             "narrower response band (drive.guard.separation_channels), a narrower "
+             "design guard (design.guard)")
+    return PlanningError(
+        f"the band {lo:g}-{hi:g} Hz holds {what}, but the conflict graph "
+        f"({graph.number_of_nodes()} channel groups that must be told apart, separation "
+        f"{sep} channels) needs a span of {result.span} (lower bound {result.lower_bound}). "
+        f"Fixes: {fixes}, fewer independently addressable devices (independent: false), "
+        f"or scenes in which devices move together and share a channel.")
+
+
+def assign(settings, steps, *, separation=None, pair_separation=None, method="auto",
+           time_limit=None) -> Assignment:
     """Give every driven impacter a channel and a frequency.
 
     Parameters
     ----------
-    loaded : LoadedSpec
+    settings : planner.planning.settings.Settings
+        The channel grid, the band, the guard rules, the ensemble separation, the
+        design guard and the seed of the colouring.
     steps : sequence of Step
         From :func:`plan_steps`.
     separation : int, optional
-        Default edge separation [channels]; the spec's ``guard.separation_channels``.
+        Default edge separation [channels]; ``settings.separation_channels``.
     pair_separation : dict, optional
         Per-pair overrides, see :func:`conflict_graph`.
+    method, time_limit :
+        The colouring's strategy and time limit [s]
+        (:func:`planner.coloring.solve_bandwidth`).
 
     Raises
     ------
@@ -345,37 +366,20 @@ def assign(loaded: LoadedSpec, steps, *, separation=None, pair_separation=None,
     """
     from planner.coloring import solve_bandwidth
 
-    spec = loaded.spec
-    sep = spec.drive.guard.separation_channels if separation is None else int(separation)
-    grid = channel_grid(spec)
+    sep = settings.separation_channels if separation is None else int(separation)
+    grid = np.asarray(settings.channel_grid_hz, dtype=float)
     # every edge is >= sep positions: on these positions that keeps the designer's guard
-    positions = position_grid(grid, sep, spec.design.guard)
-    _check_capacity(spec, steps, sep, grid, positions)
+    positions = position_grid(grid, sep, settings.guard)
+    _check_capacity(settings, steps, sep, grid, positions)
     graph, groups = conflict_graph(steps, sep, pair_separation,
-                                   spec.drive.guard.ensemble_separation_channels)
+                                   settings.ensemble_separation_channels)
     if graph.number_of_nodes() == 0:
         raise PlanningError("no step drives any impacter: nothing to assign")
-    result = solve_bandwidth(graph, "sep", method=method, time_limit=time_limit, seed=0)
+    result = solve_bandwidth(graph, "sep", method=method, time_limit=time_limit,
+                             seed=settings.seed)
     count = len(positions)
     if result.span > count:
-        n_groups = graph.number_of_nodes()
-        lo, hi = spec.drive.band_hz
-        what = (f"{grid.size} channels" if count == grid.size else
-                f"{count} positions{_guard_note(spec, grid, sep, count)}")
-        fixes = ("a wider band (drive.band_hz), a lower fabrication.target_yield, smaller "
-                 "tolerances (fabrication), wider beams (design.sensitivity_per_um), a "
-                 "narrower drive.channels.separation_hz or ensemble separation "
-                 "(drive.guard.ensemble_separation_channels)"
-                 if spec.drive.channels.spacing == "tolerance" else
-                 "a wider band (drive.band_hz), more channels (drive.channels.count) with a "
-                 "narrower response band (drive.guard.separation_channels), a narrower "
-                 "design guard (design.guard)")
-        raise PlanningError(
-            f"the band {lo:g}-{hi:g} Hz holds {what}, but the conflict graph "
-            f"({n_groups} channel groups that must be told apart, separation {sep} channels) "
-            f"needs a span of {result.span} (lower bound {result.lower_bound}). Fixes: "
-            f"{fixes}, fewer independently addressable devices (independent: false), or "
-            f"scenes in which devices move together and share a channel.")
+        raise _span_error(settings, graph, result, grid, sep, count)
     # layout: a colouring read upward or downward is equally valid, and so is any order
     # of its blocks (runs of channels set apart by wide gaps) that keeps every
     # separation within the span; choose the one whose multi-tone steps stir their
@@ -396,7 +400,7 @@ def assign(loaded: LoadedSpec, steps, *, separation=None, pair_separation=None,
                 where[n] = o + q * colour
                 chans[n] = int(positions[where[n]])
                 freqs[n] = float(grid[chans[n]])
-        viol = guard_violations(steps, freqs, spec.drive.guard)
+        viol = guard_violations(steps, freqs, settings.tone_rules)
         if best is None or len(viol) < len(best[4]):
             best = (q, o, chans, freqs, viol, where)
         if not viol:
@@ -487,8 +491,8 @@ def _ensemble_severity(steps, groups, freqs):
     member_of = {n: g for g, members in groups.items() for n in members}
     total = 0.0
     for st in steps:
-        playing = {member_of[node_id(d, dr)] for d, dr in st.active_nodes()
-                   if node_id(d, dr) in member_of}
+        playing = {member_of[Node(d, dr)] for d, dr in st.active_nodes()
+                   if (d, dr) in member_of}
         if len(playing) < 2:
             continue
         fp = np.array(sorted(freqs[p] for p in playing))
@@ -508,13 +512,26 @@ def _ensemble_exposure(steps, groups, coloring):
     member_of = {n: g for g, members in groups.items() for n in members}
     count = 0
     for st in steps:
-        playing = {member_of[node_id(d, dr)] for d, dr in st.active_nodes()
-                   if node_id(d, dr) in member_of}
+        playing = {member_of[Node(d, dr)] for d, dr in st.active_nodes()
+                   if (d, dr) in member_of}
         if len(playing) < 2:
             continue
         for g in set(groups) - playing:
             count += sum(coloring[p] > coloring[g] for p in playing)
     return count
+
+
+def told_apart_pairs(assignment: Assignment, nodes) -> np.ndarray:
+    """Index pairs (into ``nodes``) of the impacters the conflict graph keeps apart,
+    ndarray shape (n_pairs, 2), each pair ascending, the pairs in order."""
+    index = {n: k for k, n in enumerate(nodes)}
+    out = set()
+    for a, b in assignment.graph.edges():
+        for u in assignment.groups[a]:
+            for v in assignment.groups[b]:
+                if u in index and v in index:
+                    out.add(tuple(sorted((index[u], index[v]))))
+    return np.array(sorted(out), dtype=np.int64).reshape(-1, 2)
 
 
 def verify_assignment(assignment: Assignment) -> list[str]:

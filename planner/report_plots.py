@@ -10,30 +10,43 @@ from planner.nodes import device_key  # noqa: E402
 from planner.units import UM  # noqa: E402
 
 
-def _grid_shape(table):
-    rows = sorted({d[0] for d in table["device"]})
-    cols = sorted({int(d[1:]) for d in table["device"]})
-    return rows, cols
+def _cell(device):
+    """(row, column) of a device on the array, from 0 (``"B3"`` -> (1, 2))."""
+    row, col = device_key(device)
+    return ord(row) - ord("A"), col - 1
 
 
-def array_map(spec, table, path):
-    """The array with each device's forward/backward frequencies, coloured by channel."""
-    rows = [chr(ord("A") + r) for r in range(spec.array.rows)]
-    cols = list(range(1, spec.array.cols + 1))
-    fig, ax = plt.subplots(figsize=(1.7 * len(cols) + 1.5, 1.2 * len(rows) + 1))
+def _row_letters(n_rows):
+    return [chr(ord("A") + k) for k in range(n_rows)]
+
+
+def array_map(settings, table, path):
+    """The array with each device's forward/backward frequencies, coloured by channel.
+
+    Parameters
+    ----------
+    settings : planner.planning.settings.Settings
+        The array's shape, name and pitch, the band and its channel spacing.
+    table : DataFrame
+        One row per impacter: ``device``, ``direction``, ``channel``, ``frequency_hz``.
+    path : path
+        The PNG.
+    """
+    n_rows, n_cols = settings.array_shape
+    fig, ax = plt.subplots(figsize=(1.7 * n_cols + 1.5, 1.2 * n_rows + 1))
     cmap = plt.get_cmap("viridis")
-    lo, hi = spec.drive.band_hz
-    log = spec.drive.channels.spacing == "log"
+    lo, hi = settings.band_hz
+    log = settings.channel_spacing == "log"
     norm = (plt.matplotlib.colors.LogNorm if log else plt.matplotlib.colors.Normalize)(lo, hi)
-    by_id = {r["id"]: r for r in table.to_dict(orient="records")}
-    for i, r in enumerate(rows):
-        for j, c in enumerate(cols):
-            dev = f"{r}{c}"
-            y = len(rows) - 1 - i
+    by_node = {(r["device"], r["direction"]): r for r in table.to_dict(orient="records")}
+    for i, letter in enumerate(_row_letters(n_rows)):
+        for j in range(n_cols):
+            dev = f"{letter}{j + 1}"
+            y = n_rows - 1 - i
             ax.add_patch(plt.Rectangle((j, y), 0.96, 0.92, fill=False, lw=0.8, color="0.5"))
             ax.text(j + 0.04, y + 0.8, dev, fontsize=8, weight="bold", va="top")
             for k, direction in enumerate(("forward", "backward")):
-                rec = by_id.get(f"{dev}.{direction}")
+                rec = by_node.get((dev, direction))
                 if rec is None:
                     continue
                 frac = float(norm(rec["frequency_hz"]))
@@ -43,45 +56,44 @@ def array_map(spec, table, path):
                         f"{'F' if k == 0 else 'B'} {rec['frequency_hz'] / 1e3:.2f}k ch{rec['channel']}",
                         fontsize=7, ha="center", va="center",
                         color="white" if frac < 0.6 else "black")
-    ax.set_xlim(-0.1, len(cols) + 0.1)
-    ax.set_ylim(-0.1, len(rows) + 0.1)
+    ax.set_xlim(-0.1, n_cols + 0.1)
+    ax.set_ylim(-0.1, n_rows + 0.1)
     ax.set_aspect("equal")
     ax.axis("off")
     sm = plt.cm.ScalarMappable(cmap=cmap, norm=norm)
     fig.colorbar(sm, ax=ax, fraction=0.04, label="drive frequency [Hz]")
-    ax.set_title(f"{spec.name}: channels (F = forward, B = backward), pitch {spec.array.pitch_um:g} um")
+    ax.set_title(f"{settings.name}: channels (F = forward, B = backward), pitch "
+                 f"{settings.array_pitch_m / UM:g} um")
     save(fig, path)
 
 
 def response_curves(curves, tones, path, title):
     """Every designed impacter's response band against frequency with all tones marked.
 
-    Forward and backward impacters (labels ending in ``.forward`` / ``.backward``) get a
-    panel each, so neighbouring peaks stay apart.
+    Forward and backward impacters get a panel each, so neighbouring peaks stay apart.
 
     Parameters
     ----------
-    curves : list of (label, frequencies [Hz], worst r [N], own frequency [Hz])
+    curves : list of (Node, frequencies [Hz], worst r [N], own frequency [Hz])
         The own frequency should be one of the frequencies (its dot is read off exactly).
     tones : sequence of float
         Every tone of the plan [Hz].
     """
     groups = {}
     for c in curves:
-        kind = c[0].rsplit(".", 1)[-1] if c[0].endswith((".forward", ".backward")) else ""
-        groups.setdefault(kind, []).append(c)
+        groups.setdefault(c[0].direction, []).append(c)
     fig, axes = plt.subplots(len(groups), 1, figsize=(10, 3.6 * len(groups) + 0.6),
                              squeeze=False, sharex=True)
     cmap = plt.get_cmap("tab10")
     for ax, (kind, group) in zip(axes[:, 0], groups.items()):
-        for i, (label, f, r, own) in enumerate(group):
+        for i, (_, f, r, own) in enumerate(group):
             color = cmap(i % 10)
             ax.semilogx(f, r * 1e9, color=color, lw=0.9)
             ax.plot([own], [np.interp(own, f, r) * 1e9], "o", color=color, ms=3.5)
         for t in tones:
             ax.axvline(t, color="0.75", lw=0.4, zorder=0)
         ax.set_ylabel("worst r over x0 [nN]")
-        ax.set_title(f"{kind} impacters" if kind else "impacters", fontsize=10, loc="left")
+        ax.set_title(f"{kind} impacters", fontsize=10, loc="left")
         ax.grid(alpha=0.3, which="both")
     axes[-1, 0].set_xlabel("drive frequency [Hz] (grey lines: every tone of the plan)")
     fig.suptitle(title, fontsize=11)
@@ -198,13 +210,14 @@ ROW_MARKERS = "osD^v<>pP*Xh"
 def _device_styles(devices):
     """Device id -> (colour, marker): one colour per column, one marker per row, so that
     every device of a grid is told apart (tab10 alone repeats after 10 lines)."""
-    cols = sorted({int(d[1:]) for d in devices})
-    rows = sorted({d[0] for d in devices})
+    cells = {d: _cell(d) for d in devices}
+    cols = sorted({c for _, c in cells.values()})
+    rows = sorted({r for r, _ in cells.values()})
     cmap = plt.get_cmap("tab10") if len(cols) <= 10 else plt.get_cmap("viridis")
     colour = {c: cmap(i if len(cols) <= 10 else i / max(len(cols) - 1, 1))
               for i, c in enumerate(cols)}
-    return {d: (colour[int(d[1:])], ROW_MARKERS[rows.index(d[0]) % len(ROW_MARKERS)])
-            for d in devices}
+    return {d: (colour[c], ROW_MARKERS[rows.index(r) % len(ROW_MARKERS)])
+            for d, (r, c) in cells.items()}
 
 
 def slider_positions(scene_rows, path):
@@ -226,7 +239,7 @@ def slider_positions(scene_rows, path):
         ax.set_title(f"scene {scene}: predicted slider positions after each step")
         ax.grid(alpha=0.3)
         if len(devices) <= 100:
-            ncol = len({d[1:] for d in devices})
+            ncol = len({_cell(d)[1] for d in devices})
             # beside the axes: inside, 25 entries hide the lines they name
             ax.legend(fontsize=6, ncol=min(ncol, 10), title="colour: column, marker: row",
                       title_fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
@@ -282,23 +295,21 @@ def manufacturability(impacters, block, path):
     save(fig, path)
 
 
-def target_map(spec, scene, rows, tolerance, path):
+def target_map(settings, scene, rows, path):
     """A scene's pattern on the array: for each ``targets_um`` step (and the scene's end)
     the position each slider was asked for (left) and how far from it it ended (right,
     red or blue up to the tolerance and beyond).
 
     Parameters
     ----------
-    spec : ArraySpec
-        The array (rows, columns).
+    settings : planner.planning.settings.Settings
+        The array's shape and ``position_tolerance_m`` [m].
     scene : str
         The scene's name (the title).
     rows : list of dict
         The scene's rows of :func:`planner.planning.scenes.simulate_scenes`: a driven row
         with ``targets_m`` and ``position_errors_m``, the tail with
         ``expected_positions_m`` and ``final_positions_m``.
-    tolerance : float
-        ``verification.position_tolerance_um`` [m].
     path : path
         The PNG.
     """
@@ -313,8 +324,9 @@ def target_map(spec, scene, rows, tolerance, path):
             # the end only if it says more than the last targets step did
             if not panels or (panels[-1][1], panels[-1][2]) != end[1:]:
                 panels.append(end)
-    n_rows, n_cols = spec.array.rows, spec.array.cols
-    letters = [chr(ord("A") + k) for k in range(n_rows)]
+    n_rows, n_cols = settings.array_shape
+    tolerance = settings.position_tolerance_m
+    letters = _row_letters(n_rows)
     asked = [z / UM for _, t, _ in panels for z in t.values()] or [1.0]
     reach = max(1e-9, max(abs(z) for z in asked))
     fig, axes = plt.subplots(len(panels), 2, squeeze=False,
@@ -325,7 +337,7 @@ def target_map(spec, scene, rows, tolerance, path):
         t_grid = np.full((n_rows, n_cols), np.nan)
         e_grid = np.full((n_rows, n_cols), np.nan)
         for dev, z in want.items():
-            i, j = letters.index(dev[0]), int(dev[1:]) - 1
+            i, j = _cell(dev)
             t_grid[i, j] = z / UM
             e_grid[i, j] = (got[dev] - z) / UM
         im_t = ax_t.imshow(t_grid, cmap="coolwarm", norm=pos_norm)

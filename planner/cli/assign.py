@@ -32,15 +32,15 @@ def command(spec, out, plot, method, time_limit, force):
     harmonic and intermodulation products of tones that play together.  Without SPEC,
     the embedded default (configs/array_5x5.yaml) is used.
     """
-    from planner.assign import assign, plan_steps, verify_assignment
+    from planner.assign import assign, verify_assignment
+    from planner.planning.settings import resolve_settings
     from planner.spec import default_spec_path, load_spec
 
     path = Path(spec) if spec else default_spec_path()
     check_output_files("assign", [("--out", out), ("--plot", plot)], inputs=[path],
                        force=force)
-    loaded = load_spec(path)
-    steps = plan_steps(loaded, 0.01)
-    result = assign(loaded, steps, method=method, time_limit=time_limit)
+    settings = resolve_settings(load_spec(path))
+    result = assign(settings, settings.steps, method=method, time_limit=time_limit)
     table = result.table()
     problems = verify_assignment(result)
     g = result.graph
@@ -75,5 +75,5 @@ def command(spec, out, plot, method, time_limit, force):
         from planner.report_plots import array_map
 
         with output_files([plot], command="assign", inputs=[path], force=force) as (tmp,):
-            array_map(loaded.spec, table, tmp)
+            array_map(settings, table, tmp)
         click.echo(f"wrote {plot}")

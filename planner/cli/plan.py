@@ -131,7 +131,7 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
             click.echo(line, err=True)
         from planner.manufacturability import prediction_lines, predict_from_channels
 
-        for line in prediction_lines(predict_from_channels(settings.spec, assignment,
+        for line in prediction_lines(predict_from_channels(settings.chip_spec, assignment,
                                                            seed=settings.seed),
                                      settings.fabrication.target_yield, before_designs=True):
             click.echo(line, err=True)
@@ -193,11 +193,10 @@ def _dry_run(loaded, seed, jobs):
     t0 = time.perf_counter()
     settings = resolve_settings(loaded, seed)
     steps = settings.steps
-    a = assign(settings.loaded, steps, separation=settings.separation_channels)
+    a = assign(settings, steps)
     seconds = time.perf_counter() - t0
-    spec = settings.spec
     freqs = sorted(set(a.frequencies.values()))
-    click.echo(f"{spec.name}: {len(a.frequencies)} impacters on {len(settings.sliders)} devices, "
+    click.echo(f"{settings.name}: {len(a.frequencies)} impacters on {len(settings.sliders)} devices, "
                f"{len(steps)} steps; {a.graph.number_of_nodes()} channel groups, "
                f"{len(freqs)} tones {freqs[0]:g}-{freqs[-1]:g} Hz; span {a.span} positions "
                f"({'optimal' if a.optimal else 'not proven optimal'}, {a.method}), stride "
@@ -207,8 +206,9 @@ def _dry_run(loaded, seed, jobs):
         click.echo(line)
     from planner.manufacturability import prediction_lines, predict_from_channels
 
-    for line in prediction_lines(predict_from_channels(spec, a, seed=settings.seed),
-                                 spec.fabrication.target_yield, before_designs=True):
+    for line in prediction_lines(predict_from_channels(settings.chip_spec, a,
+                                                       seed=settings.seed),
+                                 settings.fabrication.target_yield, before_designs=True):
         click.echo(line)
     click.echo("dry run: nothing written")
 

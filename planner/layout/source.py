@@ -87,7 +87,7 @@ def read_layout_plan(plan_path, rules_spec=None) -> LayoutPlan:
     if rules_spec is not None:
         # a spec the planner would refuse (rules no design inside its bounds can meet,
         # with the field and line) is refused here too
-        other = resolve_settings(load_spec(Path(rules_spec))).spec
+        other = resolve_settings(load_spec(Path(rules_spec))).chip_spec
         process = process.model_copy(update={k: getattr(other.process, k)
                                              for k in LAYOUT_FIELDS})
         source = str(rules_spec)

@@ -133,7 +133,7 @@ def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,
     errors (the line width's curvature is below 1e-4 relative at 0.05 um on 5 um
     beams; the tests hold it against chips sampled through the full equations).
     """
-    from planner.yield_.interval import wilson_interval
+    from planner.intervals import wilson_interval
 
     nu = np.asarray(nu, dtype=float)
     tone = np.asarray(tone, dtype=float)
@@ -212,7 +212,7 @@ def predict_from_channels(spec, assignment, *, chips=CHIPS, seed=0) -> YieldPred
     resonances come closer than ``drive.channels.separation_hz`` (400 Hz by default
     when the grid is not a tolerance grid).  None without tolerances.
     """
-    from planner.planning.manufacture import told_apart_pairs
+    from planner.assign import told_apart_pairs
 
     fab = spec.fabrication
     if fab.zero:
@@ -225,7 +225,7 @@ def predict_from_channels(spec, assignment, *, chips=CHIPS, seed=0) -> YieldPred
     sens = s[None, :] + (rng.random((len(nodes), len(ERRORS))) - 0.5) * spread[None, :]
     sep = spec.drive.channels.resonance_separation_hz
     edge = np.full(len(nodes), float(sep))
-    return collision_free_yield(nodes, f, f, sens,
+    return collision_free_yield([str(n) for n in nodes], f, f, sens,
                                 [getattr(fab, k).die for k in ERRORS],
                                 [getattr(fab, k).device for k in ERRORS],
                                 told_apart_pairs(assignment, nodes), silent_below=edge,

@@ -2,15 +2,26 @@
 -> verification -> record -> outputs, one module per stage.
 
 - :mod:`~planner.planning.settings` -- the spec in SI units, once; fields the planner
-  cannot honour are refused;
+  cannot honour are refused; every later stage reads the settings, not the spec;
 - :mod:`~planner.planning.pipeline` -- the stage order and the repair loop;
-- :mod:`~planner.planning.designs`, :mod:`~planner.planning.drives`,
-  :mod:`~planner.planning.targets` (the gated bursts of ``targets_um`` steps),
-  :mod:`~planner.planning.verify`, :mod:`~planner.planning.scenes`,
-  :mod:`~planner.planning.repair` -- the stages;
+- :mod:`~planner.planning.drives`, :mod:`~planner.planning.exposure` (what each impacter
+  must stay silent under), :mod:`~planner.planning.designs`,
+  :mod:`~planner.planning.motion`, :mod:`~planner.planning.targets` (the gated bursts of
+  ``targets_um`` steps), :mod:`~planner.planning.verify`,
+  :mod:`~planner.planning.scenes`, :mod:`~planner.planning.repair`,
+  :mod:`~planner.planning.manufacture` -- the stages;
 - :mod:`~planner.planning.record` -- the plan.json dict;
-- :mod:`~planner.planning.outputs` -- files, figures and report.md;
-- :mod:`~planner.planning.result` -- :class:`Plan`, the declared result.
+  :mod:`~planner.planning.plan_file` -- plan.json read back;
+- :mod:`~planner.planning.outputs` -- files and figures;
+  :mod:`~planner.planning.report` -- report.md;
+- :mod:`~planner.planning.result` -- :class:`Plan`, the declared (frozen) result;
+- :mod:`~planner.planning.estimate` -- the work and time left after the assignment;
+- :mod:`~planner.planning.replan`, :mod:`~planner.planning.rescue`,
+  :mod:`~planner.planning.trimming` -- a fabricated chip's drive re-planned (and trimmed).
+
+Inside, impacters are keyed by :class:`planner.nodes.Node`; plan.json and the CSVs carry
+a node's text.  pyproject.toml's ``planning-layers`` contract keeps the stages importing
+downwards only.
 
 (The package is ``planner.planning`` rather than ``planner.plan`` so that the lazy
 function ``planner.plan`` is never shadowed by a submodule.)
@@ -18,6 +29,7 @@ function ``planner.plan`` is never shadowed by a submodule.)
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from planner._io import output_folder
@@ -73,6 +85,7 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, job
     Returns
     -------
     Plan
+        With ``out_dir`` when written there (and the ``outputs`` time in ``timings``).
     """
     if isinstance(spec, LoadedSpec):
         loaded = spec
@@ -89,9 +102,9 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, job
     with output_folder(out_dir, command="plan", inputs=inputs, force=force) as tmp:
         result = run_plan(loaded, seed=seed, progress=progress, jobs=jobs, settings=settings,
                           on_assignment=on_assignment, scheduler=scheduler, cache_dir=cache_dir)
-        write_outputs(result, tmp, figures=figures)
-    result.out_dir = Path(out_dir)
-    return result
+        seconds = write_outputs(result, tmp, figures=figures)
+    return dataclasses.replace(result, out_dir=Path(out_dir),
+                               timings={**result.timings, "outputs": seconds})
 
 
 def step_tones(spec_path):

@@ -1,4 +1,5 @@
-"""Stage 4, drives: the summed-tone drive of every step (tone amplitudes, synthesis)."""
+"""Stage 4, drives: the summed-tone drive of every step (tone amplitudes, synthesis), its
+peaks and the acceleration limit."""
 
 from __future__ import annotations
 
@@ -14,10 +15,10 @@ SINGLE_TONE_TOLERANCE_REL = 1e-4
 def synthesize_steps(settings: Settings, steps, assignment, seed=None, phases=None):
     """Waveform of every step (the sum of its active impacters' tones), by step key.
 
-    ``assignment``: an :class:`~planner.assign.Assignment`, or a mapping impacter id ->
-    tone [Hz] (a re-plan's tones).  Step ``i`` is seeded with ``seed + i`` (``seed``
-    default ``settings.seed``).  ``phases`` (optional): step key -> {impacter id ->
-    phase [rad]}; a step whose every impacter has one plays its tones at those phases
+    ``assignment``: an :class:`~planner.assign.Assignment`, or a mapping Node -> tone
+    [Hz] (a re-plan's tones).  Step ``i`` is seeded with ``seed + i`` (``seed``
+    default ``settings.seed``).  ``phases`` (optional): step key -> {Node -> phase
+    [rad]}; a step whose every impacter has one plays its tones at those phases
     instead of optimised ones (a re-plan keeps the phases its designs were verified
     under).
     """
@@ -27,7 +28,7 @@ def synthesize_steps(settings: Settings, steps, assignment, seed=None, phases=No
     frequencies = getattr(assignment, "frequencies", assignment)
     out = {}
     for st in steps:
-        nodes = sorted(Node(d, dr).text for d, dr in st.active_nodes())
+        nodes = sorted(Node(d, dr) for d, dr in st.active_nodes())
         freqs = sorted({frequencies[n] for n in nodes})
         amps = tone_amplitudes(settings, freqs)
         # one tone: played within 0.01 %, inside the 10-80 Hz an impacter designed for
@@ -92,8 +93,6 @@ def limit_acceleration(settings: Settings, waveforms):
         ``notes``: step key -> {"peak_displacement_m", "peak_acceleration_m_s2"
         (after any lowering), "acceleration_scale" (1 if none)}.
     """
-    from planner.planning.motion import drive_peaks
-
     out, notes = {}, {}
     limit = settings.max_acceleration_m_s2
     for key, w in waveforms.items():
@@ -111,3 +110,15 @@ def limit_acceleration(settings: Settings, waveforms):
         notes[key] = {"peak_displacement_m": zp, "peak_acceleration_m_s2": ap,
                       "acceleration_scale": scale}
     return out, notes
+
+
+def drive_peaks(waveform):
+    """(peak |zeta| [m], peak |zeta''| [m/s^2]) of a summed drive over its loop, or of
+    a gated burst (:class:`planner.gating.Burst`) over its length
+    (:func:`planner.gating.tone_peaks`)."""
+    from planner.gating import Burst, burst_peaks, tone_peaks
+
+    if isinstance(waveform, Burst):
+        return burst_peaks(waveform)
+    return tone_peaks(waveform.frequencies, waveform.amplitudes, waveform.phases,
+                      waveform.loop_length)

@@ -52,8 +52,8 @@ import importlib
 from dataclasses import dataclass
 
 from planner.nodes import Node
-from planner.planning.designs import (DESIGN_RETRIES, INFEASIBLE_TRIES, driven_ensembles,
-                                      forbidden_tones, idle_ensembles)
+from planner.planning.designs import DESIGN_RETRIES, INFEASIBLE_TRIES
+from planner.planning.exposure import driven_ensembles, forbidden_tones, idle_ensembles
 
 #: Seconds of one core per design try, fixed part (Sobol seeding, annealing, SLSQP and
 #: the re-checks at the target).
@@ -287,8 +287,7 @@ def estimate(settings, steps, assignment, jobs=1) -> Estimate:
     x0 = settings.x0_points
     ver_units, ver_runs, scene_units = 0.0, 0, 0.0
     for st in steps:
-        tones = [freqs[Node(d, dr).text] for d, dr in st.active_nodes()
-                 if Node(d, dr).text in freqs]
+        tones = [freqs[Node(d, dr)] for d, dr in st.active_nodes() if (d, dr) in freqs]
         f_khz = (sum(tones) / len(tones) if tones else 0.0) / 1e3
         ver_units += 2 * devices * x0 * st.duration_s * f_khz
         ver_runs += 2 * devices * x0

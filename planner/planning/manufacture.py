@@ -12,35 +12,22 @@ from __future__ import annotations
 
 import numpy as np
 
+from planner.assign import node_order, told_apart_pairs
 from planner.fabrication import ERRORS, NodeDesign
 from planner.manufacturability import (
     BAND_MARGIN,
     CHIPS,
     collision_free_yield,
     measure_separation,
-    pair_sigma_rel,
     sensitivities,
     z_for,
 )
-from planner.nodes import Node, node_key
+from planner.nodes import Node
 
 
-def told_apart_pairs(assignment, nodes):
-    """Index pairs (into ``nodes``) of the impacters the conflict graph keeps apart."""
-    index = {n: k for k, n in enumerate(nodes)}
-    out = set()
-    for a, b in assignment.graph.edges():
-        for u in assignment.groups[a]:
-            for v in assignment.groups[b]:
-                if u in index and v in index:
-                    out.add(tuple(sorted((index[u], index[v]))))
-    return np.array(sorted(out), dtype=np.int64).reshape(-1, 2)
-
-
-def _node_design(n, design):
+def _node_design(n: Node, design):
     g = design.geometry
-    node = Node.parse(n)
-    return NodeDesign(n, node.device, node.direction, g.area, g.width, g.length, g.gap,
+    return NodeDesign(n.text, n.device, n.direction, g.area, g.width, g.length, g.gap,
                       design.impact_angle_rad, design.restitution)
 
 
@@ -54,7 +41,7 @@ def _tone_amplitudes(steps, assignment, waveforms):
         w = waveforms[st.key]
         req = np.asarray(w.requested_frequencies, dtype=float)
         for d, r in st.active_nodes():
-            n = Node(d, r).text
+            n = Node(d, r)
             f = assignment.frequencies.get(n)
             if f is None or req.size == 0:
                 continue
@@ -69,7 +56,8 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
     Returns
     -------
     dict
-        ``sensitivity`` (impacter id -> {parameter: d ln nu / d unit}),
+        Keyed by the impacters' text (plan.json): ``sensitivity`` (impacter id ->
+        {parameter: d ln nu / d unit}),
         ``line_width_sensitivity_per_um`` ({min, max, spread}), ``separation_hz``
         (impacter id -> :meth:`planner.manufacturability.Separation.to_dict`),
         ``collision_free_yield`` ({value, ci95, chips}, None without tolerances),
@@ -78,14 +66,13 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
         ``pair_sigma_rel`` (the grid's prediction of the scatter of a resonance
         difference), ``model``.
     """
-    spec = settings.spec
-    nodes = sorted(designs, key=node_key)
+    nodes = sorted(designs, key=node_order)
     fab = settings.fabrication
     amps = _tone_amplitudes(steps, assignment, waveforms)
     sens, seps = {}, {}
     for n in nodes:
         d = designs[n]
-        sens[n] = sensitivities(spec, _node_design(n, d))
+        sens[n] = sensitivities(settings.chip_spec, _node_design(n, d))
         seps[n] = measure_separation(
             d.impacter, assignment.frequencies[n], power=settings.power_m2_s3,
             amplitude=settings.amplitude_m, tone_amplitude=amps.get(n), window=settings.window_s,
@@ -95,11 +82,11 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
         "model": ("first-order Monte Carlo of as-built natural frequencies (planner."
                   "manufacturability); a pair collides when one impacter's tone window "
                   "lies inside the other's silent band on the chip"),
-        "sensitivity": sens,
+        "sensitivity": {n.text: sens[n] for n in nodes},
         "line_width_sensitivity_per_um": {
             "min": float(lw.min()), "max": float(lw.max()),
             "spread": float(lw.max() / lw.min() - 1.0) if lw.min() > 0 else None},
-        "separation_hz": {n: seps[n].to_dict() for n in nodes},
+        "separation_hz": {n.text: seps[n].to_dict() for n in nodes},
         "target_yield": fab.target_yield,
         "sensitivity_band_per_um": (None if settings.sensitivity_band is None else
                                     [b * 1e-6 for b in settings.sensitivity_band]),
@@ -116,7 +103,7 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
     sd_die = np.array([getattr(fab, e).die for e in ERRORS])
     sd_dev = np.array([getattr(fab, e).device for e in ERRORS])
     pred = collision_free_yield(
-        nodes, nu, tone, s_mat, sd_die, sd_dev, pairs,
+        [n.text for n in nodes], nu, tone, s_mat, sd_die, sd_dev, pairs,
         silent_below=[(1 + BAND_MARGIN) * seps[n].silent_below_hz for n in nodes],
         silent_above=[(1 + BAND_MARGIN) * seps[n].silent_above_hz for n in nodes],
         responds_below=[seps[n].responds_below_hz for n in nodes],
@@ -128,6 +115,6 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
         device_only_yield=pred.device_only, closest_pair_hz=pred.closest_pair_hz,
         limiting_pairs=pred.limiting_pairs, nominal_collisions=pred.nominal_collisions,
         meets_target=bool(pred.value >= fab.target_yield),
-        pair_sigma_rel=pair_sigma_rel(spec),
+        pair_sigma_rel=settings.pair_sigma_rel,
         z_for_target=z_for(fab.target_yield, max(len(nodes) - 1, 1)))
     return out

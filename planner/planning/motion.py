@@ -1,5 +1,5 @@
 """Slider motion under a step's summed drive: phases with carried state, the settle
-dwell after a burst, burst sizing for ``travel_um`` steps and the drive's peaks.
+dwell after a burst and burst sizing for ``travel_um`` steps.
 
 Every slider simulation of the plan goes through :func:`run_phase`, which kicks each
 slider by its device's contact law (``device.contact``): impacts are collected as
@@ -37,6 +37,7 @@ import numpy as np
 import model
 from model import Drive
 from planner.nodes import Node
+from planner.planning.drives import drive_of
 
 #: Chunk [s] of the undriven settle simulation, and the dwell's granularity.
 SETTLE_CHUNK_S = 5e-4
@@ -54,13 +55,27 @@ def _empty_kicks():
     return np.empty(0), np.empty(0)
 
 
+def by_node(models: dict) -> dict:
+    """``models`` keyed by :class:`~planner.nodes.Node`, as every stage keys them.
+
+    Two other keys are re-keyed here, once, at the entry of the verification and the
+    scene simulation: a node's text (a chip sampled by
+    :func:`planner.fabrication.sample_chip` is keyed by plan.json's ids) and a plain
+    ``(device, direction)`` tuple (what a Node key becomes when Dask scatters a dict to
+    its worker processes: ``client.scatter`` sends a dict of plain types by msgpack).
+    """
+    if all(type(n) is Node for n in models):
+        return models
+    return {Node(*n) if isinstance(n, tuple) else Node.parse(n): m for n, m in models.items()}
+
+
 def run_phase(impacters, sliders, contacts, drive, duration, states, sl_states):
     """Advance impacters and sliders through one phase of ``duration`` [s].
 
     Parameters
     ----------
     impacters : dict
-        Node text -> model.Impacter.
+        :class:`~planner.nodes.Node` -> model.Impacter.
     sliders : dict
         Device id -> model.Slider (only these sliders move; each is kicked by its
         own impacters among ``impacters``).
@@ -82,13 +97,12 @@ def run_phase(impacters, sliders, contacts, drive, duration, states, sl_states):
     """
     per_device = {d: [] for d in sliders}
     hits = {}
-    for n, imp in impacters.items():
-        node = Node.parse(n)
+    for node, imp in impacters.items():
         if node.device not in sliders:
             continue
         parts = model.halves(imp)
         # a pair of unequal halves carries one state per half
-        prior = states.get(n)
+        prior = states.get(node)
         if len(parts) == 1:
             starts = (prior,)
         elif prior is None or not isinstance(prior[0], tuple):
@@ -104,8 +118,8 @@ def run_phase(impacters, sliders, contacts, drive, duration, states, sl_states):
             per_device[node.device].append(
                 model.Kicks.from_impacts(half, sliders[node.device], res, node.sign, share))
             count += int(res.times.size + res.chatter_times.size)
-        states[n] = after[0] if len(parts) == 1 else tuple(after)
-        hits[n] = count
+        states[node] = after[0] if len(parts) == 1 else tuple(after)
+        hits[node] = count
     for dev, slider in sliders.items():
         z0, v0 = sl_states.get(dev, (0.0, 0.0))
         if per_device[dev]:
@@ -137,7 +151,7 @@ def settled(impacters, sliders, states, sl_states):
     if any(sl_states.get(d, (0.0, 0.0))[1] != 0.0 for d in sliders):
         return False
     return not any(can_hit(imp, states.get(n, rest_state(imp)))
-                   for n, imp in impacters.items() if Node.parse(n).device in sliders)
+                   for n, imp in impacters.items() if n.device in sliders)
 
 
 def rest_state(impacter):
@@ -211,7 +225,7 @@ def probe_speeds(settings, step, drive, impacters, sliders, window=PROBE_S):
     from rest, under the step's summed drive (every driven device)."""
     out = {}
     for d, direction in sorted(step.active_nodes()):
-        own = {n: imp for n, imp in impacters.items() if Node.parse(n).device == d}
+        own = {n: imp for n, imp in impacters.items() if n.device == d}
         states, sl = {}, {d: (0.0, 0.0)}
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", model.SolverWarning)
@@ -222,7 +236,7 @@ def probe_speeds(settings, step, drive, impacters, sliders, window=PROBE_S):
     return out
 
 
-def size_bursts(settings, steps, waveforms, impacters, sliders, drive_of):
+def size_bursts(settings, steps, waveforms, impacters, sliders):
     """Steps with their bursts sized from ``travel_m`` (see the module docstring).
 
     Returns
@@ -251,14 +265,3 @@ def size_bursts(settings, steps, waveforms, impacters, sliders, drive_of):
         out.append(dataclasses.replace(st, duration_s=float(duration)))
     return tuple(out), notes
 
-
-def drive_peaks(waveform):
-    """(peak |zeta| [m], peak |zeta''| [m/s^2]) of a summed drive over its loop, or of
-    a gated burst (:class:`planner.gating.Burst`) over its length
-    (:func:`planner.gating.tone_peaks`)."""
-    from planner.gating import Burst, burst_peaks, tone_peaks
-
-    if isinstance(waveform, Burst):
-        return burst_peaks(waveform)
-    return tone_peaks(waveform.frequencies, waveform.amplitudes, waveform.phases,
-                      waveform.loop_length)

@@ -10,15 +10,16 @@ dwells) -> coupling -> manufacturability -> record.  Data flows one way; every s
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import pandas as pd
 
-from planner.assign import assign
+from planner.assign import Assignment, assign
 from planner.errors import PlanningError
-from planner.nodes import Node, device_key
+from planner.nodes import device_key
 from planner.planning.design_store import DesignStore
 from planner.planning.designs import design_all
-from planner.planning.drives import drive_of, limit_acceleration, synthesize_steps
+from planner.planning.drives import limit_acceleration, synthesize_steps
 from planner.planning.manufacture import assess
 from planner.planning.motion import size_bursts
 from planner.planning.record import build_record
@@ -51,13 +52,155 @@ def design_problems(designs, settings):
         if getattr(d, "mass_ratio", 0.0) >= 0.99 * settings.max_mass_ratio:
             advice += (f"; it sits at the mass-ratio cap m/M = {settings.max_mass_ratio:g} "
                        "(design.max_mass_ratio, or a heavier slider)")
-        out.append({"impacter": n, "frequency_hz": d.frequency_hz, "why": d.message,
+        out.append({"impacter": n.text, "frequency_hz": d.frequency_hz, "why": d.message,
                     "what_to_change": advice})
     return out
 
 
+class _Clock:
+    """Seconds per stage, summed over the rounds (``Plan.timings``)."""
+
+    def __init__(self):
+        self.t0 = time.perf_counter()
+        self.timings = {}
+
+    def add(self, stage, since):
+        self.timings[stage] = self.timings.get(stage, 0.0) + time.perf_counter() - since
+
+    def timed(self, stage, fn, *args, **kwargs):
+        ts = time.perf_counter()
+        out = fn(*args, **kwargs)
+        self.add(stage, ts)
+        return out
+
+
+@dataclass(frozen=True)
+class _Round:
+    """What one design round made and found (the round the plan keeps is one of them).
+
+    ``waveforms``: step key -> the drive as synthesised under the limits (the designs'
+    forbidden drives); ``played``: what each step plays (a ``targets_um`` step's gated
+    burst); ``run_steps``: the steps with their bursts sized and gated."""
+
+    assignment: Assignment
+    waveforms: dict
+    played: dict
+    drive_notes: dict
+    gating: dict
+    designs: dict
+    impacters: dict
+    sliders: dict
+    run_steps: tuple
+    sizing: dict
+    ver_rows: list
+    failures: list
+
+    @property
+    def score(self):
+        """Infeasible designs, then failures the motion repair cannot mend: a repair
+        round can make things worse (a widened separation moves other tones into
+        trouble), so the plan keeps the round with the lowest score."""
+        return (sum(1 for d in self.designs.values() if not d.feasible),
+                sum(1 for f in self.failures if f.kind not in MOTION_KINDS))
+
+
+def _design_round(settings, steps, assignment, clock, tick, design_cache, **design_kw):
+    """Drives, designs, burst sizing, gates and the per-step verification for one
+    assignment."""
+    # the drives depend on the frequencies only, so they come before the designs,
+    # which must be silent under the summed drive of every step they sit out
+    synthesized = clock.timed("drive", synthesize_steps, settings, steps, assignment)
+    waveforms, drive_notes = clock.timed("drive", limit_acceleration, settings, synthesized)
+    tick("design", total=len(assignment.frequencies))
+    designs = clock.timed("design", design_all, settings, steps, assignment, design_cache,
+                          progress=lambda n: tick("design", n), waveforms=waveforms,
+                          **design_kw)
+    impacters = {n: d.impacter for n, d in designs.items()}
+    devices = sorted({n.device for n in impacters}, key=device_key)
+    sliders = {d: settings.sliders[d] for d in devices}
+    # steps that give travel_um get their burst from the predicted speed
+    run_steps, sizing = clock.timed("verify", size_bursts, settings, steps, waveforms,
+                                    impacters, sliders)
+    # targets steps play a gated burst, found from the carried state of their scene;
+    # its tones play one after the other, so at their amplitudes as synthesised, not
+    # as lowered for the peak of their whole sum
+    played, gating = waveforms, {}
+    targeted = {st.key: synthesized[st.key] for st in run_steps if st.targets_m is not None}
+    if targeted:
+        tick("targets", total=len(targeted))
+        run_steps, played, gating = clock.timed(
+            "targets", place_targets, settings, run_steps, {**waveforms, **targeted},
+            assignment.frequencies, impacters, sliders, progress=lambda k: tick("targets", k))
+    tick("verify", total=len(steps))
+    ts = time.perf_counter()
+    ver_rows, failures = [], []
+    for rows, fails in check_steps(settings, run_steps, played, impacters, sliders,
+                                   progress=lambda k: tick("verify", k),
+                                   scheduler=design_kw.get("scheduler")):
+        ver_rows += rows
+        failures += fails
+    clock.add("verify", ts)
+    return _Round(assignment, waveforms, played, drive_notes, gating, designs, impacters,
+                  sliders, run_steps, sizing, ver_rows, failures)
+
+
+def _repair_rounds(settings, clock, tick, on_assignment, design_kw):
+    """Assign, design and verify, then repair and repeat up to
+    ``settings.repair_rounds`` times: widen the separations the failures point at
+    (a re-colouring), re-design impacters that were only too slow, or idle ones that
+    answered once although their designs were feasible, alone from further seeds.
+
+    Returns
+    -------
+    (kept, rounds, designed)
+        The round kept (the lowest :attr:`_Round.score`, the later one on a tie),
+        plan.json's ``repair_rounds`` log and the distinct designs made over the rounds.
+    """
+    steps, sep = settings.steps, settings.separation_channels
+    pair_sep, design_cache, rounds, reseed, idle_redesigned = {}, {}, [], {}, set()
+    best = None
+    for round_ in range(settings.repair_rounds + 1):
+        ts = time.perf_counter()
+        try:
+            assignment = assign(settings, steps, separation=sep, pair_separation=pair_sep)
+        except PlanningError as exc:
+            if round_ == 0:
+                raise
+            # the widened separations no longer fit the band: keep the last plan and
+            # report what still fails
+            rounds.append({"round": round_, "span": None, "failures": None,
+                           "stopped": str(exc)})
+            break
+        clock.add("assign", ts)
+        if round_ == 0 and on_assignment is not None:
+            on_assignment(settings, steps, assignment)
+        got = _design_round(settings, steps, assignment, clock, tick, design_cache,
+                            reseed=reseed, **design_kw)
+        failed_rows = sum(1 for r in got.ver_rows if not r["passed"])
+        rounds.append({"round": round_, "span": assignment.span, "failures": failed_rows})
+        if best is None or got.score <= best[0].score:
+            best = (got, round_)
+        if not failed_rows or round_ == settings.repair_rounds:
+            break
+        answered = reseed_idle(got.failures, got.designs, reseed, idle_redesigned)
+        widened = widen_separations(got.failures, got.designs, steps, assignment, pair_sep,
+                                    sep, skip=answered)
+        reseeded = reseed_slow(got.failures, got.designs, steps, reseed)
+        if reseeded:
+            rounds[-1]["redesigned_slow"] = [n.text for n in reseeded]
+        if answered:
+            rounds[-1]["redesigned_idle"] = [n.text for n in answered]
+        if not (widened or reseeded or answered):
+            break
+    kept, kept_round = best
+    if kept_round != rounds[-1]["round"]:
+        rounds.append({"round": None, "kept_round": kept_round,
+                       "why": "fewer infeasible designs and failures than the last round"})
+    return kept, rounds, len(design_cache)
+
+
 def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings | None = None,
-             on_assignment=None, scheduler=None, cache_dir=None):
+             on_assignment=None, scheduler=None, cache_dir=None) -> Plan:
     """Run every stage; returns a :class:`Plan` (files are written by :func:`plan`).
 
     ``loaded``: a :class:`~planner.spec.LoadedSpec`; ``settings`` (optional) its
@@ -70,135 +213,54 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     on-disk design cache's folder (:class:`~planner.planning.design_store.DesignStore`;
     None: designs are cached for this run only).
     """
-    jobs = max(1, int(jobs or 1))
     if settings is None:
         settings = resolve_settings(loaded, seed)
     tick = progress or (lambda stage, item=None, total=None: None)
-    timings = {}
-    t0 = time.perf_counter()
-    steps = settings.steps
-    pair_sep, cache, rounds, reseed, best = {}, {}, [], {}, None
-    idle_redesigned = set()
+    clock = _Clock()
     store = DesignStore(cache_dir) if cache_dir is not None else None
-    sep = settings.separation_channels
+    kept, rounds, designed = _repair_rounds(
+        settings, clock, tick, on_assignment,
+        dict(jobs=max(1, int(jobs or 1)), scheduler=scheduler, store=store))
+    cache = (None if store is None else
+             {"path": str(store.path), "read": store.hits, "written": store.writes,
+              "designed": designed})
+    return _finish(settings, kept, rounds, clock, scheduler, cache)
 
-    def timed(stage, fn, *args, **kwargs):
-        ts = time.perf_counter()
-        out = fn(*args, **kwargs)
-        timings[stage] = timings.get(stage, 0.0) + time.perf_counter() - ts
-        return out
 
-    for round_ in range(settings.repair_rounds + 1):
-        ts = time.perf_counter()
-        try:
-            assignment = assign(settings.loaded, steps, separation=sep, pair_separation=pair_sep)
-        except PlanningError as exc:
-            if round_ == 0:
-                raise
-            # the widened separations no longer fit the band: keep the last plan and
-            # report what still fails
-            rounds.append({"round": round_, "span": None, "failures": None,
-                           "stopped": str(exc)})
-            break
-        timings["assign"] = timings.get("assign", 0.0) + time.perf_counter() - ts
-        if round_ == 0 and on_assignment is not None:
-            on_assignment(settings, steps, assignment)
-        # the drives depend on the frequencies only, so they come before the designs,
-        # which must be silent under the summed drive of every step they sit out
-        synthesized = timed("drive", synthesize_steps, settings, steps, assignment)
-        waveforms, drive_notes = timed("drive", limit_acceleration, settings, synthesized)
-        tick("design", total=len(assignment.frequencies))
-        designs = timed("design", design_all, settings, steps, assignment, cache,
-                        progress=lambda n: tick("design", n), waveforms=waveforms, jobs=jobs,
-                        scheduler=scheduler, reseed=reseed, store=store)
-        impacters = {n: d.impacter for n, d in designs.items()}
-        devices = sorted({Node.parse(n).device for n in impacters}, key=device_key)
-        sliders = {d: settings.sliders[d] for d in devices}
-        ts = time.perf_counter()
-        # steps that give travel_um get their burst from the predicted speed
-        run_steps, sizing = size_bursts(settings, steps, waveforms, impacters, sliders,
-                                        drive_of)
-        # targets steps play a gated burst, found from the carried state of their scene;
-        # its tones play one after the other, so at their amplitudes as synthesised, not
-        # as lowered for the peak of their whole sum
-        played, gating = waveforms, {}
-        targeted = {st.key: synthesized[st.key] for st in run_steps if st.targets_m is not None}
-        if targeted:
-            tick("targets", total=len(targeted))
-            run_steps, played, gating = timed(
-                "targets", place_targets, settings, run_steps, {**waveforms, **targeted},
-                assignment.frequencies, impacters, sliders,
-                progress=lambda k: tick("targets", k))
-        tick("verify", total=len(steps))
-        ver_rows, failures = [], []
-        for rows, fails in check_steps(settings, run_steps, played, impacters, sliders,
-                                       progress=lambda k: tick("verify", k),
-                                       scheduler=scheduler):
-            ver_rows += rows
-            failures += fails
-        timings["verify"] = timings.get("verify", 0.0) + time.perf_counter() - ts
-        failed_rows = sum(1 for r in ver_rows if not r["passed"])
-        rounds.append({"round": round_, "span": assignment.span, "failures": failed_rows})
-        # a repair round can make things worse (a widened separation moves other tones
-        # into trouble): the plan kept is the round with the fewest infeasible designs
-        # and failures the motion repair cannot mend, the later one on a tie
-        score = (sum(1 for d in designs.values() if not d.feasible),
-                 sum(1 for f in failures if f.kind not in MOTION_KINDS))
-        if best is None or score <= best[0]:
-            best = (score, round_, (assignment, waveforms, played, drive_notes, gating, designs,
-                                    impacters, devices, sliders, run_steps, sizing, ver_rows,
-                                    failures))
-        if not failed_rows or round_ == settings.repair_rounds:
-            break
-        # repair: widen the separations the failures point at, re-colour, re-design;
-        # impacters that were only too slow, or idle ones that answered once although
-        # their designs were feasible, are re-designed alone from further seeds
-        answered = reseed_idle(failures, designs, reseed, idle_redesigned)
-        widened = widen_separations(failures, designs, steps, assignment, pair_sep, sep,
-                                    skip=answered)
-        reseeded = reseed_slow(failures, designs, steps, reseed)
-        if reseeded:
-            rounds[-1]["redesigned_slow"] = reseeded
-        if answered:
-            rounds[-1]["redesigned_idle"] = answered
-        if not (widened or reseeded or answered):
-            break
-    if best[1] != rounds[-1]["round"]:
-        (assignment, waveforms, played, drive_notes, gating, designs, impacters, devices,
-         sliders, run_steps, sizing, ver_rows, failures) = best[2]
-        rounds.append({"round": None, "kept_round": best[1],
-                       "why": "fewer infeasible designs and failures than the last round"})
+def _finish(settings, kept: _Round, rounds, clock, scheduler, design_cache) -> Plan:
+    """The kept round's scenes (with the motion repair), coupling matrix,
+    manufacturability and record, as a :class:`Plan` (``design_cache``: its
+    ``design_cache``)."""
     ts = time.perf_counter()
     # the scenes carry every impacter's and slider's state from step to step, each step
     # followed by its settle dwell; what they find counts in the verification, and the
     # motion repair acts on it (shorter bursts, longer dwells)
     (run_steps, ver_rows, failures, scene_rows, motion_repairs,
-     step_settle) = scenes_and_motion(settings, run_steps, played, impacters, sliders,
-                                      ver_rows, failures, scheduler=scheduler)
+     step_settle) = scenes_and_motion(settings, kept.run_steps, kept.played, kept.impacters,
+                                      kept.sliders, kept.ver_rows, kept.failures,
+                                      scheduler=scheduler)
+    assignment, designs = kept.assignment, kept.designs
     tones = sorted(set(assignment.frequencies.values()))
-    coupling = coupling_matrix(impacters, tones, settings, settings.single_step_s)
-    timings["scenes_coupling"] = time.perf_counter() - ts
+    coupling = coupling_matrix(kept.impacters, tones, settings, settings.single_step_s)
+    clock.timings["scenes_coupling"] = time.perf_counter() - ts
     # what a fabricated chip does to these designs: sensitivities, separations and the
     # predicted collision-free yield under the spec's tolerances
-    manufacturability = timed("manufacturability", assess, settings, run_steps, assignment,
-                              designs, waveforms)
+    manufacturability = clock.timed("manufacturability", assess, settings, run_steps,
+                                    assignment, designs, kept.waveforms)
     ver = pd.DataFrame(ver_rows)
     problems = design_problems(designs, settings)
     # an infeasible design fails the plan even if the steps happen to verify: it was
     # not shown silent at its forbidden tones on the designer's fine grid
     passed = bool(ver["passed"].all()) and not problems
-    motion = {"sizing": sizing, "drive": drive_notes, "settle_s": step_settle,
-              "repairs": motion_repairs, "design_problems": problems, "gating": gating}
+    motion = {"sizing": kept.sizing, "drive": kept.drive_notes, "settle_s": step_settle,
+              "repairs": motion_repairs, "design_problems": problems, "gating": kept.gating}
     data, impacter_recs, device_recs, step_recs = build_record(
-        settings, run_steps, assignment, designs, sliders, played, ver_rows, passed, rounds,
-        scene_rows, motion, manufacturability)
-    timings["total"] = time.perf_counter() - t0
+        settings, run_steps, assignment, designs, kept.sliders, kept.played, ver_rows,
+        passed, rounds, scene_rows, motion, manufacturability)
+    clock.timings["total"] = time.perf_counter() - clock.t0
     return Plan(
         impacters=pd.DataFrame(impacter_recs), devices=pd.DataFrame(device_recs),
         steps=pd.DataFrame(step_recs), verification=ver, coupling=coupling,
-        scenes=pd.DataFrame(scene_rows), passed=passed, data=data, timings=timings,
-        settings=settings, waveforms=played, designs=designs, assignment=assignment,
-        failures=tuple(failures),
-        design_cache=(None if store is None else
-                      {"path": str(store.path), "read": store.hits, "written": store.writes,
-                       "designed": len(cache)}))
+        scenes=pd.DataFrame(scene_rows), passed=passed, data=data, timings=clock.timings,
+        settings=settings, waveforms=kept.played, designs=designs, assignment=assignment,
+        failures=tuple(failures), design_cache=design_cache)

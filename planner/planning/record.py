@@ -1,5 +1,8 @@
 """The plan.json record: deterministic, rounded to 12 significant digits.
 
+The file boundary: the stages key impacters by :class:`planner.nodes.Node`, plan.json
+by the node's text (``"A1.forward"``).
+
 Read back by :mod:`planner.planning.plan_file` (its ``format_version`` is that module's
 :data:`~planner.planning.plan_file.FORMAT_VERSION`).
 """
@@ -11,11 +14,11 @@ import math
 import numpy as np
 
 from planner._io import version_string
-from planner.assign import verify_assignment
+from planner.assign import node_order, verify_assignment
 from planner.exporters import EXPORTERS
 from planner.planning.motion import PROBE_S
 from planner.planning.plan_file import FORMAT_VERSION
-from planner.nodes import Node, device_key, node_key
+from planner.nodes import Node, device_key
 
 #: Standard gravity [m/s^2].
 G0 = 9.80665
@@ -38,10 +41,9 @@ def round_floats(x, digits=12):
     return x
 
 
-def impacter_record(n, assignment, design):
+def impacter_record(n: Node, assignment, design):
     """One designed impacter's plan.json entry."""
-    node = Node.parse(n)
-    rec = {"id": n, "device": node.device, "direction": node.direction,
+    rec = {"id": n.text, "device": n.device, "direction": n.direction,
            "channel": int(assignment.channels[n]), "frequency_hz": assignment.frequencies[n]}
     d = design.to_dict()
     for key in ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m", "gap_m",
@@ -87,8 +89,9 @@ def step_record(step, waveform, motion=None):
                  "acceleration_scale": drive["acceleration_scale"],
                  "travel_m": motion["travel"].get(step.key, {})}
         if gating is not None:
-            extra["gating"] = {"ramp_s": gating["ramp_s"], "starts_s": gating["starts_s"],
-                               "gates_s": gating["gates_s"],
+            extra["gating"] = {"ramp_s": gating["ramp_s"],
+                               "starts_s": {n.text: t for n, t in gating["starts_s"].items()},
+                               "gates_s": {n.text: t for n, t in gating["gates_s"].items()},
                                "search_iterations": gating["iterations"]}
         if step.travel_m is not None:
             sized = motion["sizing"].get(step.key, {})
@@ -127,10 +130,13 @@ def step_travels(ver_rows):
 
 
 def build_record(settings, steps, assignment, designs, sliders, waveforms, ver_rows, passed,
-                 rounds, scene_rows, motion=None, manufacturability=None):
+                 rounds, scene_rows, motion=None, manufacturability=None, sections=None):
     """(plan.json dict, impacter records, device records, step records).
 
     ``manufacturability``: the block of :func:`planner.planning.manufacture.assess`.
+
+    ``sections`` (optional): further top-level blocks, last and in their order (a
+    re-plan's ``as_built`` and ``replan``).
 
     ``motion``: {"sizing", "drive", "settle_s", "repairs", "gating"} of the pipeline
     (burst sizing notes, drive peaks and acceleration scales, settle dwells by step key,
@@ -140,7 +146,7 @@ def build_record(settings, steps, assignment, designs, sliders, waveforms, ver_r
     if motion is not None:
         motion = {**motion, "travel": step_travels(ver_rows)}
     impacter_recs = [impacter_record(n, assignment, designs[n])
-                     for n in sorted(designs, key=node_key)]
+                     for n in sorted(designs, key=node_order)]
     device_recs = [{"id": d, "slider_mass_kg": s.mass, "slider_damping_ns_per_m": s.damping,
                     "static_friction_n": s.static_friction,
                     "dynamic_friction_n": s.dynamic_friction} for d, s in sliders.items()]
@@ -174,4 +180,5 @@ def build_record(settings, steps, assignment, designs, sliders, waveforms, ver_r
     }
     if manufacturability is not None:
         data["manufacturability"] = manufacturability
+    data.update(sections or {})
     return round_floats(data), impacter_recs, device_recs, step_recs

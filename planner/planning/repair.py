@@ -9,7 +9,8 @@ from __future__ import annotations
 import math
 
 from planner.nodes import Node
-from planner.planning.designs import DESIGN_RETRIES, design_offenders
+from planner.planning.designs import DESIGN_RETRIES
+from planner.planning.exposure import design_offenders
 from planner.planning.verify import IDLE_RESPONSE, TOO_SLOW
 
 
@@ -36,7 +37,7 @@ def widen_separations(failures, designs, steps, assignment, pair_sep, sep, skip=
     for fail in failures:
         if fail.kind != IDLE_RESPONSE or fail.impacter not in designs or fail.impacter in skip:
             continue
-        active = sorted(Node(d, dr).text for d, dr in steps[fail.step].active_nodes())
+        active = sorted(Node(d, dr) for d, dr in steps[fail.step].active_nodes())
         f = assignment.frequencies[fail.impacter]
         near = min(active, key=lambda a: abs(math.log(assignment.frequencies[a] / f)))
         _widen(pair_sep, assignment, fail.impacter, near, sep)
@@ -64,7 +65,7 @@ def reseed_slow(failures, designs, steps, reseed):
         if fail.kind != TOO_SLOW:
             continue
         for d, dr in sorted(steps[fail.step].active_nodes()):
-            node = Node(d, dr).text
+            node = Node(d, dr)
             if d == fail.device and node in designs and node not in out:
                 _next_seeds(reseed, node)
                 out.append(node)

@@ -42,16 +42,15 @@ import pandas as pd
 import model
 from model import Drive
 from planner.assign import Assignment, conflict_graph, guard_violations
-from planner.nodes import Node, device_key, node_key
+from planner.nodes import device_key, node_key
 from planner.planning.plan_file import PlanRecord, drives
-from planner.planning.record import build_record, round_floats
+from planner.planning.record import build_record
 from planner.planning.repair import scenes_and_motion
 from planner.planning.rescue import (REPLAN_TRAVEL_MARGIN, as_built_models, quieten, rescue,
                                      split_weak)
 from planner.planning.result import Plan
-from planner.planning.settings import resolve_settings, tone_amplitudes
+from planner.planning.settings import plan_settings, tone_amplitudes
 from planner.planning.verify import check_step, check_steps, coupling_matrix, x0_grid
-from planner.spec import Step, channel_grid
 from planner.units import UM
 
 #: Columns of measured.csv: required, optional, and ignored (calibrate's uncertainties).
@@ -223,10 +222,10 @@ def verify_drive(plan: PlanRecord, as_built: dict, settings=None):
         The verification rows (as plan.json's), one per step and device.
     """
     if settings is None:
-        settings = resolve_settings(plan.loaded, plan.seed)
+        settings = plan_settings(plan)
     params = as_built_parameters(plan, as_built)
-    models = {r.id: _impacter(r, params[r.id]) for r in plan.impacters}
-    devices = sorted({Node.parse(n).device for n in models}, key=device_key)
+    models = {r.node: _impacter(r, params[r.id]) for r in plan.impacters}
+    devices = sorted({r.device for r in plan.impacters}, key=device_key)
     sliders = {d: settings.sliders[d] for d in devices}
     waves = drives(plan)
     rows = []
@@ -265,8 +264,8 @@ def _design_like(rec, imp, tone, settings):
                                    "measured resonance")
 
 
-def replan(plan: PlanRecord, measured, *, seed=None, progress=None, original=None,
-           record=True):
+def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=None,
+           original=None, record=True):
     """Re-plan the drive of a fabricated chip from its measured resonances.
 
     Parameters
@@ -280,6 +279,10 @@ def replan(plan: PlanRecord, measured, *, seed=None, progress=None, original=Non
         (:func:`read_measured`); an impacter not in it keeps its design.
     seed : int, optional
         Drive phases' seed (default: the plan's).
+    settings : Settings, optional
+        The plan's settings, already resolved (:func:`planner.planning.settings.
+        plan_settings`; a yield study resolves them once for every chip); ``seed`` is
+        then theirs.
     progress : callable, optional
         ``progress(stage, item=None, total=None)`` as :func:`planner.planning.run_plan`.
     original : tuple, optional
@@ -302,12 +305,13 @@ def replan(plan: PlanRecord, measured, *, seed=None, progress=None, original=Non
     tick = progress or (lambda stage, item=None, total=None: None)
     t0 = time.perf_counter()
     timings = {}
-    seed = plan.seed if seed is None else int(seed)
-    settings = resolve_settings(plan.loaded, seed)
-    plan_imps = {r.id: r for r in plan.impacters}
+    if settings is None:
+        settings = plan_settings(plan, seed)
+    plan_imps = {r.node: r for r in plan.impacters}
     params = as_built_parameters(plan, measured)
-    models = measured_models(plan, measured, params)
-    devices = sorted({Node.parse(n).device for n in models}, key=device_key)
+    built = measured_models(plan, measured, params)
+    models = {n: built[r.id] for n, r in plan_imps.items()}
+    devices = sorted({n.device for n in models}, key=device_key)
     sliders = {d: settings.sliders[d] for d in devices}
 
     # the original drive on this chip
@@ -350,9 +354,7 @@ def replan(plan: PlanRecord, measured, *, seed=None, progress=None, original=Non
     timings["verify"] = time.perf_counter() - ts
 
     ts = time.perf_counter()
-    grid = channel_grid(plan.loaded.spec)
-    assignment = _assignment(plan.loaded, steps, settings, drive.tones, grid,
-                             plan.lower_bound)
+    assignment = _assignment(steps, settings, drive.tones, plan.lower_bound)
     designs = {n: _design_like(plan_imps[n], models[n], drive.tones[n], settings)
                for n in plan_imps}
     impacters = {n: d.impacter for n, d in designs.items()}
@@ -369,9 +371,10 @@ def replan(plan: PlanRecord, measured, *, seed=None, progress=None, original=Non
                "failures": sum(1 for r in ver_rows if not r["passed"])}]
     data, impacter_recs, device_recs, step_recs = build_record(
         settings, steps, assignment, designs, sliders, drive.waveforms, ver_rows, passed,
-        rounds, scene_rows, motion)
-    data["as_built"] = round_floats(params)
-    data["replan"] = round_floats(_replan_record(plan, params, drive, orig_passed, orig_rows))
+        rounds, scene_rows, motion,
+        sections={"as_built": params,
+                  "replan": _replan_record(plan, settings, params, drive, orig_passed,
+                                           orig_rows)})
     timings["total"] = time.perf_counter() - t0
     return Plan(
         impacters=pd.DataFrame(impacter_recs), devices=pd.DataFrame(device_recs),
@@ -414,11 +417,12 @@ def measured_models(plan: PlanRecord, measured: dict, params=None) -> dict:
     return out
 
 
-def _assignment(loaded, steps, settings, chosen, grid, lower_bound):
+def _assignment(steps, settings, chosen, lower_bound):
     """An :class:`~planner.assign.Assignment` of the chosen tones (the conflict graph as
     before; each impacter's channel is the grid channel of its tone)."""
+    grid = np.asarray(settings.channel_grid_hz)
     graph, groups = conflict_graph(steps, settings.separation_channels, None,
-                                   loaded.spec.drive.guard.ensemble_separation_channels)
+                                   settings.ensemble_separation_channels)
     nodes = {n for g in groups.values() for n in g}
     channels = {n: int(np.argmin(np.abs(grid - chosen[n]))) for n in nodes}
     freqs = {n: float(chosen[n]) for n in nodes}
@@ -427,10 +431,10 @@ def _assignment(loaded, steps, settings, chosen, grid, lower_bound):
     span = max(channels.values()) - lo + 1
     return Assignment(graph, groups, coloring, span, int(lower_bound), False,
                       "as-built", 0.0, 1, lo, channels, freqs,
-                      guard_violations(steps, freqs, loaded.spec.drive.guard))
+                      guard_violations(steps, freqs, settings.tone_rules))
 
 
-def _replan_record(plan, params, drive, orig_passed, orig_rows):
+def _replan_record(plan, settings, params, drive, orig_passed, orig_rows):
     """plan.json's ``replan`` block: what moved, the original drive on this chip, the
     pairs no drive tells apart, the steps split, the tones beyond the band."""
     moved = []
@@ -438,13 +442,13 @@ def _replan_record(plan, params, drive, orig_passed, orig_rows):
         n = rec.id
         # the design's resonance (a re-planned plan's impacters are as built already)
         nu0, nu1 = plan.design_natural_frequency_hz[n], params[n]["natural_frequency_hz"]
-        f0, f1 = rec.frequency_hz, drive.tones[n]
+        f0, f1 = rec.frequency_hz, drive.tones[rec.node]
         moved.append({"id": n, "design_natural_frequency_hz": nu0,
                       "natural_frequency_hz": nu1, "natural_frequency_shift": nu1 / nu0 - 1,
                       "original_frequency_hz": f0, "frequency_hz": f1,
                       "tone_shift": f1 / f0 - 1})
     fails = [r for r in orig_rows if not r["passed"]]
-    lo, hi = plan.spec.drive.band_hz
+    lo, hi = settings.band_hz
     return {
         "moved": moved,
         "original_drive": {
@@ -471,7 +475,8 @@ def inseparable_message(c) -> str:
             "other's silent band); trim one of them (vibroplan trim) or drive them together")
 
 
-def replan_chip(plan: PlanRecord, as_built: dict, seed=None, *, original=None, record=True):
+def replan_chip(plan: PlanRecord, as_built: dict, seed=None, *, settings=None, original=None,
+                record=True):
     """Re-plan one chip for a yield study: ``(passed, plan)``.
 
     Parameters
@@ -483,6 +488,8 @@ def replan_chip(plan: PlanRecord, as_built: dict, seed=None, *, original=None, r
         optionally ``quality_factor`` [-], ``damping_ns_per_m`` [N s/m], ``gap_m`` [m].
     seed : int, optional
         Drive phases' seed (default: the plan's).
+    settings : Settings, optional
+        The plan's settings, resolved once for every chip (:func:`replan`).
     original, record :
         As :func:`replan`: the original drive's ``(passed, rows)`` when already known
         (not verified again), and False to skip the scenes and the coupling matrix
@@ -498,7 +505,8 @@ def replan_chip(plan: PlanRecord, as_built: dict, seed=None, *, original=None, r
         (:func:`planner.planning.plan_file.plan_record`) and pass it and the true
         parameters to :func:`verify_drive`.
     """
-    result = replan(plan, as_built, seed=seed, original=original, record=record)
+    result = replan(plan, as_built, seed=seed, settings=settings, original=original,
+                    record=record)
     return result.passed, result
 
 
@@ -522,7 +530,7 @@ def write_replan_outputs(result: Plan, out_dir, *, figures=True):
 def replan_report_lines(data) -> list:
     """The report's re-plan section: as-built against design, tones moved, the original
     drive on this chip, impacters that can no longer be told apart."""
-    from planner.planning.outputs import _fmt, _md_table
+    from planner.planning.report import fmt, md_table
 
     rp = data["replan"]
     od = rp["original_drive"]
@@ -543,15 +551,14 @@ def replan_report_lines(data) -> list:
         lines += ["", "</details>", ""]
     rows = []
     for m in rp["moved"]:
-        rows.append([m["id"], _fmt(m["design_natural_frequency_hz"], ".1f"),
-                     _fmt(m["natural_frequency_hz"], ".1f"),
-                     _fmt(100 * m["natural_frequency_shift"], "+.2f"),
-                     _fmt(m["original_frequency_hz"], ".1f"), _fmt(m["frequency_hz"], ".1f"),
-                     _fmt(100 * m["tone_shift"], "+.2f")])
+        rows.append([m["id"], fmt(m["design_natural_frequency_hz"], ".1f"),
+                     fmt(m["natural_frequency_hz"], ".1f"),
+                     fmt(100 * m["natural_frequency_shift"], "+.2f"),
+                     fmt(m["original_frequency_hz"], ".1f"), fmt(m["frequency_hz"], ".1f"),
+                     fmt(100 * m["tone_shift"], "+.2f")])
     lines += ["### What moved", ""]
-    lines += _md_table(["impacter", "design nu_n [Hz]", "as-built nu_n [Hz]", "shift [%]",
-                        "original tone [Hz]", "new tone [Hz]", "tone shift [%]"],
-                       rows)
+    lines += md_table(["impacter", "design nu_n [Hz]", "as-built nu_n [Hz]", "shift [%]",
+                       "original tone [Hz]", "new tone [Hz]", "tone shift [%]"], rows)
     lines.append("")
     if rp.get("outside_band"):
         lo, hi = data["spec"]["drive"]["band_hz"]

@@ -32,6 +32,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -190,8 +191,8 @@ def _sub_steps(step, groups):
     """``step`` split into one sub-step per group of its active nodes."""
     out = []
     for k, group in enumerate(groups):
-        fwd = tuple(d for d in step.forward if Node(d, "forward").text in group)
-        bwd = tuple(d for d in step.backward if Node(d, "backward").text in group)
+        fwd = tuple(d for d in step.forward if Node(d, "forward") in group)
+        bwd = tuple(d for d in step.backward if Node(d, "backward") in group)
         out.append(dataclasses.replace(step, name=f"{step.name}.{k + 1}", forward=fwd,
                                        backward=bwd))
     return out
@@ -206,12 +207,12 @@ def split_step(step, tones, need, synthesize_and_limit):
     (sub-steps, waveforms, notes)
         Their indices are the step's (renumber them when placing them).
     """
-    nodes = sorted((Node(d, r).text for d, r in step.active_nodes()), key=lambda n: tones[n])
+    nodes = sorted((Node(d, r) for d, r in step.active_nodes()), key=lambda n: tones[n])
     chosen = None
     for k in range(2, min(MAX_SPLIT, len(nodes)) + 1):
         # k runs of neighbouring tones: an impacter of another run is idle next to a
         # run's edge only, never between its tones (the verification decides)
-        groups = [set(g) for g in np.array_split(np.array(nodes, dtype=object), k)]
+        groups = [{nodes[i] for i in run} for run in np.array_split(np.arange(len(nodes)), k)]
         subs = _sub_steps(step, groups)
         w, nt = synthesize_and_limit(subs, tones)
         chosen = (subs, w, nt)
@@ -295,7 +296,7 @@ def separations_of(plan, settings) -> Separations:
 
 
 def plan_phases(plan) -> dict:
-    """Step key -> {impacter id -> the phase [rad] its tone played at in the plan}.
+    """Step key -> {Node -> the phase [rad] its tone played at in the plan}.
 
     The designs were made silent under each multi-tone step's drive as it was played,
     phases included; a re-plan that moves the tones by a fraction of a per cent and
@@ -306,9 +307,7 @@ def plan_phases(plan) -> dict:
     with the plan's phases none did.  A gated burst's tones (``start_s`` given) and a
     step whose tones cannot be matched to its impacters keep optimised phases.
     """
-    from planner.nodes import Node
-
-    tone_of = {r.id: r.frequency_hz for r in plan.impacters}
+    tone_of = {r.node: r.frequency_hz for r in plan.impacters}
     out = {}
     for st in plan.steps:
         if not st.tones or any(t.start_s is not None for t in st.tones):
@@ -316,7 +315,7 @@ def plan_phases(plan) -> dict:
         freqs = np.array([t.frequency_hz for t in st.tones])
         got = {}
         for d, r in st.step.active_nodes():
-            n = Node(d, r).text
+            n = Node(d, r)
             k = int(np.argmin(np.abs(freqs - tone_of[n])))
             # the played tone is the planned one snapped by at most 0.1 %
             if abs(freqs[k] - tone_of[n]) <= 2e-3 * tone_of[n]:
@@ -326,7 +325,7 @@ def plan_phases(plan) -> dict:
     return out
 
 
-@dataclasses.dataclass
+@dataclasses.dataclass(frozen=True)
 class RescuedDrive:
     """A chip's re-planned drive before its verification.
 
@@ -339,7 +338,7 @@ class RescuedDrive:
     dwells : dict
         Step key -> settle dwell after it [s] (the plan's; a sub-step takes its step's).
     tones : dict
-        Impacter id -> tone [Hz].
+        Node -> tone [Hz].
     inseparable : list of dict
         :func:`inseparable`'s pairs (no drive tells them apart).
     splits : dict
@@ -361,7 +360,7 @@ class RescuedDrive:
     splits: dict
     sizing: dict
     weak: dict = dataclasses.field(default_factory=dict)
-    synthesize_and_limit: object = None
+    synthesize_and_limit: Callable | None = None
 
 
 def rescue(plan, measured: dict, settings, models: dict, sliders: dict) -> RescuedDrive:
@@ -379,14 +378,15 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict) -> Rescu
         The chip's models as measured (:func:`as_built_models`) and its sliders: the
         bursts are sized for their speeds.
     """
-    from planner.planning.drives import drive_of, limit_acceleration, synthesize_steps
+    from planner.planning.drives import limit_acceleration, synthesize_steps
     from planner.planning.motion import size_bursts
 
     measured = {n: measured.get(n, plan.design_natural_frequency_hz[n])
                 for n in (r.id for r in plan.impacters)}
     seps = separations_of(plan, settings)
     pairs = must_differ(settings.steps)
-    tones, blocked = choose_tones(seps, rescaled_tones(plan, measured, seps), measured, pairs)
+    chosen, blocked = choose_tones(seps, rescaled_tones(plan, measured, seps), measured, pairs)
+    tones = {rec.node: chosen[rec.id] for rec in plan.impacters}
     # what blocks a tone is named pair by pair, with the separation each would need
     bad = inseparable(seps, measured, pairs)
     named = {n for c in bad for n in c["pair"]}
@@ -410,7 +410,7 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict) -> Rescu
                                                              phases=phases))
 
     waveforms, notes = synthesize_and_limit(tuple(base), tones)
-    steps, sizing = size_bursts(settings, tuple(base), waveforms, models, sliders, drive_of)
+    steps, sizing = size_bursts(settings, tuple(base), waveforms, models, sliders)
     dwells = {st.key: plan.dwells.get(st.key, 0.0) for st in steps}
     return RescuedDrive(steps, waveforms, notes, dwells, tones, bad, {}, sizing,
                         weakened(steps, notes, scales), synthesize_and_limit)
@@ -432,7 +432,6 @@ def split_weak(settings, drive: RescuedDrive, rows, failures, models, sliders, c
         The drive with its kept splits (steps renumbered in play order), and the checks
         of every step as it now stands.
     """
-    from planner.planning.drives import drive_of
     from planner.planning.motion import size_bursts
     from planner.planning.verify import TOO_SLOW
 
@@ -444,7 +443,7 @@ def split_weak(settings, drive: RescuedDrive, rows, failures, models, sliders, c
     for st in tries:
         subs, w, nt = split_step(st, drive.tones, drive.weak[st.key],
                                  drive.synthesize_and_limit)
-        subs, _ = size_bursts(settings, tuple(subs), w, models, sliders, drive_of)
+        subs, _ = size_bursts(settings, tuple(subs), w, models, sliders)
         checked = [check([sub], w) for sub in subs]          # per sub-step
         before = sum(1 for r in rows if r["index"] == st.index and not r["passed"])
         after = sum(1 for sub_rows, _ in checked for r in sub_rows if not r["passed"])
@@ -515,8 +514,8 @@ def quieten(settings, drive: RescuedDrive, rows, failures, models, sliders, chec
         The drive with the weakened steps (their notes say by how much), and the checks
         of every step as it now stands.
     """
-    from planner.planning.drives import drive_of, scaled
-    from planner.planning.motion import drive_peaks, size_bursts
+    from planner.planning.drives import drive_peaks, scaled
+    from planner.planning.motion import size_bursts
     from planner.planning.verify import IDLE_RESPONSE, TRAVEL_OVER, UNSETTLED
 
     def serious(fails):
@@ -536,7 +535,7 @@ def quieten(settings, drive: RescuedDrive, rows, failures, models, sliders, chec
         for factor in QUIET_FACTORS:
             w = scaled(waveforms[st.key], factor, f"every amplitude lowered by x{factor:g} "
                        "more: an idle impacter answered the step on this chip")
-            (sub,), _ = size_bursts(settings, (st,), {st.key: w}, models, sliders, drive_of)
+            (sub,), _ = size_bursts(settings, (st,), {st.key: w}, models, sliders)
             got_rows, got_fails = check([sub], {st.key: w})
             bad = serious(got_fails)
             if best is None or bad < best[0]:

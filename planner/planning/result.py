@@ -4,13 +4,23 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pandas as pd
 
+if TYPE_CHECKING:
+    from planner.assign import Assignment
+    from planner.planning.settings import Settings
 
-@dataclass
+
+@dataclass(frozen=True)
 class Plan:
     """A verified array plan; the same content as ``plan.json``, as DataFrames.
+
+    Built once, by the pipeline (:func:`planner.planning.run_plan`) or a re-plan
+    (:func:`planner.planning.replan.replan`), and never changed: writing it somewhere
+    gives a new one with its ``out_dir`` (:func:`planner.planning.plan`), a trim one
+    with its ``trim`` block (:func:`planner.planning.trimming.trim_chip`).
 
     Attributes
     ----------
@@ -35,19 +45,20 @@ class Plan:
     passed : bool
         Every step passed re-simulation.
     data : dict
-        The ``plan.json`` content.
-    timings : dict
-        Seconds per stage (not in plan.json, which is deterministic).
-    out_dir : Path or None
-        Where the outputs were written.
+        The ``plan.json`` content (a re-plan's with ``as_built`` and ``replan``).
     settings : planner.planning.settings.Settings
         The spec in SI units, as every stage read it (keyword only).
+    assignment : planner.assign.Assignment
+        Channels [-] and frequencies [Hz] of every node (keyword only).
+    timings : dict
+        Seconds per stage (not in plan.json, which is deterministic; ``outputs`` once
+        written).
+    out_dir : Path or None
+        Where the outputs were written (None: not written).
     waveforms : dict
         Step key (``"scene/step"``) -> :class:`planner.synthesis.Waveform` (keyword only).
     designs : dict
         Node text -> :class:`planner.designer.DesignResult` (keyword only).
-    assignment : planner.assign.Assignment
-        Channels [-] and frequencies [Hz] of every node (keyword only).
     failures : tuple
         :class:`planner.planning.verify.Failure` of the last verification round
         (keyword only).
@@ -65,11 +76,11 @@ class Plan:
     scenes: pd.DataFrame
     passed: bool
     data: dict
+    settings: Settings = field(kw_only=True, repr=False)
+    assignment: Assignment = field(kw_only=True, repr=False)
     timings: dict = field(default_factory=dict)
     out_dir: Path | None = None
-    settings: object = field(default=None, kw_only=True, repr=False)
     waveforms: dict = field(default_factory=dict, kw_only=True, repr=False)
     designs: dict = field(default_factory=dict, kw_only=True, repr=False)
-    assignment: object = field(default=None, kw_only=True, repr=False)
     failures: tuple = field(default=(), kw_only=True, repr=False)
     design_cache: dict | None = field(default=None, kw_only=True, repr=False)

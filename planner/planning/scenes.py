@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-from planner.nodes import Node, device_key
+from planner.nodes import device_key
 from planner.planning.drives import program_of
-from planner.planning.motion import REST, rest_state, run_program, settle
-from planner.planning.settings import SETTLE_S  # noqa: F401  (re-exported)
+from planner.planning.motion import REST, by_node, rest_state, run_program, settle
 
 #: Step name of the undriven tail in the scene rows (``"driven": false``).
 SETTLE_NAME = "(drive off)"
@@ -28,25 +27,26 @@ def _scene_phase(settings, impacters, sliders, program, states, sl_states, activ
     """
     z_start = {d: sl_states[d][0] for d in sliders}
     hits = run_program(impacters, sliders, settings.contacts, program, states, sl_states)
-    idle_hits = {n: h for n, h in hits.items() if h and n not in active}
+    idle_hits = {n.text: h for n, h in hits.items() if h and n not in active}
     fields = {}
     if dwell is not None:
         burst_end = {d: sl_states[d][0] for d in sliders}
         cap = max(settings.max_settle_s, dwell)
         took, calm, dwell_hits = settle(impacters, sliders, settings.contacts, states,
                                         sl_states, cap, at_least=dwell)
-        fields = {"settle_s": took, "settled": calm, "dwell_hits": dwell_hits,
+        fields = {"settle_s": took, "settled": calm,
+                  "dwell_hits": {n.text: h for n, h in dwell_hits.items()},
                   "burst_positions_m": burst_end}
     positions, moved, travel = {}, {}, {}
-    driven_devices = {Node.parse(n).device for n in active}
+    driven_devices = {d for d, _ in active}
     for dev in sliders:
         z = sl_states[dev][0]
         positions[dev] = float(z)
         travel[dev] = float(z - z_start[dev])
         if abs(z - z_start[dev]) > settings.idle_tolerance_m and dev not in driven_devices:
             moved[dev] = float(z - z_start[dev])
-    ringing = sorted(n for n, st in states.items()
-                     if n not in active and any(abs(v) > RINGING_V for _, v, _ in _per_half(st)))
+    ringing = [n.text for n in sorted(states) if n not in active
+               and any(abs(v) > RINGING_V for _, v, _ in _per_half(states[n]))]
     return {"positions_m": positions, "ringing_impacters": ringing, "idle_hits": idle_hits,
             "idle_moved_m": moved, "travel_m": travel, **fields}
 
@@ -59,6 +59,10 @@ def _per_half(state):
 def simulate_scenes(settings, steps, waveforms, impacters, sliders, dwells=None, place=None):
     """Each scene in order, carrying impacter and slider states across steps.
 
+    ``impacters``: Node -> model (the nodes' text is accepted:
+    :func:`planner.planning.motion.by_node`); ``sliders``: device -> model.Slider.  The
+    rows are plan.json's ``scenes``: impacters in them by their text.
+
     Every scene starts from rest; each step starts from the state the previous one
     left, so an impacter that keeps ringing after its tone stops moves its slider in
     the next step.  Every step plays its waveform (a loop for ``duration_s``, or its
@@ -68,7 +72,7 @@ def simulate_scenes(settings, steps, waveforms, impacters, sliders, dwells=None,
     while the carried state still moves (:func:`planner.planning.motion.settle`, up
     to ``settings.max_settle_s``): a driven row's positions are at the end of its
     dwell, and it records ``settle_s`` (the dwell simulated), ``settled``,
-    ``dwell_hits`` (node -> impacts during the dwell),
+    ``dwell_hits`` (node text -> impacts during the dwell),
     ``burst_positions_m`` (at the end of the burst) and ``travel_m`` (device ->
     travel over burst and dwell [m]).  After the last step the drive stays off for
     ``settings.settle_s`` (:data:`planner.planning.settings.SETTLE_S`) so that any
@@ -88,26 +92,20 @@ def simulate_scenes(settings, steps, waveforms, impacters, sliders, dwells=None,
     not change); the step then plays what it returns (the pipeline finds the step's
     gates there, :func:`planner.planning.targets.place_targets`).
 
-    ``settings`` is a :class:`~planner.planning.settings.Settings` (a
-    :class:`~planner.spec.LoadedSpec` is converted).
-
     Returns
     -------
     list of dict
         One row per step and one for the undriven tail of each scene (step
         :data:`SETTLE_NAME`, ``driven`` false): slider positions [m] at its end,
         the impacters still ringing then (idle ones moving faster than
-        :data:`RINGING_V`), ``idle_hits``: impacter -> impacts of every impacter that
+        :data:`RINGING_V`), ``idle_hits``: node text -> impacts of every impacter that
         hit its slider while its step did not drive it, and ``idle_moved_m``: device ->
         displacement [m] of every slider that moved more than the spec's idle tolerance
         in a phase that drove none of its impacters (in the undriven tail: the
         overshoot).  The per-step verification starts every impacter from rest or
         the x0 grid; this is where the state a previous step left shows.
     """
-    from planner.planning.settings import Settings, resolve_settings
-
-    if not isinstance(settings, Settings):
-        settings = resolve_settings(settings)
+    impacters = by_node(impacters)
     settle_s = settings.settle_s
     rows = []
     for scene in settings.scenes:
@@ -118,7 +116,7 @@ def simulate_scenes(settings, steps, waveforms, impacters, sliders, dwells=None,
         # planner sized after its last target)
         expected = {d: 0.0 for d in sliders}
         for st in scene_steps:
-            active = {Node(d, r).text for d, r in st.active_nodes()}
+            active = st.active_nodes()
             waveform = waveforms[st.key]
             if place is not None and st.targets_m is not None:
                 waveform = place(st, states, sl_states)

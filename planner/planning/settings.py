@@ -6,24 +6,32 @@ naming the field and its YAML line (:func:`resolve_settings`): an impacter's geo
 is what the planner designs, so ``device.impacter.area_um2`` and the like are refused
 (bound the search with ``design.bounds`` instead), while its contact parameters
 (``impact_angle_deg``, ``restitution``) and ``mass_thickness_um`` go to the designer,
-and hence into the as-designed impacter that the verification simulates.
+and hence into the as-designed impacter that the verification simulates;
+``drive.over_limit: split`` is refused (see :func:`resolve_settings`).
+
+tests/planner/test_settings.py walks the spec's schema: a field that reaches no setting
+read by a stage fails it.
 """
 
 from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import model
 from model import devices as _d
 from planner.assign import plan_steps
-from planner.config import ProcessConfig, SliderConfig, build_slider
+from planner.config import EnvironmentConfig, ProcessConfig, SliderConfig, build_slider
 from planner.errors import SpecError
 from planner.nodes import DIRECTIONS, Node, device_key
-from planner.spec import LoadedSpec, Step
+from planner.spec import ArraySpec, FabricationSpec, LoadedSpec, Step, TrimSpec, channel_grid
 from planner.units import MS, UM
 from planner.yamlio import format_loc, line_of
+
+if TYPE_CHECKING:
+    from planner.designer import DesignBounds
 
 #: Duration of the implicit single-impacter steps of an independently addressable array [s].
 SINGLE_STEP_S = 0.01
@@ -74,39 +82,75 @@ class ImpacterSettings:
 
 
 @dataclass(frozen=True)
+class ToneRules:
+    """What a product of playing tones may not hit (``drive.guard``), for
+    :func:`planner.assign.guard_violations`.
+
+    Attributes
+    ----------
+    relative_bandwidth : float
+        Half-width of an impacter's response band relative to its tone [-].
+    harmonics : bool
+        Reject n f and f / n (n = 2, 3) of a playing tone in an idle impacter's band.
+    intermodulation : bool
+        Reject 2 f_i - f_j and f_i + f_j - f_k of tones that play together.
+    """
+
+    relative_bandwidth: float
+    harmonics: bool
+    intermodulation: bool
+
+
+@dataclass(frozen=True)
 class Settings:
     """The spec in SI units; see the module docstring.
 
     Attributes
     ----------
-    loaded : LoadedSpec
-        For the assignment stage (channel grid and guard rules) and the array map.
+    name : str
+        The spec's name (the report's and the array map's title).
     seed : int
-        Drive phases' seed (``seed`` argument, else ``design.seed``).
-    design_seed : int
-        The designer's seed: the ``seed`` argument too when given (so that
-        ``vibroplan plan --seed N`` gives different designs, not only phases), else
-        ``design.seed``.
+        The plan's one seed (``seed`` argument, else ``design.seed``): the channel
+        colouring's, the designer's and the drive phases' (so that ``vibroplan plan
+        --seed N`` gives different channels, designs and phases); plan.json's ``seed``.
     steps : tuple of Step
         The spec's steps plus the implicit single-impacter steps.
     scenes : tuple of str
         Scene names in spec order.
+    array_shape : (int, int)
+        Rows and columns of the array (the array map).
     band_hz : (float, float)
         The drive band [Hz].
+    channel_grid_hz : tuple of float
+        Every channel's frequency [Hz], ascending (``drive.channels``:
+        :func:`planner.spec.channel_grid`).
+    channel_spacing : str
+        ``log``, ``linear`` or ``tolerance`` (``drive.channels.spacing``).
+    resonance_separation_hz : float
+        How close two resonances may come and still be told apart on a tolerance grid
+        [Hz] (``drive.channels.separation_hz``).
+    all_independent : bool
+        Every impacter must be drivable alone (``independent``, default: no scenes).
     power_m2_s3 : float
         Tone convention Z0^2 w^3 [m^2/s^3].
     amplitude_m : float or None
         A fixed tone amplitude [m] instead of the power convention.
     peak_limit_m : float
-        The piezo's peak displacement [m].
+        The piezo's peak displacement [m]: a step's summed drive above it has every tone
+        lowered by one factor (``drive.over_limit: scale``, the only mode a plan takes).
     sample_rate_hz : float
         Drive sample rate [Hz].
     um_per_v, amplifier_gain : float or None
         Piezo [um/V] and amplifier gain [V/V]: the exported waveforms' volt scale.
     separation_channels : int
         Default separation [channels] of impacters that must be told apart.
-    process, environment
-        The spec's process and environment configs.
+    ensemble_separation_channels : int or None
+        Separation [channels] of an impacter idle in a multi-tone step from that step's
+        tones (None: the default separation).
+    tone_rules : ToneRules
+        Harmonic and intermodulation rules of the assignment.
+    environment : planner.config.EnvironmentConfig
+        The spec's environment (the designs' film damping).
     bounds : planner.designer.DesignBounds
         Bounds of the design variables (SI): ``design.bounds`` narrowed by the
         ``process.min_line_um`` and ``process.min_space_um`` the spec sets.
@@ -115,11 +159,12 @@ class Settings:
     budget : str
         The designer's budget.
     guard : float
-        Relative guard band of the designs [-].
+        Relative guard band of the designs [-] (and of the assignment's positions).
     robust_k : float or None
         ``design.robust_k`` when ``design.robust`` is on, else None [-].
     impacters : dict
-        Node text -> :class:`ImpacterSettings`, every impacter of every device.
+        :class:`~planner.nodes.Node` -> :class:`ImpacterSettings`, every impacter of
+        every device.
     sliders : dict
         Device id -> model.Slider, every device, in device order.
     x0_points : int
@@ -153,16 +198,31 @@ class Settings:
         d ln nu_n / dw every design must lie in [1/m]; None when off.
     fabrication : planner.spec.FabricationSpec
         The tolerance model (manufacturability, yield).
+    pair_sigma_rel : float
+        Predicted relative sigma of the difference of two as-built resonances [-]
+        (:func:`planner.manufacturability.pair_sigma_rel`; 0 without tolerances).
+    trim : planner.spec.TrimSpec
+        How a fabricated chip is trimmed (``trim:``, else its defaults).
+    chip_spec : planner.spec.ArraySpec
+        The validated spec as the fabrication equations take it
+        (:mod:`planner.fabrication`, :mod:`planner.manufacturability`: process,
+        environment, design and tolerances together), for the models of an as-built
+        chip only: the manufacturability stage, robust design and the yield predicted
+        from the channels.  No stage reads a setting from it.
     spec_record : dict
         The spec as plan.json records it.
     """
 
-    loaded: LoadedSpec
+    name: str
     seed: int
-    design_seed: int
     steps: tuple[Step, ...]
     scenes: tuple[str, ...]
+    array_shape: tuple[int, int]
     band_hz: tuple[float, float]
+    channel_grid_hz: tuple[float, ...]
+    channel_spacing: str
+    resonance_separation_hz: float
+    all_independent: bool
     power_m2_s3: float
     amplitude_m: float | None
     peak_limit_m: float
@@ -170,9 +230,10 @@ class Settings:
     um_per_v: float | None
     amplifier_gain: float | None
     separation_channels: int
-    process: object
-    environment: object
-    bounds: object
+    ensemble_separation_channels: int | None
+    tone_rules: ToneRules
+    environment: EnvironmentConfig
+    bounds: DesignBounds
     window_s: float
     budget: str
     guard: float
@@ -186,28 +247,26 @@ class Settings:
     single_step_s: float
     settle_s: float
     array_pitch_m: float
-    spec_record: dict
     contacts: dict
     max_mass_ratio: float
     max_travel_m: float
     max_acceleration_m_s2: float | None
     max_settle_s: float
-    position_tolerance_m: float = 2e-6
-    sensitivity_band: tuple | None = None
-    fabrication: object = None
+    position_tolerance_m: float
+    sensitivity_band: tuple | None
+    fabrication: FabricationSpec
+    pair_sigma_rel: float
+    trim: TrimSpec
+    chip_spec: ArraySpec = field(repr=False)
+    spec_record: dict = field(repr=False)
 
-    @property
-    def spec(self):
-        """The validated spec (for the assignment stage and the array map only)."""
-        return self.loaded.spec
-
-    def design_kwargs(self, node: str) -> dict:
+    def design_kwargs(self, node: Node) -> dict:
         """Keyword arguments of :func:`planner.designer.design_impacter` for ``node``,
         besides its frequency, forbidden tones and drives."""
         imp = self.impacters[node]
         return dict(process=imp.process, environment=self.environment,
                     power=self.power_m2_s3, amplitude=self.amplitude_m, bounds=self.bounds,
-                    window=self.window_s, seed=self.design_seed, budget=self.budget,
+                    window=self.window_s, seed=self.seed, budget=self.budget,
                     guard=self.guard, impact_angle=imp.impact_angle_rad,
                     restitution=imp.restitution,
                     slider=build_slider(imp.slider, imp.process, self.environment),
@@ -225,8 +284,8 @@ class Settings:
             return {}
         from planner.fabrication import RobustShift
 
-        return {"robust_shift": RobustShift(self.spec, self.robust_k, imp.impact_angle_rad,
-                                            imp.restitution)}
+        return {"robust_shift": RobustShift(self.chip_spec, self.robust_k,
+                                            imp.impact_angle_rad, imp.restitution)}
 
 
 def _refuse(loaded, loc, message):
@@ -308,37 +367,64 @@ def _sensitivity_band(spec):
     return (s * (1.0 - des.sensitivity_tolerance), s * (1.0 + des.sensitivity_tolerance))
 
 
+def _check_over_limit(loaded):
+    """Refuse ``drive.over_limit: split`` (see :func:`resolve_settings`)."""
+    if loaded.spec.drive.over_limit != "scale":
+        _refuse(loaded, ("drive", "over_limit"),
+                "a plan cannot split a step over the peak or acceleration limit: its "
+                "channels are assigned, and its designs made silent, for the steps the "
+                "scenes give, so a split made afterwards would play sums of tones no "
+                "design was made for; write the step as several steps of fewer tones in "
+                "its scene instead (every stage then sees them), or leave over_limit at "
+                "scale (every tone of the step lowered by one factor, as verified); "
+                "`vibroplan drive --over-limit split` splits a stand-alone drive")
+
+
 def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
     """Convert a validated spec to :class:`Settings` (SI), refusing what cannot take effect.
+
+    Refused (:class:`~planner.errors.SpecError` naming the field and its line): an
+    impacter's designed geometry (see the module docstring), ``design.robust`` without
+    tolerances, design rules no design can meet, and ``drive.over_limit: split``: a
+    plan lowers a step over a limit by one factor (which its designs and verification
+    see), and splitting it after the assignment would play sums of tones the designs
+    were not made for; a user who wants fewer tones at a time writes them as steps.
 
     Parameters
     ----------
     loaded : LoadedSpec
         From :func:`planner.spec.load_spec`.
     seed : int, optional
-        Overrides ``design.seed`` for the designs, the drive phases and the record.
+        Overrides ``design.seed``: the plan's one seed (:attr:`Settings.seed`).
 
     Raises
     ------
     SpecError
         A field that the planner cannot honour, with its YAML line.
     """
+    from planner.manufacturability import pair_sigma_rel
+
     spec = loaded.spec
     _check_impacter_sections(loaded)
+    _check_over_limit(loaded)
     if spec.design.robust and spec.fabrication.zero:
         _refuse(loaded, ("design", "robust"), "design.robust needs fabrication tolerances "
                 "(a fabrication section with a non-zero sigma) to be robust against")
     devices = sorted(loaded.device_ids, key=device_key)
     drive, ver, des = spec.drive, spec.verification, spec.design
-    impacters = {Node(d, r).text: _impacter_settings(spec, d, r)
+    impacters = {Node(d, r): _impacter_settings(spec, d, r)
                  for d in devices for r in DIRECTIONS}
     return Settings(
-        loaded=loaded,
+        name=spec.name,
         seed=des.seed if seed is None else int(seed),
-        design_seed=des.seed if seed is None else int(seed),
         steps=plan_steps(loaded, SINGLE_STEP_S),
         scenes=tuple(spec.scenes),
+        array_shape=(spec.array.rows, spec.array.cols),
         band_hz=(float(drive.band_hz[0]), float(drive.band_hz[1])),
+        channel_grid_hz=tuple(float(f) for f in channel_grid(spec)),
+        channel_spacing=drive.channels.spacing,
+        resonance_separation_hz=float(drive.channels.resonance_separation_hz),
+        all_independent=bool(spec.all_independent),
         power_m2_s3=drive.power_m2_s3,
         amplitude_m=drive.amplitude_um * UM if drive.amplitude_um else None,
         peak_limit_m=drive.peak_limit_um * UM,
@@ -346,7 +432,9 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
         um_per_v=drive.piezo_um_per_v,
         amplifier_gain=drive.amplifier_gain,
         separation_channels=drive.guard.separation_channels,
-        process=spec.process,
+        ensemble_separation_channels=drive.guard.ensemble_separation_channels,
+        tone_rules=ToneRules(float(drive.guard.relative_bandwidth),
+                             bool(drive.guard.harmonics), bool(drive.guard.intermodulation)),
         environment=spec.environment,
         bounds=_bounds(loaded, impacters),
         window_s=des.window_ms * MS,
@@ -363,7 +451,6 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
         single_step_s=SINGLE_STEP_S,
         settle_s=SETTLE_S,
         array_pitch_m=spec.array.pitch_um * UM,
-        spec_record=json.loads(spec.model_dump_json()),
         contacts={d: spec.contact(d) for d in devices},
         max_mass_ratio=float(des.max_mass_ratio),
         max_travel_m=(ver.max_travel_um * UM if ver.max_travel_um is not None
@@ -374,7 +461,19 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
         position_tolerance_m=ver.position_tolerance_um * UM,
         sensitivity_band=_sensitivity_band(spec),
         fabrication=spec.fabrication,
+        pair_sigma_rel=pair_sigma_rel(spec),
+        trim=spec.trim or TrimSpec(),
+        chip_spec=spec,
+        spec_record=json.loads(spec.model_dump_json()),
     )
+
+
+def plan_settings(record, seed=None) -> Settings:
+    """The :class:`Settings` of a recorded plan (a
+    :class:`~planner.planning.plan_file.PlanRecord`): its spec resolved once, with the
+    plan's seed unless ``seed`` is given.  A re-plan, a trim and every chip of a yield
+    study read this one resolution."""
+    return resolve_settings(record.loaded, record.seed if seed is None else seed)
 
 
 def tone_amplitudes(settings: Settings, freqs):

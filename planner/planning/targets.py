@@ -31,7 +31,7 @@ up to 24 um, where the summed drive would take tens of ms.  Idle sliders see one
 silent under.
 
 The designs are not made against a targets step's summed drive, which never plays
-(:func:`planner.planning.designs.idle_ensembles`; nor does the assignment keep its
+(:func:`planner.planning.exposure.idle_ensembles`; nor does the assignment keep its
 ensemble separation for it): every impacter idle in it is designed silent under each of
 its tones, and each impacter of such a step silent under every other tone of it and able
 to move its slider alone (:func:`planner.assign.plan_steps`).  The verification
@@ -83,6 +83,7 @@ from planner.gating import burst_peaks, gate
 from planner.nodes import Node
 from planner.planning.drives import scaled
 from planner.planning.motion import run_phase, run_program, settle
+from planner.planning.scenes import simulate_scenes
 from planner.units import UM
 
 #: Fade-in and fade-out of every tone of a gated burst [s]: many beat periods of an
@@ -162,8 +163,6 @@ def place_targets(settings, steps, waveforms, frequencies, impacters, sliders, p
     PlanningError
         A slider cannot reach its target within the longest its tone may play.
     """
-    from planner.planning.scenes import simulate_scenes
-
     bursts, moves, notes = {}, {}, {}
 
     def place(step, states, sl_states):
@@ -195,7 +194,7 @@ def search_gates(settings, step, waveform, frequencies, impacters, sliders, stat
     -------
     (burst, moves, note)
         ``moves``: device -> the move [m] each targeted slider must make from where it
-        is; ``note``: {"starts_s" and "gates_s": node -> [s] (gate 0: not played),
+        is; ``note``: {"starts_s" and "gates_s": Node -> [s] (gate 0: not played),
         "ramp_s", "iterations", "errors_m": device -> the error of the try kept [m],
         "acceleration_scale": the factor the limits took, "peak_displacement_m",
         "peak_acceleration_m_s2"}.
@@ -208,8 +207,8 @@ def search_gates(settings, step, waveform, frequencies, impacters, sliders, stat
     requested = np.asarray(waveform.requested_frequencies)
     movers = {}
     for d, direction in sorted(step.active_nodes()):
-        n = Node(d, direction).text
-        movers[d] = (n, int(np.argmin(np.abs(requested - frequencies[n]))), Node.parse(n).sign)
+        n = Node(d, direction)
+        movers[d] = (n, int(np.argmin(np.abs(requested - frequencies[n]))), n.sign)
     fs = settings.sample_rate_hz
     ramp = round(RAMP_S * fs) / fs
     cap = step.max_duration_s if step.max_duration_s is not None else DEFAULT_MAX_BURST_S
@@ -261,8 +260,7 @@ class _Simulation:
     def __init__(self, settings, impacters, sliders, movers, states, sl_states):
         self.settings = settings
         self.devices = sorted(movers)
-        self.own = {n: imp for n, imp in impacters.items()
-                    if Node.parse(n).device in movers}
+        self.own = {n: imp for n, imp in impacters.items() if n.device in movers}
         self.sliders = {d: sliders[d] for d in self.devices}
         self.states = {n: states[n] for n in self.own if n in states}
         self.sl_states = {d: sl_states.get(d, (0.0, 0.0)) for d in self.devices}
@@ -270,7 +268,7 @@ class _Simulation:
     def _copies(self, devices):
         """(impacters, sliders, impacter states, slider states) of ``devices``, the
         states copied."""
-        own = {n: imp for n, imp in self.own.items() if Node.parse(n).device in devices}
+        own = {n: imp for n, imp in self.own.items() if n.device in devices}
         return (own, {d: self.sliders[d] for d in devices},
                 {n: s for n, s in self.states.items() if n in own},
                 {d: self.sl_states[d] for d in devices})

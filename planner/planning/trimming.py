@@ -11,16 +11,18 @@ pair (both cantilevers by the same fraction).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 from planner.planning.plan_file import PlanRecord
+from planner.planning.result import Plan
 from planner.spec import TrimSpec
 from planner.trim import TrimPlan, plan_trim, trim_rows, trimmed_resonances
 
 
-@dataclass
+@dataclass(frozen=True)
 class TrimResult:
     """A chip's trims and the drive re-planned for it.
 
@@ -43,7 +45,7 @@ class TrimResult:
     trims: TrimPlan
     rows: list
     spec: TrimSpec
-    plan: object
+    plan: Plan | None
     passed: bool
 
 
@@ -79,13 +81,13 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
     """
     from planner.planning.replan import measured_models, measured_resonances, replan
     from planner.planning.rescue import must_differ, separations_of
-    from planner.planning.settings import resolve_settings
+    from planner.planning.settings import plan_settings
     from planner.yield_ import check_drive
     from planner.yield_.inputs import _drive_of
 
-    spec = spec or plan.spec.trim or TrimSpec()
     seed = plan.seed if seed is None else int(seed)
-    settings = resolve_settings(plan.loaded, seed)
+    settings = plan_settings(plan, seed)
+    spec = spec or settings.trim
     full = {r.id: measured.get(r.id) or {"natural_frequency_hz": r.natural_frequency_hz}
             for r in plan.impacters}
     resonances = measured_resonances(plan, full)
@@ -96,7 +98,8 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
     rows = trim_rows(plan, tp, spec.direction)
     if not tp.ok:
         return TrimResult(tp, rows, spec, None, False)
-    result = replan(plan, _targets(full, tp, tp.target), seed=seed, progress=progress)
+    result = replan(plan, _targets(full, tp, tp.target), settings=settings,
+                    progress=progress)
     # where the cuts really put the resonances: the targets, off by the trim precision
     rng = np.random.default_rng(np.random.SeedSequence([seed, 26]))
     actual = trimmed_resonances(tp, spec.precision_pct, rng)
@@ -107,11 +110,12 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
 
     steps, waveforms, dwells = _drive_of(plan_record(result.data, source="the trim's re-plan"))
     got = check_drive(settings, steps, waveforms, dwells, models, sliders)
-    result.data["trim"] = {
+    trim = {
         "direction": spec.direction, "range_pct": spec.range_pct,
         "precision_pct": spec.precision_pct, "seed": seed,
         "moved": [{k: r[k] for k in ("impacter", "measured_hz", "target_hz", "change_pct")}
                   | {"trimmed_hz": actual[r["impacter"]]}
                   for r in rows if r["impacter"] in tp.moved],
         "trimmed_models": {"passed": bool(got["passed"]), "failures": got["failures"]}}
+    result = dataclasses.replace(result, data={**result.data, "trim": trim})
     return TrimResult(tp, rows, spec, result, bool(result.passed and got["passed"]))

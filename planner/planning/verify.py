@@ -16,7 +16,7 @@ import model
 from model import Drive
 from planner.nodes import Node, device_key
 from planner.planning.drives import program_of
-from planner.planning.motion import device_travel, run_phase
+from planner.planning.motion import by_node, device_travel, run_phase
 from planner.planning.settings import Settings, tone_amplitudes
 from planner.units import UM
 
@@ -45,8 +45,8 @@ class Failure:
         The step's index.
     device : str
         The device checked.
-    impacter : str or None
-        The offending impacter (node text) for ``idle_response``; None otherwise.
+    impacter : Node or None
+        The offending impacter for ``idle_response``; None otherwise.
     kind : str
         :data:`IDLE_RESPONSE`, :data:`TOO_SLOW`, :data:`IDLE_MOVES`,
         :data:`TRAVEL_OVER`, :data:`UNSETTLED`, :data:`CARRIED_IDLE` or
@@ -58,7 +58,7 @@ class Failure:
 
     step: int
     device: str
-    impacter: str | None
+    impacter: Node | None
     kind: str
     value: float
 
@@ -134,7 +134,7 @@ def device_motion(impacters, slider, drive, duration, starts, contact="paper"):
     if not impacters:
         _, _, z, v, _ = model.slider_motion(slider, drive, np.empty(0), np.empty(0), duration)
         return z, v
-    dev = Node.parse(next(iter(impacters))).device
+    dev = next(iter(impacters)).device
     states, sl = dict(starts), {dev: (0.0, 0.0)}
     run_phase(impacters, {dev: slider}, {dev: contact}, drive, duration, states, sl)
     return sl[dev]
@@ -152,6 +152,9 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
     move (``step.moves``) within ``settings.position_tolerance_m`` from every initial
     position of its impacter, instead of the speed check.
 
+    ``impacters``: Node -> model (the nodes' text is accepted: :func:`planner.planning.
+    motion.by_node`); ``sliders``: device -> model.Slider.
+
     Returns
     -------
     rows : list of dict
@@ -159,15 +162,16 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
     failures : list of Failure
         Every failed check, structured.
     """
+    impacters = by_node(impacters)
     program = program_of(waveform, step.duration_s)
     duration = sum(d for d, _ in program)
     moves = step.moves if step.targets_m is not None else {}
-    active = {Node(d, dr).text for d, dr in step.active_nodes()}
+    active = step.active_nodes()
     rows, failures = [], []
     for dev in sorted(sliders, key=device_key):
-        own = {n: imp for n, imp in impacters.items() if Node.parse(n).device == dev}
+        own = {n: imp for n, imp in impacters.items() if n.device == dev}
         moving = [n for n in own if n in active]
-        expected = Node.parse(moving[0]).direction if moving else "idle"
+        expected = moving[0].direction if moving else "idle"
         causes = []
         # every impacter that must be idle: r = 0 from every x0 of the grid (eq. 14)
         worst_idle_r = 0.0
@@ -209,7 +213,7 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
             worst_case = {"move_m": moves[dev], "worst_position_error_m": worst}
         elif moving:
             n = moving[0]
-            sign = Node.parse(n).sign
+            sign = n.sign
             drive = program[0][1]
             speeds = []
             for start in pair_starts(own[n], settings.x0_points):
@@ -263,7 +267,7 @@ def check_steps(settings: Settings, steps, waveforms, impacters, sliders, *, pro
     waveforms : dict
         Step key -> Waveform of its summed drive.
     impacters, sliders : dict
-        Node text -> model.Impacter; device -> model.Slider.
+        Node -> model.Impacter; device -> model.Slider.
     progress : callable, optional
         Called with a step's key after each finished step (on Dask, in completion
         order with the keys in list order: the count is exact, not which step).
@@ -299,7 +303,8 @@ def verify_step(settings: Settings, step, waveform, impacters, sliders):
 
 
 def coupling_matrix(impacters, tones, settings: Settings, duration):
-    """Worst response r [N] over the x0 grid of every impacter to every tone alone."""
+    """Worst response r [N] over the x0 grid of every impacter (Node -> model) to every
+    tone alone: a table indexed by the nodes' text (coupling.csv), a column per tone."""
     freqs = sorted(set(tones))
     amps = tone_amplitudes(settings, freqs)
     names = sorted(impacters)
@@ -309,4 +314,5 @@ def coupling_matrix(impacters, tones, settings: Settings, duration):
         for j, (f, z) in enumerate(zip(freqs, amps)):
             mat[i, j] = float(np.max(pair_responses(imp, Drive([f], [z]), settings.x0_points,
                                                     duration)))
-    return pd.DataFrame(mat, index=names, columns=[f"{f:.3f}" for f in freqs])
+    return pd.DataFrame(mat, index=[n.text for n in names],
+                        columns=[f"{f:.3f}" for f in freqs])

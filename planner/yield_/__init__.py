@@ -54,7 +54,7 @@ Layout of this package (each module imports only those listed below it); the out
   chip's models, by kind, with the impacters implicated.
 - :mod:`~planner.yield_.inputs`: :class:`Payload` and :func:`make_payload` (what the
   workers get from the plan), and the checks of the command's numbers.
-- :mod:`~planner.yield_.interval`: :func:`wilson_interval`, the 95 % interval of a yield.
+- :func:`wilson_interval` and ``Z95`` (from :mod:`planner.intervals`): the 95 % interval of a yield.
 """
 
 
@@ -64,7 +64,7 @@ from planner.yield_.chip import (REPLAN_CAUSES, measured_frequencies, replan_chi
 from planner.yield_.inputs import (Payload, check_chip_count, check_noise, make_payload,
                                    parse_scales)
 from planner.yield_.run import run_yield
-from planner.yield_.interval import Z95, wilson_interval
+from planner.intervals import Z95, wilson_interval
 from planner.yield_.statistics import scale_key
 
 __all__ = ["CARRIED", "CARRIED_KINDS", "KINDS", "REPLAN_CAUSES", "Z95", "Payload",

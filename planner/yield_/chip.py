@@ -9,7 +9,6 @@ from model import halves
 from planner._random import chip_seed
 from planner.fabrication import sample_chip
 from planner.planning.plan_file import plan_record
-from planner.spec import LoadedSpec
 from planner.yield_.checks import check_drive
 from planner.yield_.inputs import Payload, _drive_of
 
@@ -25,12 +24,6 @@ from planner.yield_.inputs import Payload, _drive_of
 #: cannot be built.
 REPLAN_CAUSES = ("cannot be told apart", "outside band", "fails on the measured models",
                  "fails only on the true models", "carried state", "unbuildable")
-
-
-def _settings(loaded: LoadedSpec):
-    from planner.planning.settings import resolve_settings
-
-    return resolve_settings(loaded)
 
 
 def verify_chip(payload: Payload, scale_index: int, chip_index: int, scale: float) -> dict:
@@ -72,7 +65,7 @@ def verify_chip(payload: Payload, scale_index: int, chip_index: int, scale: floa
                                "failures": {"unbuildable": 1}}
             out["seconds"] = {"nominal": time.perf_counter() - t0, "replan": 0.0}
         return out
-    settings = _settings(payload.loaded)
+    settings = payload.settings
     # re-planning, the plan's own drive is only a reference: its checks stop at the
     # first failing step (a chip the die moved fails the first one it plays)
     got = check_drive(settings, payload.loaded.steps, payload.waveforms, payload.dwells,
@@ -223,7 +216,8 @@ def _replan_and_check(payload, settings, measured, impacters, sliders, original)
     re-plan and its trim's)."""
     from planner.planning.replan import replan_chip
 
-    ok, plan = replan_chip(payload.record, measured, original=original, record=False)
+    ok, plan = replan_chip(payload.record, measured, settings=settings, original=original,
+                           record=False)
     data = plan.data
     rp = data["replan"]
     collisions = [{k: c[k] for k in ("pair", "as_built_hz", "apart_hz", "needs_hz")}

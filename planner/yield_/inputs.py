@@ -44,6 +44,9 @@ class Payload:
     #: One sigma of a trim's error [%] (``--trim-precision``; None: the spec's
     #: ``trim.precision_pct``).
     trim_precision_pct: float | None = None
+    #: The plan's :class:`~planner.planning.settings.Settings`, resolved once here for
+    #: every chip (:func:`~planner.planning.settings.plan_settings`).
+    settings: object = None
 
     @property
     def nodes(self) -> tuple[Node, ...]:
@@ -107,12 +110,14 @@ def make_payload(record: PlanRecord, seed: int, fabrication: FabricationSpec | N
                          "and the yield 1 or 0 by construction. Give the tolerances with "
                          "--spec FILE (its fabrication: section), or pass --allow-zero to "
                          "check the nominal chip alone")
+    from planner.planning.settings import plan_settings
+
     steps, waveforms, dwells = _drive_of(record)
     loaded = LoadedSpec(record.spec, steps, str(record.path or "plan.json"))
     return Payload(design_from_plan(record), loaded, waveforms, fab, int(seed),
                    dwells=dwells, replan=bool(replan), measure_noise_pct=noise,
                    record=record if replan else None, trim=bool(trim),
-                   trim_precision_pct=trim_precision_pct)
+                   trim_precision_pct=trim_precision_pct, settings=plan_settings(record))
 
 
 def parse_scales(text: str | None) -> list[float]:

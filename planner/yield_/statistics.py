@@ -8,7 +8,7 @@ import json
 from planner.spec import TrimSpec
 from planner.yield_.checks import KINDS
 from planner.yield_.chip import REPLAN_CAUSES
-from planner.yield_.interval import wilson_interval
+from planner.intervals import wilson_interval
 
 
 def scale_key(scale: float) -> str:

@@ -9,6 +9,8 @@ import sys
 import numpy as np
 import pytest
 
+from planner.nodes import Node
+
 TRAVEL = """\
 name: travel
 array: {rows: 1, cols: 2}
@@ -226,10 +228,10 @@ def test_seed_reaches_the_designs():
     from planner.spec import load_spec
 
     loaded = load_spec(TRAVEL)
-    assert resolve_settings(loaded).design_seed == 0
+    assert resolve_settings(loaded).seed == 0
     s = resolve_settings(loaded, 3)
-    assert s.seed == 3 and s.design_seed == 3
-    assert s.design_kwargs("A1.forward")["seed"] == 3
+    assert s.seed == 3          # one seed: the colouring's, the designs' and the phases'
+    assert s.design_kwargs(Node("A1", "forward"))["seed"] == 3
 
 
 def test_spec_keys_are_validated():
@@ -244,7 +246,7 @@ def test_spec_keys_are_validated():
     loaded = load_spec(TRAVEL + "device: {contact: paper}\ndevices: {A2: {contact: two_body}}\n")
     s = resolve_settings(loaded)
     assert s.contacts == {"A1": "paper", "A2": "two_body"}
-    assert s.design_kwargs("A1.forward")["contact"] == "paper"
+    assert s.design_kwargs(Node("A1", "forward"))["contact"] == "paper"
     assert s.max_travel_m == pytest.approx(0.5e-3)   # half the default 1000 um pitch
 
 
@@ -262,9 +264,11 @@ def test_paper_contact_is_the_old_kick_path():
     t, dv = kicks(imp, sl, res, 1.0)
     _, _, z_old, v_old, _ = model.slider_motion(sl, drive, t, dv, 3e-3)
     states, sl_states = {}, {}
-    run_phase({"A1.forward": imp}, {"A1": sl}, {"A1": "paper"}, drive, 3e-3, states, sl_states)
+    run_phase({Node("A1", "forward"): imp}, {"A1": sl}, {"A1": "paper"}, drive, 3e-3, states,
+              sl_states)
     assert sl_states["A1"] == (z_old, v_old)
-    run_phase({"A1.forward": imp}, {"A1": sl}, {"A1": "two_body"}, drive, 3e-3, {}, sl_states)
+    run_phase({Node("A1", "forward"): imp}, {"A1": sl}, {"A1": "two_body"}, drive, 3e-3, {},
+              sl_states)
 
 
 def _tip_speeds(step_rec, imp_recs):
@@ -335,13 +339,13 @@ def test_repair_redesigns_a_too_slow_impacter_alone():
 
     settings = resolve_settings(load_spec(TRAVEL), 0)
     steps = settings.steps
-    a = assign(settings.loaded, steps, separation=settings.separation_channels)
+    a = assign(settings, steps)
     waveforms = synthesize_steps(settings, steps, a)
     cache = {}
     first = design_all(settings, steps, a, cache, waveforms=waveforms)
     push = next(st for st in steps if st.name == "push")
     (dev, direction), = sorted(push.active_nodes())
-    node = f"{dev}.{direction}"
+    node = Node(dev, direction)
     reseed = {}
     fails = [Failure(push.index, dev, None, TOO_SLOW, 1e-6)]
     assert reseed_slow(fails, first, steps, reseed) == [node]
@@ -411,18 +415,18 @@ def test_designs_are_silent_at_the_tones_as_played():
     import dataclasses
 
     from planner.assign import assign
-    from planner.planning.designs import (design_all, design_offenders, forbidden_tones,
-                                          played_tones)
+    from planner.planning.designs import design_all
+    from planner.planning.exposure import design_offenders, forbidden_tones, played_tones
     from planner.planning.drives import synthesize_steps
     from planner.planning.settings import resolve_settings
     from planner.spec import load_spec
 
     settings = resolve_settings(load_spec(TRAVEL), 0)
     steps = settings.steps
-    a = assign(settings.loaded, steps, separation=settings.separation_channels)
+    a = assign(settings, steps)
     waveforms = synthesize_steps(settings, steps, a)
     push, pull = (next(st for st in steps if st.name == k) for k in ("push", "pull"))
-    (pusher,), (puller,) = ([f"{d}.{dr}" for d, dr in st.active_nodes()] for st in (push, pull))
+    (pusher,), (puller,) = ([Node(d, dr) for d, dr in st.active_nodes()] for st in (push, pull))
     played = float(waveforms[pull.key].frequencies[0])
     channel = a.frequencies[puller]
     assert played != channel and abs(played / channel - 1) <= 1e-3
@@ -449,13 +453,13 @@ def test_repair_redesigns_an_idle_responder_once_then_widens():
 
     settings = resolve_settings(load_spec(TRAVEL), 0)
     steps = settings.steps
-    a = assign(settings.loaded, steps, separation=settings.separation_channels)
+    a = assign(settings, steps)
     waveforms = synthesize_steps(settings, steps, a)
     designs = design_all(settings, steps, a, {}, waveforms=waveforms)
     pull = next(st for st in steps if st.name == "pull")
-    idle = next(n for n in designs if n.endswith(".forward"))
+    idle = next(n for n in designs if n.direction == "forward")
     assert designs[idle].feasible
-    fails = [Failure(pull.index, idle.split(".")[0], idle, IDLE_RESPONSE, 1e-10),
+    fails = [Failure(pull.index, idle.device, idle, IDLE_RESPONSE, 1e-10),
              Failure(pull.index, "A2", None, TOO_SLOW, 1e-6)]
     reseed, tried, pair_sep = {}, set(), {}
     answered = reseed_idle(fails, designs, reseed, tried)
@@ -475,7 +479,7 @@ def test_report_says_which_impacters_a_design_round_redesigned(travel_plan):
     re-designed, and why, besides the motion repairs."""
     import copy
 
-    from planner.planning.outputs import _motion_notes
+    from planner.planning.report import _motion_notes
 
     d = copy.deepcopy(travel_plan.data)
     assert not any("design round" in line for line in _motion_notes(d))

@@ -9,12 +9,14 @@ import pytest
 import model
 from model import Drive, Impacter, PairHalves, Slider, pair_of
 from planner.fabrication import ChipDesign, NodeDesign, sample_chip
+from planner.nodes import Node
 from planner.planning.verify import device_motion, pair_responses
 from planner.spec import ArraySpec
 
 #: The paper's Fig. 7 device (5.2 kHz in 10 mTorr) and a slider of Table I.
 IMP = Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6).with_natural_frequency(5200.0)
 SLIDER = Slider.from_geometry(8.0e-8)
+A1F = Node("A1", "forward")
 DRIVE = Drive.tone(6200.0)
 
 
@@ -31,9 +33,9 @@ def test_two_equal_halves_striking_alone_move_the_slider_as_the_pair():
     """Under eq. (10) (the paper's law, linear in m/M) two equal halves, each simulated
     on its own and kicking with half the pair's mass, move the slider exactly as the
     symmetric pair: the half-pair bookkeeping adds up to the pair's."""
-    start = {"A1.forward": (0.0, 0.0, False)}
-    z_pair, v_pair = device_motion({"A1.forward": IMP}, SLIDER, DRIVE, 3e-3, start, "paper")
-    halves = {"A1.forward": PairHalves(IMP, IMP)}
+    start = {A1F: (0.0, 0.0, False)}
+    z_pair, v_pair = device_motion({A1F: IMP}, SLIDER, DRIVE, 3e-3, start, "paper")
+    halves = {A1F: PairHalves(IMP, IMP)}
     z_h, v_h = device_motion(halves, SLIDER, DRIVE, 3e-3, start, "paper")
     assert z_pair > 1e-7                       # it moves (Fig. 7: um in 3 ms)
     assert z_h == pytest.approx(z_pair, rel=1e-12)
@@ -44,10 +46,10 @@ def test_a_detuned_half_leaves_the_other_to_push_alone():
     """One half tuned 30 % away no longer hits at 6.2 kHz: the slider moves less than half
     as far (one cantilever kicking instead of two, and the same Coulomb friction taking its
     toll of a slower slider), but it moves; an idle check sees the half that answers."""
-    start = {"A1.forward": (0.0, 0.0, False)}
-    z_pair, _ = device_motion({"A1.forward": IMP}, SLIDER, DRIVE, 3e-3, start, "paper")
+    start = {A1F: (0.0, 0.0, False)}
+    z_pair, _ = device_motion({A1F: IMP}, SLIDER, DRIVE, 3e-3, start, "paper")
     off = IMP.with_natural_frequency(5200.0 * 1.3)
-    z_one, _ = device_motion({"A1.forward": PairHalves(IMP, off)}, SLIDER, DRIVE, 3e-3, start,
+    z_one, _ = device_motion({A1F: PairHalves(IMP, off)}, SLIDER, DRIVE, 3e-3, start,
                              "paper")
     assert 0.1 * z_pair < z_one < 0.5 * z_pair
     # the pair answers where either half does, from each x0 of the grid

@@ -11,6 +11,9 @@ import math
 import pytest
 from click.testing import CliRunner
 
+from planner.nodes import Node
+
+A1F, A2B = Node("A1", "forward"), Node("A2", "backward")
 
 
 @pytest.fixture(scope="module")
@@ -172,7 +175,7 @@ def test_a_weakened_multi_tone_step_splits_into_runs_that_keep_the_scale(plan_da
 
     record = plan_record(plan_data)
     settings = resolve_settings(record.loaded)
-    tones = {r.id: r.frequency_hz for r in record.impacters}
+    tones = {r.node: r.frequency_hz for r in record.impacters}
     both = Step("s", "both", 0, 0.005, ("A1",), ("A2",))
     single = Step("s", "one", 1, 0.005, ("A1",), ())
 
@@ -314,7 +317,7 @@ def test_a_step_an_idle_impacter_answers_is_played_weaker(plan_data):
     settings = resolve_settings(record.loaded)
     step = next(st for st in settings.steps if st.forward == ("A1",) and not st.backward)
     step = dataclasses.replace(step, index=0)
-    tones = {r.id: r.frequency_hz for r in record.impacters}
+    tones = {r.node: r.frequency_hz for r in record.impacters}
     waveforms, notes = limit_acceleration(settings, synthesize_steps(settings, [step], tones))
     sliders = dict(settings.sliders)
 
@@ -332,7 +335,7 @@ def test_a_step_an_idle_impacter_answers_is_played_weaker(plan_data):
 
     def edge(factor):
         # A2.backward's highest resonance at which A1.forward's tone (below it) reaches it
-        silent, answer = tones["A1.forward"] / 0.6, tones["A1.forward"] / 0.7
+        silent, answer = tones[A1F] / 0.6, tones[A1F] / 0.7
         assert answers(answer, factor) and not answers(silent, factor)
         for _ in range(16):
             mid = 0.5 * (silent + answer)
@@ -344,7 +347,7 @@ def test_a_step_an_idle_impacter_answers_is_played_weaker(plan_data):
     nu = 0.5 * (full + weak)
     models = as_built_models(record, {"A2.backward": nu})
     rows, fails = check([step], waveforms, models)
-    assert [f.impacter for f in fails if f.kind == IDLE_RESPONSE] == ["A2.backward"]
+    assert [f.impacter for f in fails if f.kind == IDLE_RESPONSE] == [A2B]
     drive = RescuedDrive((step,), waveforms, notes, {step.key: 0.0}, tones, [], {}, {})
     got, rows, fails = quieten(settings, drive, rows, fails, models, sliders,
                                lambda s, w: check(s, w, models))
@@ -390,14 +393,14 @@ def test_synthesis_takes_given_phases_per_impacter(plan):
 
     settings = resolve_settings(plan.loaded)
     both = Step("s", "both", 0, 0.005, ("A1",), ("A2",))
-    tones = {"A1.forward": 5000.0, "A2.backward": 7000.0}
-    given = {"s/both": {"A1.forward": 0.5, "A2.backward": -1.25}}
+    tones = {A1F: 5000.0, A2B: 7000.0}
+    given = {"s/both": {A1F: 0.5, A2B: -1.25}}
     w = synthesize_steps(settings, [both], tones, phases=given)["s/both"]
     assert w.phases == pytest.approx([0.5, -1.25])
     free = synthesize_steps(settings, [both], tones)["s/both"]
     partial = synthesize_steps(settings, [both], tones,
-                               phases={"s/both": {"A1.forward": 0.5}})["s/both"]
+                               phases={"s/both": {A1F: 0.5}})["s/both"]
     assert partial.phases == pytest.approx(free.phases)
-    shared = synthesize_steps(settings, [both], {"A1.forward": 5000.0, "A2.backward": 5000.0},
+    shared = synthesize_steps(settings, [both], {A1F: 5000.0, A2B: 5000.0},
                               phases=given)["s/both"]
     assert shared.phases == pytest.approx([0.5])

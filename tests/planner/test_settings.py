@@ -10,6 +10,7 @@ import yaml
 
 from planner.design_config import DesignConfig
 from planner.errors import SpecError
+from planner.nodes import Node
 from planner.planning.settings import resolve_settings
 from planner.spec import load_spec
 
@@ -40,33 +41,33 @@ def _imp(node, attr):
     return lambda s: getattr(s.impacters[node], attr)
 
 
-# (spec field, non-default value, what of the settings must change)
+# (spec field, non-default value, what of the settings must change[, the changes the
+# field needs first]).  Each getter reads Settings attributes that some stage reads
+# (test_every_case_reads_what_a_stage_reads), never the spec record or chip_spec.
 CASES = [
-    ("name", "other", lambda s: s.spec_record["name"]),
+    ("name", "other", lambda s: s.name),
     ("array.rows", 2, lambda s: tuple(s.sliders)),
     ("array.cols", 3, lambda s: tuple(s.sliders)),
     ("array.pitch_um", 500.0, lambda s: s.array_pitch_m),
-    ("process.density_kg_m3", 2000.0, lambda s: s.impacters["A1.forward"].process),
-    ("process.mass_thickness_um", 3.0, lambda s: s.impacters["A1.forward"].process),
+    ("process.density_kg_m3", 2000.0, lambda s: s.impacters[Node("A1", "forward")].process),
+    ("process.mass_thickness_um", 3.0, lambda s: s.impacters[Node("A1", "forward")].process),
     ("process.slider_thickness_um", 3.0, lambda s: s.sliders["A1"].mass),
-    # the layout's rules reach the designer through its bounds (issue 30), the layer map
-    # and the anchor enclosure only the layout (vibroplan layout reads them from plan.json)
+    # the layout's rules reach the designer through its bounds (issue 30); the layer map
+    # and the anchor enclosure only the layout (LAYOUT_ONLY)
     ("process.min_line_um", 3.0, lambda s: s.bounds),
     ("process.min_space_um", 2.0, lambda s: s.bounds),
-    ("process.layers", {"POLY2": [50, 1]}, lambda s: s.process),
-    ("process.anchor_enclosure_um", 4.0, lambda s: s.process),
     ("environment.viscosity_mpa_s", 0.01, lambda s: s.environment),
-    ("device.impacter.restitution", 0.7, _imp("A1.forward", "restitution")),
-    ("device.impacter.impact_angle_deg", 30.0, _imp("A2.backward", "impact_angle_rad")),
-    ("device.impacter.mass_thickness_um", 3.0, _imp("A1.forward", "process")),
-    ("device.forward.restitution", 0.7, _imp("A1.forward", "restitution")),
-    ("device.backward.impact_angle_deg", 30.0, _imp("A1.backward", "impact_angle_rad")),
-    ("devices.A2.impacter.restitution", 0.7, _imp("A2.forward", "restitution")),
-    ("devices.A2.backward.restitution", 0.7, _imp("A2.backward", "restitution")),
+    ("device.impacter.restitution", 0.7, _imp(Node("A1", "forward"), "restitution")),
+    ("device.impacter.impact_angle_deg", 30.0, _imp(Node("A2", "backward"), "impact_angle_rad")),
+    ("device.impacter.mass_thickness_um", 3.0, _imp(Node("A1", "forward"), "process")),
+    ("device.forward.restitution", 0.7, _imp(Node("A1", "forward"), "restitution")),
+    ("device.backward.impact_angle_deg", 30.0, _imp(Node("A1", "backward"), "impact_angle_rad")),
+    ("devices.A2.impacter.restitution", 0.7, _imp(Node("A2", "forward"), "restitution")),
+    ("devices.A2.backward.restitution", 0.7, _imp(Node("A2", "backward"), "restitution")),
     ("device.slider.area_um2", 5e4, lambda s: s.sliders["A1"].mass),
     ("device.slider.static_friction_un", 10.0, lambda s: s.sliders["A2"].static_friction),
     ("devices.A2.slider.dynamic_friction_un", 2.0, lambda s: s.sliders["A2"].dynamic_friction),
-    ("device.slider.thickness_um", 3.0, _imp("A1.forward", "slider")),
+    ("device.slider.thickness_um", 3.0, _imp(Node("A1", "forward"), "slider")),
     ("drive.band_hz", [3000.0, 20000.0], lambda s: s.band_hz),
     ("drive.power_m2_s3", 30.0, lambda s: s.power_m2_s3),
     ("drive.amplitude_um", 0.1, lambda s: s.amplitude_m),
@@ -75,9 +76,23 @@ CASES = [
     ("drive.piezo_um_per_v", 0.1, lambda s: s.um_per_v),
     ("drive.amplifier_gain", 10.0, lambda s: s.amplifier_gain),
     ("drive.guard.separation_channels", 3, lambda s: s.separation_channels),
+    ("drive.guard.ensemble_separation_channels", 20,
+     lambda s: s.ensemble_separation_channels),
+    ("drive.guard.relative_bandwidth", 0.05, lambda s: s.tone_rules),
+    ("drive.guard.harmonics", False, lambda s: s.tone_rules),
+    ("drive.guard.intermodulation", False, lambda s: s.tone_rules),
+    ("drive.max_acceleration_g", 500.0, lambda s: s.max_acceleration_m_s2),
+    ("drive.channels.spacing", "linear", lambda s: (s.channel_spacing, s.channel_grid_hz)),
+    ("drive.channels.count", 100, lambda s: s.channel_grid_hz),
+    ("drive.channels.separation_hz", 600.0,
+     lambda s: (s.resonance_separation_hz, s.channel_grid_hz),
+     [("drive.channels.spacing", "tolerance")]),
+    ("trim.range_pct", 5.0, lambda s: s.trim),
+    ("trim.direction", "down", lambda s: s.trim),
+    ("trim.precision_pct", 0.5, lambda s: s.trim),
     ("design.bounds.gap_um", [2.0, 4.0], lambda s: s.bounds),
     ("design.window_ms", 2.0, lambda s: s.window_s),
-    ("design.seed", 3, lambda s: (s.seed, s.design_seed)),
+    ("design.seed", 3, lambda s: s.seed),
     ("design.budget", "full", lambda s: s.budget),
     ("design.guard", 0.05, lambda s: s.guard),
     ("design.match_sensitivity", False, lambda s: s.sensitivity_band),
@@ -90,13 +105,13 @@ CASES = [
     ("verification.min_speed_mm_s", 1.0, lambda s: s.min_speed_m_s),
     ("verification.idle_tolerance_um", 0.1, lambda s: s.idle_tolerance_m),
     ("verification.repair_rounds", 1, lambda s: s.repair_rounds),
-    ("process.youngs_modulus_gpa", 150.0, lambda s: s.impacters["A1.forward"].process),
-    ("process.beam_height_um", 3.0, lambda s: s.impacters["A1.forward"].process),
-    ("process.substrate_gap_um", 3.0, lambda s: s.impacters["A1.forward"].process),
-    ("process.beam_angle_deg", 30.0, lambda s: s.impacters["A1.forward"].process),
-    ("device.forward.mass_thickness_um", 3.0, _imp("A1.forward", "process")),
-    ("device.forward.impact_angle_deg", 30.0, _imp("A1.forward", "impact_angle_rad")),
-    ("device.backward.mass_thickness_um", 3.0, _imp("A1.backward", "process")),
+    ("process.youngs_modulus_gpa", 150.0, lambda s: s.impacters[Node("A1", "forward")].process),
+    ("process.beam_height_um", 3.0, lambda s: s.impacters[Node("A1", "forward")].process),
+    ("process.substrate_gap_um", 3.0, lambda s: s.impacters[Node("A1", "forward")].process),
+    ("process.beam_angle_deg", 30.0, lambda s: s.impacters[Node("A1", "forward")].process),
+    ("device.forward.mass_thickness_um", 3.0, _imp(Node("A1", "forward"), "process")),
+    ("device.forward.impact_angle_deg", 30.0, _imp(Node("A1", "forward"), "impact_angle_rad")),
+    ("device.backward.mass_thickness_um", 3.0, _imp(Node("A1", "backward"), "process")),
     ("device.contact", "paper", lambda s: s.contacts),
     ("devices.A2.contact", "paper", lambda s: s.contacts),
     ("design.bounds.area_um2", [100.0, 40000.0], lambda s: s.bounds),
@@ -119,11 +134,11 @@ def test_robust_design_reaches_the_designer_or_is_refused():
     frequency under the fabrication tolerances goes to the designer."""
     fab = ("fabrication.line_width_um", {"die": 0.05, "device": 0.02})
     s = _settings(("design.robust", True), ("design.robust_k", 3.0), fab)
-    shift = s.design_kwargs("A1.forward")["robust_shift"]
+    shift = s.design_kwargs(Node("A1", "forward"))["robust_shift"]
     assert s.robust_k == 3.0 and shift.k == 3.0
     # 3 sigma of a 4.6 um beam's line width error: about 4.7 % (1.6 % per sigma)
     assert 0.03 < shift((1.5e-8, 4.6e-6, 1.2e-3, 3e-6)) < 0.07
-    assert "robust_shift" not in _settings(fab).design_kwargs("A1.forward")
+    assert "robust_shift" not in _settings(fab).design_kwargs(Node("A1", "forward"))
     # robust design without tolerances to be robust against is refused
     with pytest.raises(SpecError) as err:
         _settings(("design.robust", True))
@@ -132,18 +147,20 @@ def test_robust_design_reaches_the_designer_or_is_refused():
     assert _settings(("design.robust_k", 3.0)).robust_k is None
 
 
-@pytest.mark.parametrize("path, value, get", CASES, ids=[c[0] for c in CASES])
-def test_every_field_changes_the_settings(path, value, get):
-    base, changed = _settings(), _settings((path, value))
+@pytest.mark.parametrize("case", CASES, ids=[c[0] for c in CASES])
+def test_every_field_changes_the_settings(case):
+    path, value, get, *first = case
+    first = first[0] if first else []
+    base, changed = _settings(*first), _settings(*first, (path, value))
     assert get(changed) != get(base), path
 
 
 def test_pair_and_device_overrides_stay_local():
     s = _settings(("devices.A2.forward.restitution", 0.8))
-    assert s.impacters["A2.forward"].restitution == 0.8
-    assert s.impacters["A2.backward"].restitution == s.impacters["A1.forward"].restitution == 0.5
+    assert s.impacters[Node("A2", "forward")].restitution == 0.8
+    assert s.impacters[Node("A2", "backward")].restitution == s.impacters[Node("A1", "forward")].restitution == 0.5
     s = _settings(("device.impacter.impact_angle_deg", 30.0))
-    assert s.impacters["A1.forward"].impact_angle_rad == pytest.approx(math.radians(30.0))
+    assert s.impacters[Node("A1", "forward")].impact_angle_rad == pytest.approx(math.radians(30.0))
 
 
 @pytest.mark.parametrize("path", ["device.impacter.area_um2", "device.forward.gap_um",
@@ -169,7 +186,7 @@ def test_restitution_changes_the_design_and_its_verification():
     results = []
     for e in (0.5, 0.9):
         s = _settings(("device.impacter.restitution", e), ("design.budget", "fast"))
-        res = design_impacter(6000.0, (9000.0,), **s.design_kwargs("A1.forward"))
+        res = design_impacter(6000.0, (9000.0,), **s.design_kwargs(Node("A1", "forward")))
         assert res.impacter.restitution == e
         x0s = np.linspace(-res.impacter.gap, res.impacter.gap, 5)
         results.append(model.responses(res.impacter, model.Drive.tone(6000.0, 50.0), x0s,
@@ -266,11 +283,11 @@ def test_the_layer_map_does_not_reach_the_designs():
     (or enclosure) leaves every design task, and so its cache key, as it was."""
     from planner.planning.design_store import task_digest
 
-    base = _settings().design_kwargs("A1.forward")
+    base = _settings().design_kwargs(Node("A1", "forward"))
     other = _settings(("process.layers", {"POLY2": [50, 1]}),
-                      ("process.anchor_enclosure_um", 4.0)).design_kwargs("A1.forward")
+                      ("process.anchor_enclosure_um", 4.0)).design_kwargs(Node("A1", "forward"))
     assert task_digest(base) == task_digest(other)
-    narrowed = _settings(("process.min_line_um", 3.0)).design_kwargs("A1.forward")
+    narrowed = _settings(("process.min_line_um", 3.0)).design_kwargs(Node("A1", "forward"))
     assert task_digest(narrowed) != task_digest(base)
 
 
@@ -282,26 +299,21 @@ def test_two_masks_on_one_layer_are_refused():
 
 # ------------------------------------------------------------------ every field, from the schema
 
-#: Array-spec fields that reach no Settings attribute of their own: each is read from the
-#: raw spec by the stage named (issue 27 is to bring them through Settings; until then
-#: they are listed here, so that a new field is either given a CASES row or named here).
-READ_FROM_THE_SPEC = {
-    "drive.max_acceleration_g": "planning.drives / targets / rescue (spec.drive)",
-    "drive.over_limit": "vibroplan drive only (the plan always scales)",
-    "drive.channels.spacing": "assign.assign, spec.channel_grid",
-    "drive.channels.count": "assign.assign, spec.channel_grid",
-    "drive.channels.separation_hz": "spec.channel_grid, manufacturability",
-    "drive.guard.ensemble_separation_channels": "assign.assign",
-    "drive.guard.relative_bandwidth": "assign.assign",
-    "drive.guard.harmonics": "assign.assign",
-    "drive.guard.intermodulation": "assign.assign",
-    "trim.range_pct": "vibroplan trim, yield --trim, the layout's trim tabs",
-    "trim.direction": "vibroplan trim, yield --trim, the layout's trim tabs",
-    "trim.precision_pct": "vibroplan trim, yield --trim",
+#: Array-spec fields no planning stage reads: plan.json records them (``spec``) and the
+#: command named reads them from there.
+LAYOUT_ONLY = {
+    "process.layers": "planner/layout (the GDS layer of each mask)",
+    "process.anchor_enclosure_um": "planner/layout (the anchors' overlap)",
+}
+#: Fields a plan refuses, each with the test that shows the refusal and its line.
+REFUSED = {
+    "drive.over_limit": "test_split_over_the_limit_is_refused_with_its_line",
 }
 #: Geometry a plan designs: refused in an array spec
 #: (test_designed_geometry_is_refused_with_its_line).
 DESIGNED = ("area_um2", "width_um", "length_um", "gap_um", "natural_frequency_hz")
+#: Settings attributes a getter may not stand on: every field reaches them.
+NOT_A_STAGE = ("spec_record", "chip_spec")
 
 
 def _schema_leaves(model, prefix=""):
@@ -324,14 +336,15 @@ def _schema_leaves(model, prefix=""):
 
 def test_every_spec_field_has_a_case():
     """Generated from the schema, not written by hand: every leaf field of ArraySpec has a
-    CASES row (it changes the Settings), or is designed geometry (refused), or is listed
-    in READ_FROM_THE_SPEC with the stage that reads it.  A device override (``devices.A2``)
-    is the same model as ``device`` and counts as covered by either."""
+    CASES row (it changes a setting a stage reads), or is designed geometry or another
+    refused field (REFUSED), or reaches plan.json for a later command only (LAYOUT_ONLY).
+    A device override (``devices.A2``) is the same model as ``device`` and counts as
+    covered by either."""
     import re
 
     from planner.spec import ArraySpec
 
-    covered = {re.sub(r"^devices\.[A-Z]+\d+\.", "device.", p) for p, _, _ in CASES}
+    covered = {re.sub(r"^devices\.[A-Z]+\d+\.", "device.", c[0]) for c in CASES}
     missing = []
     for leaf in _schema_leaves(ArraySpec):
         path = re.sub(r"^devices\.", "device.", leaf)
@@ -342,11 +355,111 @@ def test_every_spec_field_has_a_case():
         if re.fullmatch(r"device\.(impacter|forward|backward)\.(%s)" % "|".join(DESIGNED),
                         path):
             continue
-        if leaf in READ_FROM_THE_SPEC or leaf in ("design.robust", "design.robust_k"):
+        if (leaf in REFUSED or any(leaf == k or leaf.startswith(k + ".") for k in LAYOUT_ONLY)
+                or leaf in ("design.robust", "design.robust_k")):
             # robust design needs a tolerance: test_robust_design_reaches_the_designer...
             continue
         missing.append(leaf)
     assert missing == [], f"spec fields with no case: {missing}"
-    # and the list names no field that is gone
-    leaves = set(_schema_leaves(ArraySpec))
-    assert set(READ_FROM_THE_SPEC) <= leaves
+    # and the lists name no field that is gone, and tests that exist
+    leaves = _schema_leaves(ArraySpec)
+    for name in [*REFUSED, *LAYOUT_ONLY]:
+        assert any(leaf == name or leaf.startswith(name + ".") for leaf in leaves), name
+    assert all(name in globals() for name in REFUSED.values())
+
+
+def _stage_reads():
+    """Settings attributes some stage reads: ``settings.NAME`` (or ``self.settings.NAME``)
+    anywhere in planner/ outside settings.py, and what the designer's keyword arguments
+    (:meth:`Settings.design_kwargs`, read by the design stage) read."""
+    import inspect
+    import re
+    from pathlib import Path
+
+    import planner
+    from planner.planning import settings as settings_module
+
+    root = Path(planner.__file__).parent
+    names = set()
+    for f in root.rglob("*.py"):
+        if f.name == "settings.py" and f.parent.name == "planning":
+            continue
+        names |= set(re.findall(r"\bsettings\.(\w+)", f.read_text(encoding="utf-8")))
+    if "design_kwargs" in names:
+        cls = settings_module.Settings
+        for method in (cls.design_kwargs, cls._robust_kwargs):
+            names |= set(re.findall(r"\bself\.(\w+)", inspect.getsource(method)))
+    return names
+
+
+class _Reads:
+    """Settings, recording which of its attributes are read."""
+
+    def __init__(self, settings):
+        self._settings, self.names = settings, set()
+
+    def __getattr__(self, name):
+        self.names.add(name)
+        return getattr(self._settings, name)
+
+
+def test_every_case_reads_what_a_stage_reads():
+    """A field that reaches only a setting no stage reads is as good as ignored: each
+    CASES getter reads attributes that planner code reads (never the spec record or
+    chip_spec, which every field reaches), and every Settings attribute is read by
+    some stage."""
+    import dataclasses
+
+    from planner.planning.settings import Settings
+
+    reads = _stage_reads()
+    base = _Reads(_settings())
+    for path, _, get, *_ in CASES:
+        base.names.clear()
+        get(base)
+        assert base.names, f"{path}: its getter reads no setting"
+        assert not base.names & set(NOT_A_STAGE), f"{path}: reads {base.names}"
+        assert base.names <= reads, f"{path}: no stage reads {base.names - reads}"
+    unread = {f.name for f in dataclasses.fields(Settings)} - reads
+    assert unread == set(), f"Settings attributes no stage reads: {unread}"
+
+
+def test_split_over_the_limit_is_refused_with_its_line(tmp_path):
+    """drive.over_limit: split cannot take effect in a plan (the designs are made for the
+    steps as written): refused, naming the field and its line, exit 2, nothing written."""
+    from click.testing import CliRunner
+
+    from planner.cli import main
+
+    with pytest.raises(SpecError) as err:
+        _settings(("drive.over_limit", "split"))
+    assert "drive.over_limit" in str(err.value) and err.value.line is not None
+    assert "steps" in str(err.value)
+    assert _settings(("drive.over_limit", "scale")) == _settings()
+    import copy
+
+    data = _set(copy.deepcopy(BASE), "drive.over_limit", "split")
+    spec = tmp_path / "split.yaml"
+    spec.write_text(yaml.safe_dump(data, sort_keys=False))
+    out = tmp_path / "out"
+    res = CliRunner().invoke(main, ["plan", str(spec), "--out", str(out), "--quiet"])
+    assert res.exit_code == 2, res.output
+    assert "drive.over_limit" in res.output and "Traceback" not in res.output
+    assert not out.exists()
+
+
+def test_layout_only_fields_reach_plan_json_and_the_layout():
+    """The layer map and the anchor enclosure change no setting a stage reads, but
+    plan.json's spec (which vibroplan layout reads), and the layout reads them."""
+    from pathlib import Path
+
+    import planner
+
+    layout = "".join(f.read_text(encoding="utf-8") for f in
+                     (Path(planner.__file__).parent / "layout").glob("*.py"))
+    base = _settings()
+    for path, value in (("process.layers", {"POLY2": [50, 1]}),
+                        ("process.anchor_enclosure_um", 4.0)):
+        changed = _settings((path, value))
+        assert changed.spec_record != base.spec_record, path
+        assert path.split(".")[-1] in layout, path

@@ -8,6 +8,8 @@ from click.testing import CliRunner
 from planner.assign import activity, assign, conflict_graph, plan_steps, verify_assignment
 from planner.cli import main
 from planner.errors import SpecError
+from planner.nodes import Node
+from planner.planning.settings import resolve_settings
 from planner.spec import default_spec_path, load_spec, separation_for_bandwidth
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -83,25 +85,27 @@ def test_conflict_graph_rules():
     act = activity(steps)
     graph, groups = conflict_graph(steps, 3)
     # A1, B1, B2 and B3 move forward together in every step they move: one channel group
-    shared = [g for g, members in groups.items() if "B1.forward" in members][0]
-    assert set(groups[shared]) == {"A1.forward", "B1.forward", "B2.forward", "B3.forward"}
+    shared = [g for g, members in groups.items() if Node("B1", "forward") in members][0]
+    assert {n.text for n in groups[shared]} == {"A1.forward", "B1.forward", "B2.forward",
+                                                 "B3.forward"}
     # a device's forward and backward always conflict when both are used
-    fwd = [g for g, m in groups.items() if "B2.forward" in m][0]
-    bwd = [g for g, m in groups.items() if "B2.backward" in m][0]
+    fwd = [g for g, m in groups.items() if Node("B2", "forward") in m][0]
+    bwd = [g for g, m in groups.items() if Node("B2", "backward") in m][0]
     assert graph.has_edge(fwd, bwd) and graph.edges[fwd, bwd]["sep"] == 3
-    assert "A3.forward" not in act  # never driven: not in the graph
+    assert Node("A3", "forward") not in act  # never driven: not in the graph
 
 
 def test_assignment_meets_every_separation():
     loaded = load_spec(GOOD)
     steps = plan_steps(loaded, 0.01)
-    result = assign(loaded, steps, separation=5)
+    result = assign(resolve_settings(loaded), steps, separation=5)
     assert verify_assignment(result) == []
     lo, hi = loaded.spec.drive.band_hz
     assert all(lo <= f <= hi for f in result.frequencies.values())
     # nodes sharing a group share a frequency; conflicting ones do not
-    assert result.frequencies["B1.forward"] == result.frequencies["B3.forward"]
-    assert result.frequencies["B2.forward"] != result.frequencies["B2.backward"]
+    f = result.frequencies
+    assert f[Node("B1", "forward")] == f[Node("B3", "forward")]
+    assert f[Node("B2", "forward")] != f[Node("B2", "backward")]
 
 
 def test_band_too_small_says_what_fails_and_fixes(tmp_path):
@@ -130,10 +134,10 @@ def test_ensemble_separation_between_a_steps_tones_and_its_idle_impacters():
     wide, _ = conflict_graph(steps, 3, ensemble_separation=9)
     member_of = {n: g for g, ms in groups.items() for n in ms}
     multi = [st for st in steps
-             if len({member_of[f"{d}.{r}"] for d, r in st.active_nodes()}) >= 2]
+             if len({member_of[Node(d, r)] for d, r in st.active_nodes()}) >= 2]
     assert multi, "the fixture must have a step playing several tones"
     st = multi[0]
-    playing = {member_of[f"{d}.{r}"] for d, r in st.active_nodes()}
+    playing = {member_of[Node(d, r)] for d, r in st.active_nodes()}
     for idle in set(groups) - playing:
         for p in playing:
             assert wide.edges[idle, p]["sep"] == 9
@@ -169,13 +173,13 @@ def test_default_layout_puts_multi_tone_steps_below_their_idle_impacters():
 
     loaded = load_spec(default_spec_path())
     steps = plan_steps(loaded, 0.01)
-    a = assign(loaded, steps)
+    a = assign(resolve_settings(loaded), steps)
     assert verify_assignment(a) == []
     f = a.frequencies
     position, release = steps[0], steps[1]
-    pos_tones = [f[f"{d}.forward"] for d in position.forward]
-    rel_tones = [f[f"{d}.backward"] for d in release.backward]
-    others = [f[n] for n in f if n.endswith(".backward") and not n.startswith("C")]
+    pos_tones = [f[Node(d, "forward")] for d in position.forward]
+    rel_tones = [f[Node(d, "backward")] for d in release.backward]
+    others = [f[n] for n in f if n.direction == "backward" and not n.device.startswith("C")]
     assert max(rel_tones) < min(pos_tones) and max(pos_tones) < min(others)
     # the wide gaps (ensemble_separation_channels) around the positioning cluster:
     # >= 1.3x below it and >= 1.15x above it on the default's tolerance grid
