@@ -50,7 +50,7 @@ from model import Drive, Impacter  # noqa: E402
 from model.kernels import impacter as kern  # noqa: E402
 from model.kernels.rk4 import rk4_response, run_rk4  # noqa: E402
 from model.mpref import reference  # noqa: E402
-from model.simulation import impacter_forcing  # noqa: E402
+from model.impacter import impacter_forcing  # noqa: E402
 
 #: RK4 steps per shortest period (>= 6 settings) and solve_ivp tolerances (>= 5).
 RK4_STEPS_PER_PERIOD = (25, 50, 100, 200, 400, 800, 1600, 3200)

@@ -21,20 +21,22 @@ from model.devices import (  # noqa: E402
     pair_of,
 )
 from model.drive import POWER, Drive, amplitude_from_power  # noqa: E402
-from model.simulation import (  # noqa: E402
-    CONTACTS,
+from model.impacter import (  # noqa: E402
     METHODS,
     ImpactResult,
-    Kicks,
-    SliderResult,
     SolverWarning,
-    kick,
     response,
     responses,
     simulate,
+    sweep,
+)
+from model.slider import (  # noqa: E402
+    CONTACTS,
+    Kicks,
+    SliderResult,
+    kick,
     simulate_slider,
     slider_motion,
-    sweep,
 )
 
 __all__ = [

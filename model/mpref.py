@@ -331,7 +331,7 @@ def reference(impacter, drive, x0=0.0, v0=0.0, duration=3e-3, *, dps=DPS,
         raise ValueError(f"drive must be a model.Drive, {type(drive).__name__} was given")
     if not (math.isfinite(x0) and x0 <= impacter.gap):
         raise ValueError(f"x0 must be finite and <= the gap, {x0!r} was given")
-    # the same float parameters as the float solver (model.simulation.impacter_forcing)
+    # the same float parameters as the float solver (model.impacter.impacter_forcing)
     w = drive.omegas
     a = math.cos(impacter.impact_angle) * drive.acceleration_amplitudes()
     phi = drive.phases

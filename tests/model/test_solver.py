@@ -9,7 +9,7 @@ from scipy.integrate import solve_ivp
 
 import model
 from model import Drive, Impacter, Slider
-from model.simulation import impacter_forcing
+from model.impacter import impacter_forcing
 
 
 def scipy_impacts(imp, drive, x0, duration, rtol=1e-12):

@@ -18,7 +18,7 @@ from model import Drive, Impacter
 from model.kernels import impacter as kernel
 from model.kernels.closed_form import tone_coefficients
 from model.mpref import _ClosedForm, _Segment
-from model.simulation import impacter_forcing
+from model.impacter import impacter_forcing
 
 FIG7 = Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6).with_natural_frequency(5200.0)
 

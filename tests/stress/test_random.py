@@ -17,7 +17,7 @@ import model
 from model import Drive, Impacter
 from model.kernels import impacter as kernel
 from model.kernels.closed_form import tone_coefficients
-from model.simulation import impacter_forcing
+from model.impacter import impacter_forcing
 
 STEP_CAP = 2_000_000
 STATUSES = {kernel.OK, kernel.EVENT_CAP, kernel.STEP_CAP}

@@ -1,92 +1,22 @@
-"""Simulation API: impacts, the response r of eq. (12), sweeps and slider motion.
+"""The slider API: kicks of impacter pairs, the contact laws, and the slider's motion.
 
-Public functions validate their arguments, convert the value objects to floats
-and arrays in SI units, and call the numba kernels of :mod:`model.kernels`.
+The slider's stick-slip motion between kicks (eqs. 6-7) is solved exactly by the kernel
+:func:`model.kernels.slider.run_slider`; the kicks come from the impacts of
+:mod:`model.impacter` through a contact law of :mod:`model.kernels.contact`.
 """
 
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
-from model.devices import Impacter, Slider
-from model.drive import POWER, Drive, amplitude_from_power
+from model._arguments import check_drive, check_float, check_impacter, check_slider, sample_times
+from model.impacter import STATUS, ImpactResult, simulate, warn_status
 from model.kernels import contact as _kc
 from model.kernels import impacter as _k
-from model.kernels.closed_form import tone_coefficients
-from model.kernels.rk4 import run_rk4
 from model.kernels.slider import run_slider
-
-STATUS = {
-    _k.OK: "ok",
-    _k.EVENT_CAP: "event cap reached",
-    _k.STEP_CAP: "step cap reached",
-    _k.NONFINITE: "non-finite state",
-}
-#: Samples of a trajectory requested with ``trajectory=True``.
-TRAJECTORY_SAMPLES = 2001
-#: Default RK4 step, as a fraction of the shortest period in the problem.
-RK4_STEPS_PER_PERIOD = 200
-
-
-class SolverWarning(RuntimeWarning):
-    """A run ended on a cap or a non-finite state; its result is incomplete."""
-
-
-@dataclass(frozen=True)
-class ImpactResult:
-    """Outcome of :func:`simulate`.
-
-    Attributes
-    ----------
-    times : ndarray, shape (n_impacts,)
-        Impact times [s].
-    velocities : ndarray, shape (n_impacts,)
-        Impacter velocity just before each impact, v- [m/s].
-    chatter_times, chatter_sums : ndarray
-        Accumulation times [s] of chatter sequences summed in closed form and
-        the sum of their v- [m/s] (each ends in sticking at the wall).
-    response : float
-        r of eq. (12) [N]: m times the sum of v- from the second impact on
-        (chatter sums included), over the duration.
-    status : str
-        "ok", "event cap reached", "step cap reached" or "non-finite state".
-    message : str
-        Human-readable account of the status.
-    x_end, v_end : float
-        Final impacter state [m, m/s].
-    stuck_end : bool
-        Whether the run ended with the impacter stuck at the wall.
-    n_steps : int
-        Root-finding (or RK4) steps taken.
-    t, x : ndarray or None
-        The trajectory, if requested: sample times [s] and positions [m].
-    """
-
-    times: np.ndarray
-    velocities: np.ndarray
-    chatter_times: np.ndarray
-    chatter_sums: np.ndarray
-    response: float
-    status: str
-    message: str
-    x_end: float
-    v_end: float
-    stuck_end: bool
-    n_steps: int
-    t: np.ndarray | None = None
-    x: np.ndarray | None = None
-
-    @property
-    def success(self):
-        return self.status == "ok"
-
-    @property
-    def n_impacts(self):
-        return int(self.times.size)
 
 
 @dataclass(frozen=True)
@@ -119,314 +49,6 @@ class SliderResult:
     status: str
 
 
-def _check_float(name, value):
-    value = float(value)
-    if not math.isfinite(value):
-        raise ValueError(f"{name} must be finite, {value!r} was given")
-    return value
-
-
-def _check_state(impacter, x0, v0, duration):
-    x0 = _check_float("x0", x0)
-    v0 = _check_float("v0", v0)
-    duration = _check_float("duration", duration)
-    if duration <= 0:
-        raise ValueError(f"duration must be > 0, {duration!r} was given")
-    if x0 > impacter.gap:
-        raise ValueError(f"x0 must be <= the gap {impacter.gap!r} m (the wall), {x0!r} was given")
-    return x0, v0, duration
-
-
-def _check_impacter(impacter):
-    if not isinstance(impacter, Impacter):
-        raise ValueError(f"impacter must be a model.Impacter, {type(impacter).__name__} was given")
-
-
-def _check_drive(drive):
-    if not isinstance(drive, Drive):
-        raise ValueError(f"drive must be a model.Drive, {type(drive).__name__} was given")
-
-
-def impacter_forcing(impacter, drive):
-    """Tone arrays (w [rad/s], a [m/s^2], phi [rad]) of the forcing per unit mass, eq. (5)."""
-    w = np.ascontiguousarray(drive.omegas)
-    a = np.ascontiguousarray(math.cos(impacter.impact_angle) * drive.acceleration_amplitudes())
-    return w, a, np.ascontiguousarray(drive.phases, dtype=float)
-
-
-def _sample_times(trajectory, duration):
-    if trajectory is None or trajectory is False:
-        return np.empty(0)
-    if trajectory is True:
-        return np.linspace(0.0, duration, TRAJECTORY_SAMPLES)
-    if isinstance(trajectory, (int, np.integer)):
-        if trajectory < 2:
-            raise ValueError(f"trajectory must be >= 2 samples, {trajectory!r} was given")
-        return np.linspace(0.0, duration, int(trajectory))
-    t = np.asarray(trajectory, dtype=float)
-    if t.ndim != 1 or np.any(np.diff(t) < 0) or not np.all(np.isfinite(t)):
-        raise ValueError("trajectory times must be a sorted one-dimensional array of finite times")
-    return t
-
-
-def _message(status, n, duration, t_stop):
-    if status == _k.OK:
-        return f"{n} impacts in {duration:.6g} s"
-    return f"{STATUS[status]} after {n} events at t = {t_stop:.6g} s of {duration:.6g} s"
-
-
-def simulate(impacter, drive, x0=0.0, v0=0.0, duration=3e-3, *, method="exact",
-             trajectory=None, step=None, max_events=100_000, stuck=None):
-    """Simulate an impacter under a drive and return its impacts.
-
-    Parameters
-    ----------
-    impacter : Impacter
-    drive : Drive
-        Substrate displacement; the impacter feels m cos(theta) (-zeta'').
-    x0, v0 : float
-        Initial position [m] (<= gap) and velocity [m/s].
-    duration : float
-        t_f - t_0 [s], the paper's window is 3 ms.
-    method : {"exact", "rk4"} or callable
-        "exact": the event-driven closed-form solver; "rk4": the paper's
-        fixed-step RK4 with per-step impact detection (reference only).
-    trajectory : bool, int or array_like, optional
-        Record x at 2001 evenly spaced times (True), at n of them (int) or at
-        the given sorted times [s].
-    step : float, optional
-        RK4 step [s]; default 1/200 of the shortest period.
-    max_events : int
-        Cap on impacts; a run that reaches it ends with status "event cap reached".
-    stuck : bool, optional
-        Start stuck at the wall (needs x0 == gap and v0 == 0); by default a run
-        started at rest on the wall sticks if the net force presses on it.
-
-    Returns
-    -------
-    ImpactResult
-
-    Examples
-    --------
-    >>> from model import Impacter, Drive
-    >>> imp = Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6).with_natural_frequency(5200)
-    >>> res = simulate(imp, Drive.tone(6200.0))
-    >>> res.n_impacts, res.status
-    (17, 'ok')
-    """
-    _check_impacter(impacter)
-    _check_drive(drive)
-    x0, v0, duration = _check_state(impacter, x0, v0, duration)
-    solver = METHODS.get(method, method)
-    if not callable(solver):
-        raise ValueError(f"method must be one of {sorted(METHODS)} or a callable, {method!r} was given")
-    if max_events < 1:
-        raise ValueError(f"max_events must be >= 1, {max_events!r} was given")
-    sample_t = _sample_times(trajectory, duration)
-    return solver(impacter, drive, x0, v0, duration, sample_t=sample_t, step=step,
-                  max_events=int(max_events), stuck=stuck)
-
-
-def _simulate_exact(impacter, drive, x0, v0, duration, *, sample_t, step, max_events, stuck):
-    w, a, phi = impacter_forcing(impacter, drive)
-    coef = tone_coefficients(impacter.omega_n, impacter.sigma, w, a, phi)
-    cap = min(max_events, 100_000)
-    imp_t = np.zeros(cap)
-    imp_v = np.zeros(cap)
-    kinds = np.zeros(cap, dtype=np.int64)
-    sample_x = np.zeros(sample_t.size)
-    stuck0 = (x0 == impacter.gap and v0 == 0.0) if stuck is None else bool(stuck)
-    status, n, sum_v, t_stop, x_end, v_end, stuck_end, steps = _k.run_impacter(
-        impacter.omega_n, impacter.sigma, impacter.gap, impacter.restitution,
-        w, a, phi, coef, 0.0, duration, x0, v0, stuck0, 0, max_events, _k.MAX_STEPS,
-        imp_t, imp_v, kinds, sample_t, sample_x)
-    n_rec = min(n, cap)
-    kinds = kinds[:n_rec]
-    real = kinds == _k.IMPACT
-    res = ImpactResult(
-        times=imp_t[:n_rec][real], velocities=imp_v[:n_rec][real],
-        chatter_times=imp_t[:n_rec][~real], chatter_sums=imp_v[:n_rec][~real],
-        response=impacter.mass * sum_v / duration, status=STATUS[status],
-        message=_message(status, n, duration, t_stop), x_end=x_end, v_end=v_end,
-        stuck_end=bool(stuck_end), n_steps=int(steps),
-        t=sample_t if sample_t.size else None, x=sample_x if sample_t.size else None)
-    _warn_status(status, res.message)
-    return res
-
-
-def _simulate_rk4(impacter, drive, x0, v0, duration, *, sample_t, step, max_events, stuck):
-    w, a, phi = impacter_forcing(impacter, drive)
-    if step is None:
-        fmax = max(float(np.max(drive.frequencies)), impacter.natural_frequency)
-        step = 1.0 / (RK4_STEPS_PER_PERIOD * fmax)
-    step = _check_float("step", step)
-    if step <= 0:
-        raise ValueError(f"step must be > 0, {step!r} was given")
-    cap = min(max_events, 100_000)
-    imp_t = np.zeros(cap)
-    imp_v = np.zeros(cap)
-    status, n, sum_v, x_end, v_end, steps = run_rk4(
-        impacter.omega_n, impacter.sigma, impacter.gap, impacter.restitution, w, a, phi,
-        0.0, duration, x0, v0, step, max_events, imp_t, imp_v)
-    n_rec = min(n, cap)
-    res = ImpactResult(
-        times=imp_t[:n_rec], velocities=imp_v[:n_rec], chatter_times=np.empty(0),
-        chatter_sums=np.empty(0), response=impacter.mass * sum_v / duration,
-        status=STATUS[status], message=_message(status, n, duration, duration),
-        x_end=x_end, v_end=v_end, stuck_end=False, n_steps=int(steps))
-    _warn_status(status, res.message)
-    return res
-
-
-#: Solvers selectable by ``simulate(method=...)``.
-METHODS = {"exact": _simulate_exact, "rk4": _simulate_rk4}
-
-
-def _warn_status(status, message):
-    if status != _k.OK:
-        warnings.warn(message, SolverWarning, stacklevel=3)
-
-
-def response(impacter, drive, x0=0.0, v0=0.0, duration=3e-3, *, stop_at_first=False):
-    """The response r of eq. (12) [N].
-
-    r = m sum_{k>=2} v-(t_k) / (t_f - t_0): the first impact, due to the initial
-    position, is excluded.  Only the impacter is simulated and no event list or
-    trajectory is kept.
-
-    Parameters
-    ----------
-    impacter, drive, x0, v0, duration
-        As in :func:`simulate`.
-    stop_at_first : bool
-        Stop at the first counted (second) impact: the result is then > 0 exactly
-        when the full r is, which is all constraint (14) needs to know.
-
-    Examples
-    --------
-    >>> from model import Impacter, Drive
-    >>> imp = Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6).with_natural_frequency(5200)
-    >>> round(response(imp, Drive.tone(6200.0)) * 1e9, 2)
-    114.62
-    """
-    _check_impacter(impacter)
-    _check_drive(drive)
-    x0, v0, duration = _check_state(impacter, x0, v0, duration)
-    w, a, phi = impacter_forcing(impacter, drive)
-    status, n, sum_v = _k.response_single(
-        impacter.omega_n, impacter.sigma, impacter.gap, impacter.restitution, w, a, phi,
-        duration, x0, v0, 2 if stop_at_first else 0, _k.MAX_EVENTS, _k.MAX_STEPS)
-    _warn_status(status, _message(status, n, duration, float("nan")))
-    return impacter.mass * sum_v / duration
-
-
-def responses(impacter, drive, x0s, v0s=None, duration=3e-3, *, stop_at_first=False,
-              return_status=False, check_input=True):
-    """r of eq. (12) from many initial states at once (parallel kernel).
-
-    Parameters
-    ----------
-    x0s : array_like, shape (n,)
-        Initial positions [m].
-    v0s : array_like, shape (n,), optional
-        Initial velocities [m/s]; zeros by default.
-    check_input : bool, default True
-        Validate the arguments.  An optimiser that calls this thousands of times with
-        arguments it built itself (finite x0s inside the gap, a positive duration) may
-        pass False to skip the checks, as scipy's ``check_finite=False``; invalid input
-        then gives undefined results.
-
-    Returns
-    -------
-    r : ndarray, shape (n,)
-        [N].  With ``return_status``, also the status codes (0 = ok).
-    """
-    x0s = np.ascontiguousarray(np.atleast_1d(np.asarray(x0s, dtype=float)))
-    v0s = np.zeros_like(x0s) if v0s is None else np.ascontiguousarray(
-        np.broadcast_to(np.asarray(v0s, dtype=float), x0s.shape))
-    if check_input:
-        _check_impacter(impacter)
-        _check_drive(drive)
-        duration = _check_float("duration", duration)
-        if duration <= 0:
-            raise ValueError(f"duration must be > 0, {duration!r} was given")
-        if not (np.all(np.isfinite(x0s)) and np.all(np.isfinite(v0s))):
-            raise ValueError("x0s and v0s must be finite")
-        if np.any(x0s > impacter.gap):
-            raise ValueError(f"x0s must be <= the gap {impacter.gap!r} m")
-    else:
-        duration = float(duration)     # one kernel specialisation, whatever was passed
-    w, a, phi = impacter_forcing(impacter, drive)
-    sum_v, n, status = _k.response_batch(
-        impacter.omega_n, impacter.sigma, impacter.gap, impacter.restitution, w, a, phi,
-        x0s, v0s, duration, 2 if stop_at_first else 0, _k.MAX_EVENTS, _k.MAX_STEPS)
-    bad = int(np.count_nonzero(status))
-    if bad:
-        warnings.warn(f"{bad} of {status.size} runs ended on a cap or non-finite state",
-                      SolverWarning, stacklevel=2)
-    r = impacter.mass * sum_v / duration
-    return (r, status) if return_status else r
-
-
-def sweep(impacter, frequencies, x0s, power=POWER, duration=3e-3, *, stop_at_first=False,
-          return_status=False):
-    """r of eq. (12) for one tone at each frequency, from each initial position.
-
-    Parameters
-    ----------
-    impacter : Impacter
-    frequencies : array_like, shape (n_freq,)
-        Drive frequencies [Hz]; each tone has Z0^2 w^3 = power.
-    x0s : array_like, shape (n_x0,)
-        Initial positions [m] (v0 = 0), each <= gap.
-    power : float
-        Z0^2 w^3 [m^2/s^3], 50 in the paper.
-    duration : float
-        Window [s].
-
-    Returns
-    -------
-    r : ndarray, shape (n_freq, n_x0)
-        [N].  Runs in parallel over the grid; constants of each frequency are
-        computed once.  With ``return_status`` also the status codes.
-
-    Examples
-    --------
-    Fig. 9 of the paper:
-
-    >>> import numpy as np
-    >>> from model import Impacter
-    >>> imp = Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6).with_natural_frequency(5200)
-    >>> r = sweep(imp, np.arange(4000, 8001, 10.0), [0.0, 1e-6, 2e-6, 3e-6])
-    >>> r.shape
-    (401, 4)
-    """
-    _check_impacter(impacter)
-    f = np.ascontiguousarray(np.atleast_1d(np.asarray(frequencies, dtype=float)))
-    x0s = np.ascontiguousarray(np.atleast_1d(np.asarray(x0s, dtype=float)))
-    if f.ndim != 1 or not np.all(np.isfinite(f)) or np.any(f <= 0):
-        raise ValueError("frequencies must be a one-dimensional array of finite values > 0")
-    if not np.all(np.isfinite(x0s)) or np.any(x0s > impacter.gap):
-        raise ValueError(f"x0s must be finite and <= the gap {impacter.gap!r} m")
-    power = _check_float("power", power)
-    if power <= 0:
-        raise ValueError(f"power must be > 0, {power!r} was given")
-    duration = _check_float("duration", duration)
-    if duration <= 0:
-        raise ValueError(f"duration must be > 0, {duration!r} was given")
-    w = 2.0 * np.pi * f
-    a = math.cos(impacter.impact_angle) * w**2 * amplitude_from_power(f, power)
-    sum_v, status = _k.sweep_batch(
-        impacter.omega_n, impacter.sigma, impacter.gap, impacter.restitution, w, a, x0s,
-        duration, 2 if stop_at_first else 0, _k.MAX_EVENTS, _k.MAX_STEPS)
-    bad = int(np.count_nonzero(status))
-    if bad:
-        warnings.warn(f"{bad} of {status.size} runs ended on a cap or non-finite state",
-                      SolverWarning, stacklevel=2)
-    r = impacter.mass * sum_v / duration
-    return (r, status) if return_status else r
-
-
 #: Contact laws selectable by ``contact=`` in :func:`kick`, :func:`slider_motion` and
 #: :func:`simulate_slider`: the slider's velocity change at an impact (docs/contact.md).
 #: "paper": eq. (10) as printed, the slider as a wall that does not recoil (the
@@ -444,14 +66,10 @@ def _check_contact(contact):
     return CONTACTS[contact]
 
 
-def _check_slider(slider):
-    if not isinstance(slider, Slider):
-        raise ValueError(f"slider must be a model.Slider, {type(slider).__name__} was given")
-
 
 def _check_direction(direction, contact="paper"):
     """direction as a float; the two-body law reads it as a sign, so it must be +1 or -1."""
-    direction = _check_float("direction", direction)
+    direction = check_float("direction", direction)
     if contact != "paper" and direction not in (1.0, -1.0):
         raise ValueError(f"direction must be +1 or -1 with contact={contact!r}, "
                          f"{direction!r} was given")
@@ -527,8 +145,8 @@ class Kicks:
         >>> kicks.times.size
         17
         """
-        _check_impacter(impacter)
-        _check_slider(slider)
+        check_impacter(impacter)
+        check_slider(slider)
         if not isinstance(impacts, ImpactResult):
             raise ValueError(f"impacts must be a model.ImpactResult, {type(impacts).__name__} "
                              "was given")
@@ -676,8 +294,8 @@ def slider_motion(slider, drive, kick_times, kick_dv=None, duration=None, z0=0.0
     True
     """
     code = _check_contact(contact)
-    _check_slider(slider)
-    _check_drive(drive)
+    check_slider(slider)
+    check_drive(drive)
     if duration is None:
         raise ValueError("duration must be given")
     if isinstance(kick_times, Kicks):
@@ -709,7 +327,7 @@ def slider_motion(slider, drive, kick_times, kick_dv=None, duration=None, z0=0.0
     kt = np.ascontiguousarray(kt[order])
     kd = np.ascontiguousarray(kd[order])
     rec = np.ascontiguousarray(rec[order])
-    sample_t = _sample_times(trajectory, duration)
+    sample_t = sample_times(trajectory, duration)
     sample_z = np.zeros(sample_t.size)
     status, z_end, v_end, _ = run_slider(
         code, slider.damping / slider.mass, slider.static_friction / slider.mass,
@@ -717,7 +335,7 @@ def slider_motion(slider, drive, kick_times, kick_dv=None, duration=None, z0=0.0
         np.ascontiguousarray(drive.acceleration_amplitudes()),
         np.ascontiguousarray(drive.phases, dtype=float), kt, kd, rec, 0.0, float(duration),
         float(z0), float(v0), _k.MAX_STEPS, sample_t, sample_z)
-    _warn_status(status, f"slider: {STATUS[status]}")
+    warn_status(status, f"slider: {STATUS[status]}")
     return (sample_t if sample_t.size else None, sample_z if sample_t.size else None,
             z_end, v_end, STATUS[status])
 
@@ -770,7 +388,7 @@ def simulate_slider(impacter, slider, drive, x0=0.0, v0=0.0, duration=3e-3, *,
     1.62
     """
     _check_contact(contact)
-    _check_slider(slider)
+    check_slider(slider)
     direction = _check_direction(direction, contact)
     imp = simulate(impacter, drive, x0, v0, duration, trajectory=trajectory, method=method)
     kicks = Kicks.from_impacts(impacter, slider, imp, direction)
