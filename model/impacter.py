@@ -89,10 +89,15 @@ class ImpactResult:
 
 
 def impacter_forcing(impacter, drive):
-    """Tone arrays (w [rad/s], a [m/s^2], phi [rad]) of the forcing per unit mass, eq. (5)."""
-    w = np.ascontiguousarray(drive.omegas)
-    a = np.ascontiguousarray(math.cos(impacter.impact_angle) * drive.acceleration_amplitudes())
-    return w, a, np.ascontiguousarray(drive.phases, dtype=float)
+    """Tone arrays (w [rad/s], a [m/s^2], phi [rad]) of the forcing per unit mass, eq. (5).
+
+    All three are fresh writable arrays: a frozen Drive's read-only phases are another
+    numba type, and would compile the exact kernel once more beside the specialisation
+    the parallel response kernel already compiled (:func:`model.kernels.impacter.response_grid`).
+    """
+    w = 2.0 * math.pi * drive.frequencies
+    a = math.cos(impacter.impact_angle) * (w * w * drive.amplitudes)
+    return w, a, np.array(drive.phases, dtype=float)
 
 
 def _message(status, n, duration, t_stop):
@@ -268,8 +273,8 @@ def responses(impacter, drive, x0s, v0s=None, duration=3e-3, *, stop_at_first=Fa
     r : ndarray, shape (n,)
         [N].  With ``return_status``, also the status codes (0 = ok).
     """
-    x0s = np.ascontiguousarray(np.atleast_1d(np.asarray(x0s, dtype=float)))
-    v0s = np.zeros_like(x0s) if v0s is None else np.ascontiguousarray(
+    x0s = np.array(x0s, dtype=float, ndmin=1)       # a writable C copy: one kernel type
+    v0s = np.zeros(x0s.shape) if v0s is None else np.array(
         np.broadcast_to(np.asarray(v0s, dtype=float), x0s.shape))
     if check_input:
         check_impacter(impacter)
@@ -284,9 +289,13 @@ def responses(impacter, drive, x0s, v0s=None, duration=3e-3, *, stop_at_first=Fa
     else:
         duration = float(duration)     # one kernel specialisation, whatever was passed
     w, a, phi = impacter_forcing(impacter, drive)
-    sum_v, n, status = _k.response_batch(
+    # the grid kernel with one drive (model.kernels.impacter.response_batch, without
+    # its argument normalisation: the designer calls this ~10^5 times a design)
+    sum_v, _, status = _k.response_grid(
         impacter.omega_n, impacter.sigma, impacter.gap, impacter.restitution, w, a, phi,
-        x0s, v0s, duration, 2 if stop_at_first else 0, _k.MAX_EVENTS, _k.MAX_STEPS)
+        np.array([0, w.size], dtype=np.int64), x0s, v0s, duration,
+        2 if stop_at_first else 0, _k.MAX_EVENTS, _k.MAX_STEPS)
+    sum_v, status = sum_v[0], status[0]
     bad = int(np.count_nonzero(status))
     if bad:
         warnings.warn(f"{bad} of {status.size} runs ended on a cap or non-finite state",

@@ -119,3 +119,33 @@ def process_pool(jobs: int):
         terminate(pool)
         raise
     pool.shutdown(wait=True)
+
+
+class WarmPool:
+    """A process pool whose first worker runs a warm-up (numba's compilation) while the
+    caller goes on with other work; the first task submitted waits for it, so that no
+    second worker compiles the same kernels at the same time.
+
+    Used through :func:`warm_pool`.  ``submit`` is the pool's; ``pool`` the pool itself.
+    """
+
+    def __init__(self, pool: cf.ProcessPoolExecutor, warm: cf.Future | None):
+        self.pool = pool
+        self._warm = warm
+
+    def wait_warm(self) -> float | None:
+        """Wait for the warm-up; its result (None if there was none, or once read)."""
+        warm, self._warm = self._warm, None
+        return None if warm is None else warm.result()
+
+    def submit(self, fn, /, *args, **kwargs) -> cf.Future:
+        self.wait_warm()
+        return self.pool.submit(fn, *args, **kwargs)
+
+
+@contextlib.contextmanager
+def warm_pool(jobs: int, warm_up=None):
+    """:func:`process_pool` of ``jobs`` workers, one of which starts ``warm_up()`` at once
+    (a picklable function of no arguments); yields a :class:`WarmPool`."""
+    with process_pool(jobs) as pool:
+        yield WarmPool(pool, None if warm_up is None else pool.submit(warm_up))

@@ -32,7 +32,6 @@ import numpy as np
 from numba import njit, prange
 
 from model.kernels.closed_form import (
-    N_COEF,
     REGULAR,
     UNDER,
     derive,
@@ -459,9 +458,56 @@ def _response_one(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0,
 
 
 @njit(cache=True, parallel=True)
+def response_grid(wn, sigma, gap, e, w, a, phi, starts, x0s, v0s, t_end, stop_after,
+                  max_events, max_steps):
+    """Sums of v- (eq. 12 numerator / m) of every drive from every initial state, in parallel.
+
+    The one parallel entry point of the response runs: :func:`response_batch` (one drive,
+    many initial states) and :func:`sweep_batch` (one tone per frequency) both call it,
+    so the exact kernel is compiled once for them (numba re-optimises a callee inside
+    every entry point that calls it).
+
+    Parameters
+    ----------
+    w, a, phi : ndarray, shape (n_tones,)
+        The tones of every drive, one after the other [rad/s, m/s^2, rad].
+    starts : ndarray of int64, shape (n_drives + 1,)
+        Drive d plays tones ``starts[d]:starts[d + 1]``.
+    x0s, v0s : ndarray, shape (n_x0,)
+        Initial states [m, m/s], each run from every drive.
+
+    Returns
+    -------
+    sum_v : ndarray, shape (n_drives, n_x0)
+        [m/s]; r = m sum_v / t_end.
+    n_events, status : ndarray of int64, shape (n_drives, n_x0)
+    """
+    nd = starts.shape[0] - 1
+    nx = x0s.shape[0]
+    # every tone's constants, once, shared by every initial state (one row per tone,
+    # independent of the other tones of its drive)
+    coef = tone_coefficients(wn, sigma, w, a, phi)
+    sum_v = np.zeros((nd, nx))
+    n_events = np.zeros((nd, nx), dtype=np.int64)
+    status = np.zeros((nd, nx), dtype=np.int64)
+    for k in prange(nd * nx):
+        d = k // nx
+        j = k % nx
+        s0 = starts[d]
+        s1 = starts[d + 1]
+        res = _response_one(wn, sigma, gap, e, w[s0:s1], a[s0:s1], phi[s0:s1],
+                            coef[s0:s1], 0.0, t_end, x0s[j], v0s[j], stop_after,
+                            max_events, max_steps)
+        status[d, j] = res[0]
+        n_events[d, j] = res[1]
+        sum_v[d, j] = res[2]
+    return sum_v, n_events, status
+
+
 def response_batch(wn, sigma, gap, e, w, a, phi, x0s, v0s, t_end, stop_after,
                    max_events, max_steps):
-    """Sum of v- (eq. 12 numerator / m) from many initial states, in parallel.
+    """Sum of v- (eq. 12 numerator / m) from many initial states under one drive, in
+    parallel (:func:`response_grid` with one drive).
 
     Returns
     -------
@@ -469,24 +515,18 @@ def response_batch(wn, sigma, gap, e, w, a, phi, x0s, v0s, t_end, stop_after,
         [m/s]; r = m sum_v / (t_end - 0).
     n_events, status : ndarray of int64, shape (n,)
     """
-    n = x0s.shape[0]
-    coef = tone_coefficients(wn, sigma, w, a, phi)
-    sum_v = np.zeros(n)
-    n_events = np.zeros(n, dtype=np.int64)
-    status = np.zeros(n, dtype=np.int64)
-    for i in prange(n):
-        res = _response_one(wn, sigma, gap, e, w, a, phi, coef, 0.0, t_end, x0s[i],
-                            v0s[i], stop_after, max_events, max_steps)
-        status[i] = res[0]
-        n_events[i] = res[1]
-        sum_v[i] = res[2]
-    return sum_v, n_events, status
+    starts = np.array([0, w.shape[0]], dtype=np.int64)
+    sum_v, n_events, status = response_grid(
+        float(wn), float(sigma), float(gap), float(e), _vector(w), _vector(a), _vector(phi),
+        starts, _vector(x0s), _vector(v0s), float(t_end), int(stop_after), int(max_events),
+        int(max_steps))
+    return sum_v[0], n_events[0], status[0]
 
 
-@njit(cache=True, parallel=True)
 def sweep_batch(wn, sigma, gap, e, w_list, a_list, x0s, t_end, stop_after,
                 max_events, max_steps):
-    """One-tone responses over a frequency x initial-position grid, in parallel.
+    """One-tone responses over a frequency x initial-position grid, in parallel
+    (:func:`response_grid` with one single-tone drive per frequency).
 
     Parameters
     ----------
@@ -501,24 +541,24 @@ def sweep_batch(wn, sigma, gap, e, w_list, a_list, x0s, t_end, stop_after,
         [m/s] (eq. 12 numerator over m).
     status : ndarray of int64, shape (n_freq, n_x0)
     """
-    nf = w_list.shape[0]
-    nx = x0s.shape[0]
-    # per-frequency constants, computed once and shared by every initial state
-    coefs = np.empty((nf, 1, N_COEF))
-    phi = np.zeros(1)
-    for i in range(nf):
-        coefs[i] = tone_coefficients(wn, sigma, w_list[i:i + 1], a_list[i:i + 1], phi)
-    sum_v = np.zeros((nf, nx))
-    status = np.zeros((nf, nx), dtype=np.int64)
-    for k in prange(nf * nx):
-        i = k // nx
-        j = k % nx
-        res = _response_one(wn, sigma, gap, e, w_list[i:i + 1], a_list[i:i + 1], phi,
-                            coefs[i], 0.0, t_end, x0s[j], 0.0, stop_after, max_events,
-                            max_steps)
-        status[i, j] = res[0]
-        sum_v[i, j] = res[2]
+    w_list = _vector(w_list)
+    x0s = _vector(x0s)
+    starts = np.arange(w_list.shape[0] + 1, dtype=np.int64)
+    sum_v, _, status = response_grid(
+        float(wn), float(sigma), float(gap), float(e), w_list, _vector(a_list),
+        np.zeros(w_list.shape[0]), starts, x0s, np.zeros(x0s.shape[0]), float(t_end),
+        int(stop_after), int(max_events), int(max_steps))
     return sum_v, status
+
+
+def _vector(x):
+    """A writable C-contiguous float64 copy-if-needed of ``x``: one specialisation of
+    :func:`response_grid` whatever the caller holds (a read-only array, e.g. a frozen
+    Drive's phases, is a different numba type and would compile the kernel again)."""
+    x = np.asarray(x, dtype=np.float64)
+    if not (x.flags.c_contiguous and x.flags.writeable):
+        x = np.array(x, dtype=np.float64, order="C")
+    return x
 
 
 @njit(cache=True)

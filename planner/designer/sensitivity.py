@@ -172,9 +172,19 @@ class LineWidthModel:
             return (math.log(self.k_coef * w ** 3 / ll ** 3)
                     - math.log(self.mass(a, w, ll) * w2))
 
+        if on_width:
+            # l(w) falls from +inf at w = 1/S to 0: the widths whose l lies inside its
+            # bounds form one interval, [w(l_hi), w(l_lo)], in closed form
+            w_lo = max(bounds[0], self._width_at(fixed_value, target, l_hi))
+            w_hi = min(bounds[1], self._width_at(fixed_value, target, l_lo))
+            if not w_lo < w_hi:
+                return None
+            bounds = (w_lo, w_hi)
         lo, hi = (math.log(b) for b in bounds)
         ends = [parts(lo)[2], parts(hi)[2]]
-        if not all(l_lo <= ll <= l_hi for ll in ends):
+        # the narrowed ends sit on the length bounds to rounding
+        tol = 1e-9
+        if not all(l_lo * (1 - tol) <= ll <= l_hi * (1 + tol) for ll in ends):
             return None
         g_lo, g_hi = g(lo), g(hi)
         if g_lo == 0.0:
@@ -186,7 +196,20 @@ class LineWidthModel:
         else:
             x = optimize.brentq(g, lo, hi, xtol=XTOL_REL, rtol=XTOL_REL)
         a, w, ll = parts(x)
-        return a, w, ll
+        return a, w, min(max(ll, l_lo), l_hi)
+
+    def _width_at(self, area, target, length):
+        """The width [m] at which ``length`` gives (A, w, l) the sensitivity ``target``:
+        :meth:`_length_at` inverted, the positive root of
+
+            2 c_wl l S w^2 + (2 c_A (S A + sqrt(A)) - 2 c_wl l) w - 3 c_A A = 0.
+        """
+        qa = 2.0 * self.c_wl * length * target
+        qb = 2.0 * self.c_area * (target * area + math.sqrt(area)) - 2.0 * self.c_wl * length
+        qc = -3.0 * self.c_area * area
+        root = math.sqrt(qb * qb - 4.0 * qa * qc)
+        # the form without cancellation for either sign of qb
+        return (-qb + root) / (2.0 * qa) if qb < 0 else -2.0 * qc / (qb + root)
 
     def width_for(self, area, nu_n, target, width_bounds, length_bounds):
         """(w, l) [m] with natural frequency ``nu_n`` and sensitivity ``target`` [1/m],

@@ -82,10 +82,14 @@ def _collisions(nu, tone, below, above, lo, hi, g, pairs, split=None):
         wide = np.abs(split) * nu_c
     b_lo, b_hi = below + wide, above + wide
     w_lo, w_hi = lo - wide, hi - wide
+    # every impacter's window and band edges once per chip, then gathered per pair
+    # (the same floating-point operations as per pair, so the same booleans)
+    win_lo, win_hi = t_c - w_lo, t_c + w_hi
+    band_lo, band_hi = nu_c - b_lo, nu_c + b_hi
 
     def inside(a, b):       # a's whole tone window inside b's silent band
-        return ((t_c[:, a] - w_lo[:, a] > nu_c[:, b] - b_lo[:, b])
-                & (t_c[:, a] + w_hi[:, a] < nu_c[:, b] + b_hi[:, b]))
+        return ((win_lo.take(a, axis=1) > band_lo.take(b, axis=1))
+                & (win_hi.take(a, axis=1) < band_hi.take(b, axis=1)))
 
     return inside(i, j) | inside(j, i)
 

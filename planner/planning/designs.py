@@ -80,7 +80,7 @@ def _design_on_engine(min_speed, kwargs):
 
 
 def design_all(settings: Settings, steps, assignment, cache, progress=None, waveforms=None,
-               jobs=1, scheduler=None, reseed=None, store=None):
+               jobs=1, scheduler=None, reseed=None, store=None, pool=None):
     """Design every driven impacter; ``cache`` maps the design inputs -> result.
 
     With ``waveforms`` (step key -> Waveform), the summed drive of every multi-tone
@@ -100,6 +100,10 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
     ``store`` (a :class:`planner.planning.design_store.DesignStore`, optional) is the
     on-disk cache: a design it holds is read instead of computed, and every design
     computed is written to it.
+
+    ``pool`` (a :class:`planner._workers.WarmPool`, optional): the plan's worker pool,
+    kept for its whole run (its first worker compiled the kernels while the plan
+    assigned the channels); without it, ``jobs`` > 1 starts a pool for this call.
     """
     from planner.designer import Ensemble
 
@@ -176,13 +180,15 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
                             progress=tick if progress is not None else None)
         for key, res in zip(order, results):
             keep(key, res)
-    elif jobs > 1 and len(tasks) > 1:
+    elif tasks and (pool is not None or (jobs > 1 and len(tasks) > 1)):
         import concurrent.futures as cf
+        import contextlib
 
         from planner._workers import process_pool
 
-        with process_pool(jobs) as pool:
-            futures = {pool.submit(_design_task, tasks[key], min_speed): key for key in order}
+        with (contextlib.nullcontext(pool) if pool is not None else process_pool(jobs)) as workers:
+            futures = {workers.submit(_design_task, tasks[key], min_speed): key
+                       for key in order}
             for fut in cf.as_completed(futures):
                 key = futures[fut]
                 keep(key, fut.result())

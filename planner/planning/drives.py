@@ -10,6 +10,33 @@ from planner.planning.settings import Settings, tone_amplitudes
 
 #: The snapping tolerance of a single-tone step's tone, relative to it [-]: 5 Hz at 50 kHz.
 SINGLE_TONE_TOLERANCE_REL = 1e-4
+#: Tones of one step closer than this are played as one tone, at their mean [Hz]: the
+#: synthesis' loop (at most ``MAX_LOOP_LENGTH`` = 1 s) resolves 1 Hz, so two tones
+#: closer than that cannot stay distinct in it.  A plan's tones sit on its channel grid
+#: and never come this close; a re-plan's do when impacters driven together (a row
+#: sharing one design, one tone in the plan) each follow their own measured resonance:
+#: one tone then drives them all, moved by under 1 Hz, well inside their tone windows
+#: and inside the 1 Hz the re-plan keeps off every silent band's edge
+#: (planner.planning.rescue.EDGE_MARGIN_HZ).
+MERGE_HZ = 1.0
+
+
+def merged_tones(freqs):
+    """``(played, tone_of)``: the distinct tones ``freqs`` [Hz] as played, each run of
+    tones within :data:`MERGE_HZ` of its first merged into its mean, and a map from
+    every tone of ``freqs`` to the tone that plays it.
+
+    >>> merged_tones([4853.04, 4853.47, 4853.56, 8091.25])[0]
+    [4853.356666666667, 8091.25]
+    """
+    groups = []
+    for f in sorted(set(freqs)):
+        if groups and f - groups[-1][0] < MERGE_HZ:
+            groups[-1].append(f)
+        else:
+            groups.append([f])
+    played = [g[0] if len(g) == 1 else sum(g) / len(g) for g in groups]
+    return played, {f: p for g, p in zip(groups, played) for f in g}
 
 
 def synthesize_steps(settings: Settings, steps, assignment, seed=None, phases=None):
@@ -29,7 +56,7 @@ def synthesize_steps(settings: Settings, steps, assignment, seed=None, phases=No
     out = {}
     for st in steps:
         nodes = sorted(Node(d, dr) for d, dr in st.active_nodes())
-        freqs = sorted({frequencies[n] for n in nodes})
+        freqs, tone_of = merged_tones(frequencies[n] for n in nodes)
         amps = tone_amplitudes(settings, freqs)
         # one tone: played within 0.01 %, inside the 10-80 Hz an impacter designed for
         # yield keeps driving its slider (0.1 % moved a 51 kHz tone by 50 Hz); a step of
@@ -41,7 +68,7 @@ def synthesize_steps(settings: Settings, steps, assignment, seed=None, phases=No
         if nodes and all(n in given for n in nodes):
             first = {}
             for n in nodes:                     # a shared tone: its first impacter's phase
-                first.setdefault(frequencies[n], given[n])
+                first.setdefault(tone_of[frequencies[n]], given[n])
             ph = [first[f] for f in freqs]
         out[st.key] = synthesize(freqs, amps, settings.sample_rate_hz, seed=seed + st.index,
                                  peak_limit=settings.peak_limit_m, frequency_tolerance=tol,

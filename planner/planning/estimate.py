@@ -29,10 +29,14 @@ The terms:
 * one design try costs ``DESIGN_TRY_S + DESIGN_S_PER_FORBIDDEN x forbidden tones +
   DESIGN_S_PER_DRIVE x forbidden summed drives`` of one core: the designer checks every
   forbidden tone across its guard band and every summed drive it must sit out, from
-  every x0 of its grid.  Fitted (least squares) to 24 single tries of real design tasks
-  of six specs (4-97 forbidden tones, 0-2 drives, 4-53 kHz) timed in-process by CPU
-  time with BLAS and numba on one thread; single tries scatter 0.3-2.2x around the
-  fit (the search is stochastic), sums over many designs much less;
+  every x0 of its grid.  Fitted (least squares) to the first tries of real design tasks
+  of five specs (204 design tasks of the default, row_assembly, tiny_1x2, pattern_5x5
+  and array_7x7 plans: 1-97 forbidden tones, 0-2 drives, 4-53 kHz) timed in-process
+  with BLAS and numba on one thread (the tasks captured as ``benchmarks/plan_speed.py
+  --profile-tasks`` does); single tries scatter 0.3-7x around the fit (the search is
+  stochastic; a try that finds no feasible design on its grid searches again with more
+  samples), sums over many designs much less (within 3 % on the 50- and 98-design
+  plans);
 * a verification step simulates every device's impacters from every initial position of
   the x0 grid over the step: cost ~ impacters x x0 points x duration x frequency;
 * the coupling matrix simulates every impacter under every tone alone over the
@@ -57,13 +61,14 @@ from planner.planning.exposure import driven_ensembles, forbidden_tones, idle_en
 
 #: Seconds of one core per design try, fixed part (Sobol seeding, annealing, SLSQP and
 #: the re-checks at the target).
-DESIGN_TRY_S = 0.33
+DESIGN_TRY_S = 0.34
 #: Seconds of one core per design try and forbidden frequency (checked across its
 #: guard band).
-DESIGN_S_PER_FORBIDDEN = 0.019
-#: Seconds of one core per design try and forbidden summed drive (simulated over the
-#: design window and the long re-check window).
-DESIGN_S_PER_DRIVE = 0.31
+DESIGN_S_PER_FORBIDDEN = 0.0043
+#: Seconds of one core per design try and summed drive (idle or target ensemble): small
+#: since the designer checks a summed drive in its search only once a re-check found it
+#: binding.
+DESIGN_S_PER_DRIVE = 0.0035
 #: Seconds per (impacter x x0 point x second of step x kHz of tone) of the verification:
 #: 6.2e-4 on the default 5 x 5 plan, 1.0e-3 on the 10 x 10 row plan.
 VERIFY_S_PER_UNIT = 8e-4
@@ -74,22 +79,23 @@ SCENE_S_PER_UNIT = 6e-3
 #: default plan's 0.3 s of scenes and coupling less its scenes.
 COUPLING_S_PER_UNIT = 4e-5
 #: Seconds to compile every cached kernel of model.kernels that a plan calls, on one
-#: core, with an empty numba cache (measured: a tiny plan cold less the same plan warm).
-COMPILE_S = 65.0
+#: core, with an empty numba cache (measured: :func:`model.warmup.compile_kernels`
+#: cold, 17.3 s on an idle 2-core machine; a plan with workers overlaps it with the
+#: assignment, see planner.planning.pipeline._workers).
+COMPILE_S = 18.0
 #: The kernels a plan calls from Python (``module:name``); each compiles, and caches, the
 #: kernels it calls with it.  The assigner's colouring kernels are left out: they have
 #: compiled by the time the estimate is made.
-PLAN_KERNELS = ("model.kernels.impacter:run_impacter", "model.kernels.impacter:response_batch",
-                "model.kernels.impacter:sweep_batch", "model.kernels.slider:run_slider",
+PLAN_KERNELS = ("model.kernels.impacter:run_impacter", "model.kernels.impacter:response_grid",
+                "model.kernels.slider:run_slider",
                 "model.kernels.closed_form:tone_coefficients",
                 "model.kernels.contact:two_body_impact", "model.kernels.contact:two_body_kick")
 #: Design time of a typical first round relative to every design kept at its first try:
-#: slow designs are retried (up to 8 tries) and single tries scatter.  Measured on seeds
-#: 0-4 of the default 5 x 5 plan: 134-160 s of designs on 2 workers against 54 s at
-#: first tries (2.5-3.0x; 16 first tries of 8 of its designs took 0.75-6.6 s of CPU,
-#: mean 1.2x the fitted try cost).  Small plans retry less (the tests' 1 x 2 spec: 6
-#: tries for 4 designs), so for them the typical figure is high.
-TYPICAL_DESIGN_FACTOR = 2.6
+#: slow designs are retried (up to 8 tries) and single tries scatter.  Measured (one
+#: process, numba and BLAS on one thread, every design task of the plan timed): 1.60 on
+#: the default 5 x 5 plan (68 tries for 50 designs), 1.49 on pattern_5x5, 1.90 on the
+#: 7 x 7, 1.02-1.03 on row_assembly and the tests' 1 x 2 spec.
+TYPICAL_DESIGN_FACTOR = 1.6
 #: Parallel efficiency of a second worker (processes for designs, threads for simulation).
 PARALLEL_EFFICIENCY = 0.8
 

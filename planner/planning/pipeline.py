@@ -218,13 +218,29 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     tick = progress or (lambda stage, item=None, total=None: None)
     clock = _Clock()
     store = DesignStore(cache_dir) if cache_dir is not None else None
-    kept, rounds, designed = _repair_rounds(
-        settings, clock, tick, on_assignment,
-        dict(jobs=max(1, int(jobs or 1)), scheduler=scheduler, store=store))
+    jobs = max(1, int(jobs or 1))
+    with _workers(jobs, scheduler) as pool:
+        kept, rounds, designed = _repair_rounds(
+            settings, clock, tick, on_assignment,
+            dict(jobs=jobs, scheduler=scheduler, store=store, pool=pool))
     cache = (None if store is None else
              {"path": str(store.path), "read": store.hits, "written": store.writes,
               "designed": designed})
     return _finish(settings, kept, rounds, clock, scheduler, cache)
+
+
+def _workers(jobs, scheduler):
+    """The plan's local worker pool (None: serial, or a Dask cluster), kept over every
+    repair round; its first worker compiles (or loads) the solver's kernels while this
+    process assigns the channels and synthesises the drives (:mod:`model.warmup`)."""
+    import contextlib
+
+    if jobs <= 1 or scheduler:
+        return contextlib.nullcontext(None)
+    from model.warmup import compile_kernels
+    from planner._workers import warm_pool
+
+    return warm_pool(jobs, compile_kernels)
 
 
 def _finish(settings, kept: _Round, rounds, clock, scheduler, design_cache) -> Plan:

@@ -23,7 +23,8 @@ from planner.yield_.inputs import Payload, _drive_of
 #: carried-state check fails (the re-plan does not simulate the scenes); the chip
 #: cannot be built.
 REPLAN_CAUSES = ("cannot be told apart", "outside band", "fails on the measured models",
-                 "fails only on the true models", "carried state", "unbuildable")
+                 "fails only on the true models", "carried state", "unbuildable",
+                 "drive not playable")
 
 
 def verify_chip(payload: Payload, scale_index: int, chip_index: int, scale: float) -> dict:
@@ -215,9 +216,17 @@ def _replan_and_check(payload, settings, measured, impacters, sliders, original)
     """Re-plan from ``measured`` and verify the drive on the true models (a yield's
     re-plan and its trim's)."""
     from planner.planning.replan import replan_chip
+    from planner.synthesis import LoopLengthError
 
-    ok, plan = replan_chip(payload.record, measured, settings=settings, original=original,
-                           record=False)
+    try:
+        ok, plan = replan_chip(payload.record, measured, settings=settings,
+                               original=original, record=False)
+    except LoopLengthError:
+        # this chip's tones fit no loop the synthesis may play: the chip fails (with
+        # that cause), the study goes on
+        return {"passed": False, "measured_passed": False, "causes": ["drive not playable"],
+                "failures": {}, "collisions": [], "outside_band": [], "split_steps": [],
+                "tones_moved": 0}
     data = plan.data
     rp = data["replan"]
     collisions = [{k: c[k] for k in ("pair", "as_built_hz", "apart_hz", "needs_hz")}

@@ -8,6 +8,7 @@ import dataclasses
 import json
 import math
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -404,3 +405,41 @@ def test_synthesis_takes_given_phases_per_impacter(plan):
     shared = synthesize_steps(settings, [both], {A1F: 5000.0, A2B: 5000.0},
                               phases=given)["s/both"]
     assert shared.phases == pytest.approx([0.5])
+
+
+def test_tones_closer_than_the_loop_resolution_play_as_one(plan):
+    """A re-plan of a row sharing one design gives each impacter its own measured tone,
+    some a fraction of a hertz apart: no loop of <= 1 s keeps them distinct (the
+    synthesis stopped the whole yield study with a LoopLengthError).  Tones of one step
+    within MERGE_HZ play as one, at their mean, with the first impacter's phase; the
+    rest keep theirs."""
+    from planner.planning.drives import MERGE_HZ, merged_tones, synthesize_steps
+    from planner.planning.settings import resolve_settings
+    from planner.spec import Step
+    from planner.synthesis import synthesize
+
+    # one step of row_assembly's re-plan under the 5 x 5 tolerances (its chip 4)
+    freqs = [4782.00732551, 4813.82536784, 4820.6025336, 4841.23256583, 4842.03717645,
+             4852.75925104, 4853.0403854, 4853.46945067, 4853.56419374, 4858.21514823,
+             4861.82125873, 4863.43888197, 4877.99702244, 4887.11645048, 4888.17280014,
+             8091.25036241, 8093.7602566, 8095.63160679, 8120.74712274, 8132.11983369,
+             8136.84199902, 8141.6029637, 8145.30870233, 8147.92733125, 8183.91600388]
+    settings = resolve_settings(plan.loaded)
+    with pytest.raises(ValueError, match="no loop"):
+        synthesize(freqs, [1e-8] * len(freqs), settings.sample_rate_hz, seed=0)
+    played, tone_of = merged_tones(freqs)
+    assert len(played) == len(freqs) - 4    # 4841.2 + 4842.0 and 4852.8-4853.6 (four) merged
+    assert all(abs(tone_of[f] - f) < MERGE_HZ for f in freqs)
+    assert all(b - a >= 0.5 * MERGE_HZ for a, b in zip(played, played[1:]))
+    devices = tuple(f"R{k}" for k in range(len(freqs)))
+    step = Step("s", "row", 0, 0.005, devices, ())
+    tones = {Node(d, "forward"): f for d, f in zip(devices, freqs)}
+    phases = {"s/row": {Node(d, "forward"): 0.01 * k for k, d in enumerate(devices)}}
+    w = synthesize_steps(settings, [step], tones, phases=phases)["s/row"]
+    assert len(w.frequencies) == len(played)
+    assert w.requested_frequencies == pytest.approx(played)
+    # every played tone within the synthesis' tolerance of what it stands for
+    assert np.all(np.abs(np.asarray(w.frequencies) - played) <= 1e-3 * np.asarray(played))
+    # the merged 4852.8-4853.6 Hz tone plays at the phase of its first impacter (R5)
+    k = int(np.argmin(np.abs(np.asarray(played) - 4853.2)))
+    assert w.phases[k] == pytest.approx(0.05)
