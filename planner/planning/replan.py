@@ -265,7 +265,7 @@ def _design_like(rec, imp, tone, settings):
 
 
 def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=None,
-           original=None, record=True):
+           original=None, record=True, remeasure=()):
     """Re-plan the drive of a fabricated chip from its measured resonances.
 
     Parameters
@@ -294,6 +294,10 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
         False: skip what only the outputs read (the scene simulation on the measured
         models and the coupling matrix; ``scenes`` is then empty and ``coupling`` an
         empty table).  The drive and its verification are the same.
+    remeasure : iterable of str
+        Impacter ids whose silent bands and tone windows are measured again on their
+        as-built models (a trim's moved impacters: :func:`planner.planning.rescue.
+        remeasured`) instead of taken from the plan's ``manufacturability`` block.
 
     Returns
     -------
@@ -328,7 +332,8 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
     strict = dataclasses.replace(settings,
                                  max_travel_m=settings.max_travel_m * REPLAN_TRAVEL_MARGIN)
     ts = time.perf_counter()
-    drive = rescue(plan, measured_resonances(plan, measured), settings, models, sliders)
+    drive = rescue(plan, measured_resonances(plan, measured), settings, models, sliders,
+                   remeasure=remeasure)
     timings["drive"] = time.perf_counter() - ts
     ts = time.perf_counter()
     tick("verify", total=len(drive.steps))
@@ -476,7 +481,7 @@ def inseparable_message(c) -> str:
 
 
 def replan_chip(plan: PlanRecord, as_built: dict, seed=None, *, settings=None, original=None,
-                record=True):
+                record=True, remeasure=()):
     """Re-plan one chip for a yield study: ``(passed, plan)``.
 
     Parameters
@@ -490,10 +495,11 @@ def replan_chip(plan: PlanRecord, as_built: dict, seed=None, *, settings=None, o
         Drive phases' seed (default: the plan's).
     settings : Settings, optional
         The plan's settings, resolved once for every chip (:func:`replan`).
-    original, record :
+    original, record, remeasure :
         As :func:`replan`: the original drive's ``(passed, rows)`` when already known
-        (not verified again), and False to skip the scenes and the coupling matrix
-        (``vibroplan yield --replan`` passes both).
+        (not verified again), False to skip the scenes and the coupling matrix
+        (``vibroplan yield --replan`` passes both), and the impacters whose separations
+        are measured again (a trim's).
 
     Returns
     -------
@@ -506,7 +512,7 @@ def replan_chip(plan: PlanRecord, as_built: dict, seed=None, *, settings=None, o
         parameters to :func:`verify_drive`.
     """
     result = replan(plan, as_built, seed=seed, settings=settings, original=original,
-                    record=record)
+                    record=record, remeasure=remeasure)
     return result.passed, result
 
 

@@ -99,7 +99,7 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
     if not tp.ok:
         return TrimResult(tp, rows, spec, None, False)
     result = replan(plan, _targets(full, tp, tp.target), settings=settings,
-                    progress=progress)
+                    progress=progress, remeasure=tp.moved)
     # where the cuts really put the resonances: the targets, off by the trim precision
     rng = np.random.default_rng(np.random.SeedSequence([seed, 26]))
     actual = trimmed_resonances(tp, spec.precision_pct, rng)

@@ -130,7 +130,7 @@ def trim_chip_on(payload: Payload, settings, scale: float, chip_index: int, chip
     true = trim_models(chip.impacters, ratios, spec.direction)
     again = _as_measured(_measure(payload, true, seq[2]))     # the trimmed chip measured again
     got = _replan_and_check(payload, settings, again, true, chip.sliders,
-                            (nominal["steps_passed"], nominal["rows"]))
+                            (nominal["steps_passed"], nominal["rows"]), remeasure=tp.moved)
     return {"passed": got["passed"], "trimmed": list(tp.moved), "causes": got["causes"],
             "failures": got["failures"]}
 
@@ -212,15 +212,17 @@ def replan_chip_on(payload: Payload, settings, scale: float, chip_index: int, ch
                              chip.sliders, (nominal["steps_passed"], nominal["rows"]))
 
 
-def _replan_and_check(payload, settings, measured, impacters, sliders, original):
+def _replan_and_check(payload, settings, measured, impacters, sliders, original,
+                      remeasure=()):
     """Re-plan from ``measured`` and verify the drive on the true models (a yield's
-    re-plan and its trim's)."""
+    re-plan and its trim's; ``remeasure``: the trimmed impacters, whose separations the
+    re-plan measures again)."""
     from planner.planning.replan import replan_chip
     from planner.synthesis import LoopLengthError
 
     try:
         ok, plan = replan_chip(payload.record, measured, settings=settings,
-                               original=original, record=False)
+                               original=original, record=False, remeasure=remeasure)
     except LoopLengthError:
         # this chip's tones fit no loop the synthesis may play: the chip fails (with
         # that cause), the study goes on

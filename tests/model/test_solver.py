@@ -1,6 +1,7 @@
 """The exact solver against independent methods, conservation laws and edge cases."""
 
 import math
+import os
 import warnings
 
 import numpy as np
@@ -241,3 +242,48 @@ def test_release_from_wall_does_not_loop_on_noise_velocity():
     assert res.status == "ok"
     assert np.all(np.diff(res.times) > 0)
     assert np.all(res.velocities > 1e-9)
+
+
+@pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT") == "1", reason="counts numba's "
+                    "compiled specialisations")
+def test_one_kernel_specialisation_serves_responses_sweeps_and_simulations():
+    """responses(), sweep() and simulate() (a frozen Drive's read-only phases included)
+    reach one specialisation of the parallel response kernel and one of the exact
+    kernel: numba re-optimises the impacter kernel inside each entry point and for each
+    argument type, ~8-16 s apiece on a cold cache (model.warmup).  In a fresh
+    interpreter, where each argument type loads (or compiles) one specialisation."""
+    import subprocess
+    import sys
+
+    code = (
+        "import numpy as np\n"
+        "from model import Impacter, Drive, responses, sweep, simulate\n"
+        "from model.kernels import impacter as k\n"
+        "from model.warmup import compile_kernels\n"
+        "compile_kernels()\n"
+        "imp = Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6).with_natural_frequency(5200)\n"
+        "d = Drive([5100.0, 6100.0], [2e-8, 1e-8], [0.3, 1.0])\n"
+        "assert not d.phases.flags.writeable\n"
+        "responses(imp, d, [0.0, 1e-6], duration=2e-4)\n"
+        "responses(imp, d, np.array([0.0, 1e-6])[::2], v0s=1e-3, duration=2e-4)\n"
+        "sweep(imp, [5000.0, 5200.0], [0.0], duration=2e-4)\n"
+        "simulate(imp, d, duration=2e-4, trajectory=5)\n"
+        "print(len(k.response_grid.signatures), len(k.run_impacter.signatures))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.split() == ["1", "1"]
+
+
+def test_a_sweep_is_the_responses_of_its_tones():
+    """sweep() (one tone per frequency through the grid kernel) gives the responses of
+    each tone alone, to the rounding of the tone's amplitude (sweep computes it from the
+    power, the Drive from its amplitude)."""
+    from model import Drive, responses, sweep
+
+    imp = Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6).with_natural_frequency(5200)
+    f = np.array([4800.0, 5150.0, 5600.0, 6200.0])
+    x0s = np.linspace(-imp.gap, imp.gap, 7)
+    r = sweep(imp, f, x0s, duration=1e-3)
+    for i, fi in enumerate(f):
+        assert r[i] == pytest.approx(responses(imp, Drive.tone(fi), x0s, duration=1e-3),
+                                     rel=1e-12, abs=0.0)

@@ -126,19 +126,16 @@ def _neighbours(plan):
     return lo, hi
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "known regression (issue 28's designer): with the kappa-coordinate designs the trim's "
-    "re-plan puts A1.forward's tone 304 Hz below A2.backward's target resonance, outside "
-    "its widened silent band (1.1 x 273 Hz), and A2.backward still answers it with one "
-    "grazing impact (r = 3.5e-10 N from x0 = -c): the silent band measured on the nominal "
-    "design does not bound the idle response at its edge; see the issue 28 note"))
 def test_trim_cli_moves_a_colliding_impacter_and_verifies_on_the_trimmed_models(
         close_plan_dir, tmp_path):
     """A chip of the close plan whose two nearest impacters came 30 Hz closer than they
     can be told apart (the rest as designed): `vibroplan trim` raises the upper one just
     enough (plus the precision margin), trim.csv says what to cut, and the drive
     re-planned for the trimmed chip verifies on the trimmed models (precision error
-    drawn)."""
+    drawn).  The re-plan measures the trimmed impacter's silent band again on its
+    trimmed model: with the band taken from the nominal design, A2.backward answered
+    A1.forward's re-planned tone 304 Hz away with one grazing impact, just outside its
+    nominal band widened to 300 Hz."""
     import csv as csvmod
     import json
 
