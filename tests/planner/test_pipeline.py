@@ -116,12 +116,13 @@ def test_cli_same_spec_and_seed_byte_identical_plan_json(tmp_path):
 
 
 def test_ctrl_c_mid_run_leaves_no_output(tmp_path):
-    """SIGINT while the default 5 x 5 plan is designing (it takes ~50 s): exit 130, no
+    """SIGINT while the default 5 x 5 plan is designing (it takes ~25 s): exit 130, no
     output folder, no temporary folder left behind."""
     out = tmp_path / "plan_out"
+    # --no-cache: every design computed, whatever an earlier run left in the design cache
     proc = subprocess.Popen([sys.executable, "-m", "planner.cli", "plan", "--out", str(out),
-                             "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            cwd=tmp_path)
+                             "--quiet", "--no-cache"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, cwd=tmp_path)
     try:
         proc.wait(timeout=6)
         pytest.fail("the default plan finished in 6 s: this test needs a longer run")
