@@ -633,3 +633,19 @@ def test_a_nan_option_is_bad_input_not_a_conversion_error(tmp_path):
               "nan", "--out", tmp_path / "r.csv")
     assert res.exit_code == 2 and "not a finite number" in res.output
     assert not (tmp_path / "r.csv").exists()
+
+
+def test_the_warm_pool_runs_its_warm_up_first_and_then_the_tasks():
+    """planner._workers.warm_pool: the warm-up (numba's compilation, model.warmup) starts
+    in a worker at once; the first task submitted waits for it, so no second worker
+    compiles the same kernels at the same time; the tasks then run as in any pool."""
+    from model.warmup import compile_kernels
+    from planner._workers import warm_pool
+
+    with warm_pool(2, compile_kernels) as pool:
+        futures = [pool.submit(math.sqrt, x) for x in (4.0, 9.0)]
+        assert pool.wait_warm() is None           # read by the first submit already
+        assert [f.result() for f in futures] == [2.0, 3.0]
+    with warm_pool(2, compile_kernels) as pool:
+        seconds = pool.wait_warm()
+        assert isinstance(seconds, float) and seconds > 0

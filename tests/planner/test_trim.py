@@ -194,3 +194,36 @@ def test_trim_cli_names_a_chip_no_trim_in_range_can_fix(close_plan_dir, tmp_path
     assert "cannot be trimmed" in res.output and "trim.range_pct 1" in res.output
     assert (out / "trim.csv").exists() and not (out / "plan.json").exists()
     assert "cannot be trimmed" in (out / "report.md").read_text()
+
+
+def test_remeasured_replaces_only_the_trimmed_rows_by_simulation(close_plan_dir):
+    """rescue.remeasured: the trimmed impacter's silent band and tone window measured on
+    its trimmed model (widened as the plan's are), every other impacter's row as the
+    plan recorded it."""
+    from planner.manufacturability import BAND_MARGIN, measure_separation
+    from planner.planning.plan_file import read_plan
+    from planner.planning.replan import measured_models
+    from planner.planning.rescue import remeasured, separations_of
+    from planner.planning.settings import resolve_settings
+
+    plan = read_plan(close_plan_dir)
+    settings = resolve_settings(plan.loaded)
+    seps = separations_of(plan, settings)
+    hi = _neighbours(plan)[1].id
+    moved = {r.id: {"natural_frequency_hz": r.natural_frequency_hz * (1.02 if r.id == hi
+                                                                      else 1.0)}
+             for r in plan.impacters}
+    models = measured_models(plan, moved)
+    tones = {r.id: r.frequency_hz * (1.02 if r.id == hi else 1.0) for r in plan.impacters}
+    again = remeasured(seps, [hi], models, tones, settings)
+    k = seps.ids.index(hi)
+    got = measure_separation(models[hi], tones[hi], power=settings.power_m2_s3,
+                             amplitude=settings.amplitude_m, window=settings.window_s,
+                             silent_window=max(settings.single_step_s, settings.window_s))
+    assert again.below[k] == (1 + BAND_MARGIN) * got.silent_below_hz
+    assert again.above[k] == (1 + BAND_MARGIN) * got.silent_above_hz
+    assert (again.lo[k], again.hi[k]) == (got.responds_below_hz, got.responds_above_hz)
+    others = [i for i in range(len(seps.ids)) if i != k]
+    for name in ("below", "above", "lo", "hi", "rho"):
+        assert np.array_equal(getattr(again, name)[others], getattr(seps, name)[others])
+    assert np.array_equal(again.rho, seps.rho)
