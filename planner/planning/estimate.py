@@ -194,7 +194,8 @@ class Estimate:
             f"  per round: designs {_range(self.design_s, self.worst_tries * self.design_s)} "
             f"(1-{self.tries} tries each, infeasible ones searching wider: up to "
             f"{self.worst_tries:.0f} x a first try), verification {_fmt(self.verify_s)}; up to "
-            f"{self.rounds} rounds (1 if every step verifies; the high end redoes every "
+            f"{self.rounds} round{'s' if self.rounds != 1 else ''} (1 if every step "
+            f"verifies; the high end redoes every "
             f"design in every round at its last try); then scenes and coupling "
             f"{_fmt(self.coupling_s)}; {comp}",
         ] + self._load_lines()
