@@ -55,6 +55,7 @@ from __future__ import annotations
 import importlib
 from dataclasses import dataclass
 
+from planner.manufacturability import CHIPS
 from planner.nodes import Node
 from planner.planning.designs import DESIGN_RETRIES, INFEASIBLE_TRIES
 from planner.planning.exposure import driven_ensembles, forbidden_tones, idle_ensembles
@@ -78,6 +79,13 @@ SCENE_S_PER_UNIT = 6e-3
 #: Seconds per (impacter x tone x x0 point x second x kHz) of the coupling matrix: the
 #: default plan's 0.3 s of scenes and coupling less its scenes.
 COUPLING_S_PER_UNIT = 4e-5
+#: Seconds of one core per distinct design of the manufacturability stage's separations
+#: (silent band and tone window scanned by simulation): the default plan's 50 designs,
+#: 2.4 s on two numba threads (~4.1 s of one core).
+SEPARATION_S_PER_DESIGN = 0.082
+#: Seconds per (pair told apart x chip) of the collision-free yield's Monte Carlo (one
+#: core, numpy): the default plan's 1225 pairs x 10^4 chips, 0.45 s.
+YIELD_S_PER_PAIR_CHIP = 3.7e-8
 #: Seconds to compile every cached kernel of model.kernels that a plan calls, on one
 #: core, with an empty numba cache (measured: :func:`model.warmup.compile_kernels`
 #: cold, 17.3 s on an idle 2-core machine; a plan with workers overlaps it with the
@@ -120,6 +128,9 @@ class Estimate:
         Estimated wall time on ``jobs`` workers [s] of one round of designs (every
         design kept at its first try), of one round of verification, and of the scenes
         and the coupling matrix (once).
+    manufacturability_s : float
+        Estimated wall time [s] of the manufacturability stage (once): every distinct
+        design's separation and, with tolerances, the yield's Monte Carlo.
     jobs : int
         Workers the estimate is for.
     load : tuple or None
@@ -153,25 +164,27 @@ class Estimate:
     compile_s: float = 0.0
     cold_kernels: int = 0
     kernels: int = 0
+    manufacturability_s: float = 0.0
 
     @property
     def total_s(self) -> float:
         """The low end [s]: compilation, one round at first tries, scenes and coupling."""
-        return self.compile_s + self.design_s + self.verify_s + self.coupling_s
+        return (self.compile_s + self.design_s + self.verify_s + self.coupling_s
+                + self.manufacturability_s)
 
     @property
     def typical_s(self) -> float:
         """The typical time [s]: one round with the designs' retries as measured on the
         default plan (:data:`TYPICAL_DESIGN_FACTOR` x the first-try designs)."""
         return (self.compile_s + TYPICAL_DESIGN_FACTOR * self.design_s + self.verify_s
-                + self.coupling_s)
+                + self.coupling_s + self.manufacturability_s)
 
     @property
     def high_s(self) -> float:
         """The high end [s]: compilation, every round, every design at its last try."""
         return (self.compile_s + self.rounds * (self.worst_tries * self.design_s
                                                 + self.verify_s)
-                + self.coupling_s)
+                + self.coupling_s + self.manufacturability_s)
 
     def lines(self) -> list[str]:
         """The estimate as the CLI prints it."""
@@ -197,7 +210,8 @@ class Estimate:
             f"{self.rounds} round{'s' if self.rounds != 1 else ''} (1 if every step "
             f"verifies; the high end redoes every "
             f"design in every round at its last try); then scenes and coupling "
-            f"{_fmt(self.coupling_s)}; {comp}",
+            f"{_fmt(self.coupling_s)}, manufacturability {_fmt(self.manufacturability_s)}; "
+            f"{comp}",
         ] + self._load_lines()
 
     def _load_lines(self):
@@ -305,6 +319,14 @@ def estimate(settings, steps, assignment, jobs=1) -> Estimate:
     coup_units = len(freqs) * x0 * settings.single_step_s * sum(tones) / 1e3
     coup_runs = len(freqs) * len(tones) * x0
     cold, total = numba_cache_state()
+    # manufacturability: one separation per distinct design (in this process, on the
+    # numba threads), and the Monte Carlo over the pairs the steps must tell apart
+    from planner.assign import told_apart_pairs
+
+    chips = 0 if settings.fabrication.zero else CHIPS
+    pairs = len(told_apart_pairs(assignment, sorted(freqs))) if chips else 0
+    manufacture_s = (SEPARATION_S_PER_DESIGN * len(keys) / _speedup(jobs, len(keys))
+                     + YIELD_S_PER_PAIR_CHIP * pairs * chips)
     return Estimate(
         impacters=len(freqs), designs=len(keys), steps=len(steps),
         verification_runs=ver_runs, coupling_runs=coup_runs,
@@ -316,7 +338,7 @@ def estimate(settings, steps, assignment, jobs=1) -> Estimate:
         worst_tries=worst_design_tries(settings.budget),
         rounds=1 + settings.repair_rounds,
         compile_s=COMPILE_S * cold / total if total else 0.0,
-        cold_kernels=cold, kernels=total)
+        cold_kernels=cold, kernels=total, manufacturability_s=manufacture_s)
 
 
 def worst_design_tries(budget="fast") -> float:
