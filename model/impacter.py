@@ -289,17 +289,22 @@ def responses(impacter, drive, x0s, v0s=None, duration=3e-3, *, stop_at_first=Fa
     else:
         duration = float(duration)     # one kernel specialisation, whatever was passed
     w, a, phi = impacter_forcing(impacter, drive)
-    # the grid kernel with one drive (model.kernels.impacter.response_batch, without
-    # its argument normalisation: the designer calls this ~10^5 times a design)
+    # the grid kernel with one drive, its arguments normalised above (the designer calls
+    # this ~10^5 times a design)
     sum_v, _, status = _k.response_grid(
         impacter.omega_n, impacter.sigma, impacter.gap, impacter.restitution, w, a, phi,
         np.array([0, w.size], dtype=np.int64), x0s, v0s, duration,
         2 if stop_at_first else 0, _k.MAX_EVENTS, _k.MAX_STEPS)
-    sum_v, status = sum_v[0], status[0]
+    return _responses_from(impacter, sum_v[0], status[0], duration, return_status)
+
+
+def _responses_from(impacter, sum_v, status, duration, return_status):
+    """r = m sum v- / duration [N] of the kernel's runs (eq. 12), with a SolverWarning
+    for the caller of :func:`responses` or :func:`sweep` when some run ended on a cap."""
     bad = int(np.count_nonzero(status))
     if bad:
         warnings.warn(f"{bad} of {status.size} runs ended on a cap or non-finite state",
-                      SolverWarning, stacklevel=2)
+                      SolverWarning, stacklevel=3)
     r = impacter.mass * sum_v / duration
     return (r, status) if return_status else r
 
@@ -355,9 +360,4 @@ def sweep(impacter, frequencies, x0s, power=POWER, duration=3e-3, *, stop_at_fir
     sum_v, status = _k.sweep_batch(
         impacter.omega_n, impacter.sigma, impacter.gap, impacter.restitution, w, a, x0s,
         duration, 2 if stop_at_first else 0, _k.MAX_EVENTS, _k.MAX_STEPS)
-    bad = int(np.count_nonzero(status))
-    if bad:
-        warnings.warn(f"{bad} of {status.size} runs ended on a cap or non-finite state",
-                      SolverWarning, stacklevel=2)
-    r = impacter.mass * sum_v / duration
-    return (r, status) if return_status else r
+    return _responses_from(impacter, sum_v, status, duration, return_status)

@@ -462,7 +462,7 @@ def response_grid(wn, sigma, gap, e, w, a, phi, starts, x0s, v0s, t_end, stop_af
                   max_events, max_steps):
     """Sums of v- (eq. 12 numerator / m) of every drive from every initial state, in parallel.
 
-    The one parallel entry point of the response runs: :func:`response_batch` (one drive,
+    The one parallel entry point of the response runs: ``model.responses`` (one drive,
     many initial states) and :func:`sweep_batch` (one tone per frequency) both call it,
     so the exact kernel is compiled once for them (numba re-optimises a callee inside
     every entry point that calls it).
@@ -502,25 +502,6 @@ def response_grid(wn, sigma, gap, e, w, a, phi, starts, x0s, v0s, t_end, stop_af
         n_events[d, j] = res[1]
         sum_v[d, j] = res[2]
     return sum_v, n_events, status
-
-
-def response_batch(wn, sigma, gap, e, w, a, phi, x0s, v0s, t_end, stop_after,
-                   max_events, max_steps):
-    """Sum of v- (eq. 12 numerator / m) from many initial states under one drive, in
-    parallel (:func:`response_grid` with one drive).
-
-    Returns
-    -------
-    sum_v : ndarray, shape (n,)
-        [m/s]; r = m sum_v / (t_end - 0).
-    n_events, status : ndarray of int64, shape (n,)
-    """
-    starts = np.array([0, w.shape[0]], dtype=np.int64)
-    sum_v, n_events, status = response_grid(
-        float(wn), float(sigma), float(gap), float(e), _vector(w), _vector(a), _vector(phi),
-        starts, _vector(x0s), _vector(v0s), float(t_end), int(stop_after), int(max_events),
-        int(max_steps))
-    return sum_v[0], n_events[0], status[0]
 
 
 def sweep_batch(wn, sigma, gap, e, w_list, a_list, x0s, t_end, stop_after,

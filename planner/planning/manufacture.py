@@ -77,11 +77,9 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
         # one tone: row_assembly's 40 impacters have 4)
         key = (d.impacter, assignment.frequencies[n], amps.get(n))
         if key not in measured:
-            measured[key] = measure_separation(
-                d.impacter, assignment.frequencies[n], power=settings.power_m2_s3,
-                amplitude=settings.amplitude_m, tone_amplitude=amps.get(n),
-                window=settings.window_s,
-                silent_window=max(settings.single_step_s, settings.window_s))
+            measured[key] = measure_separation(d.impacter, assignment.frequencies[n],
+                                               tone_amplitude=amps.get(n),
+                                               **settings.separation_kwargs())
         seps[n] = measured[key]
     lw = np.array([sens[n]["line_width_um"] for n in nodes])
     out = {

@@ -219,7 +219,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     clock = _Clock()
     store = DesignStore(cache_dir) if cache_dir is not None else None
     jobs = max(1, int(jobs or 1))
-    with _workers(jobs, scheduler) as pool:
+    with _plan_pool(jobs, scheduler) as pool:
         kept, rounds, designed = _repair_rounds(
             settings, clock, tick, on_assignment,
             dict(jobs=jobs, scheduler=scheduler, store=store, pool=pool))
@@ -229,7 +229,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     return _finish(settings, kept, rounds, clock, scheduler, cache)
 
 
-def _workers(jobs, scheduler):
+def _plan_pool(jobs, scheduler):
     """The plan's local worker pool (None: serial, or a Dask cluster), kept over every
     repair round; its first worker compiles (or loads) the solver's kernels while this
     process assigns the channels and synthesises the drives (:mod:`model.warmup`)."""

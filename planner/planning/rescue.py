@@ -284,10 +284,7 @@ def separations_of(plan, settings) -> Separations:
         seps = [block[n] for n in ids]
     else:
         seps = [measure_separation(recs[n].impacter(), recs[n].frequency_hz,
-                                   power=settings.power_m2_s3, amplitude=settings.amplitude_m,
-                                   window=settings.window_s,
-                                   silent_window=max(settings.single_step_s,
-                                                     settings.window_s)).to_dict()
+                                   **settings.separation_kwargs()).to_dict()
                 for n in ids]
     rho = np.array([recs[n].frequency_hz / plan.design_natural_frequency_hz[n]
                     if not plan.replanned else recs[n].frequency_hz
@@ -375,20 +372,21 @@ def remeasured(seps: Separations, ids, models: dict, tones: dict, settings) -> S
     tone 304 Hz away once, outside its nominal band widened to 300 Hz).  About 0.1 s
     per impacter.
     """
-    from planner.manufacturability import BAND_MARGIN, measure_separation
+    from planner.manufacturability import measure_separation
 
-    below, above = seps.below.copy(), seps.above.copy()
-    lo, hi = seps.lo.copy(), seps.hi.copy()
-    for n in ids:
-        k = seps.ids.index(n)
-        got = measure_separation(models[n], tones[n], power=settings.power_m2_s3,
-                                 amplitude=settings.amplitude_m, window=settings.window_s,
-                                 silent_window=max(settings.single_step_s,
-                                                   settings.window_s))
-        below[k] = (1.0 + BAND_MARGIN) * got.silent_below_hz
-        above[k] = (1.0 + BAND_MARGIN) * got.silent_above_hz
-        lo[k], hi[k] = got.responds_below_hz, got.responds_above_hz
-    return dataclasses.replace(seps, below=below, above=above, lo=lo, hi=hi)
+    ids = list(ids)
+    rows = [seps.ids.index(n) for n in ids]
+    # widened as the plan's are (Separations.of)
+    fresh = Separations.of(ids, seps.rho[rows],
+                           [measure_separation(models[n], tones[n],
+                                               **settings.separation_kwargs()).to_dict()
+                            for n in ids])
+    out = {}
+    for name in ("below", "above", "lo", "hi"):
+        col = getattr(seps, name).copy()
+        col[rows] = getattr(fresh, name)
+        out[name] = col
+    return dataclasses.replace(seps, **out)
 
 
 def rescue(plan, measured: dict, settings, models: dict, sliders: dict,

@@ -277,6 +277,14 @@ class Settings:
                     speed_window=self.single_step_s, speed_x0_points=self.x0_points,
                     **self._robust_kwargs(imp))
 
+    def separation_kwargs(self) -> dict:
+        """Keyword arguments of :func:`planner.manufacturability.measure_separation`
+        besides the design, its tone and its tone's amplitude: the drive's power (or
+        amplitude), the designer's window for the tone window and, for the silent band,
+        the longest an impacter sits idle under one tone (a single-impacter step)."""
+        return dict(power=self.power_m2_s3, amplitude=self.amplitude_m, window=self.window_s,
+                    silent_window=max(self.single_step_s, self.window_s))
+
     def _robust_kwargs(self, imp) -> dict:
         """``robust_shift`` for the designer when ``design.robust`` is on (k sigma of
         each candidate's natural frequency under the spec's fabrication tolerances)."""
