@@ -16,14 +16,18 @@ class SpecError(ValueError):
         1-based line in the YAML file.
     source : str, optional
         The file name.
+    also : sequence of str, optional
+        Further problems of the same file, each with its own path and line, listed after
+        the first one's line.
     """
 
     def __init__(self, message: str, path: str | None = None, line: int | None = None,
-                 source: str | None = None):
+                 source: str | None = None, also=()):
         self.message = message
         self.path = path
         self.line = line
         self.source = source
+        self.also = tuple(also)
         super().__init__(str(self))
 
     def __str__(self) -> str:
@@ -35,6 +39,8 @@ class SpecError(ValueError):
         text = f"{where}{self.message}"
         if self.line is not None:
             text += f" (line {self.line})"
+        if self.also:
+            text += "; also " + "; ".join(self.also)
         return text
 
 

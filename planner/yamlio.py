@@ -196,7 +196,5 @@ def validate(model: type[T], data: Any, lines: LineMap | None = None, *,
             else:
                 where = f"{format_loc(full)}: {msg}"
                 messages.append(where + (f" (line {line})" if line else ""))
-        text = messages[0]
-        if len(messages) > 1:
-            text += "; also " + "; ".join(messages[1:])
-        raise SpecError(text, path=first_path or None, line=first_line, source=source) from None
+        raise SpecError(messages[0], path=first_path or None, line=first_line, source=source,
+                        also=messages[1:]) from None

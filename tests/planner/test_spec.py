@@ -63,6 +63,17 @@ def test_bad_spec_names_field_and_line(text, path, line):
     assert err.value.line == line
 
 
+def test_several_bad_fields_each_name_their_own_line():
+    """Every failing field is named with its own YAML line, the first one's right after
+    it (the first line used to come last: "... > 0 (line 5) (line 3)")."""
+    with pytest.raises(SpecError) as err:
+        load_spec("array:\n  rows: 2\n  cols: 0\ndrive:\n  power_m2_s3: -5\n")
+    assert (err.value.path, err.value.line) == ("array.cols", 3)
+    first, also = str(err.value).split("; also ")
+    assert first.endswith("array.cols: Input should be greater than or equal to 1 (line 3)")
+    assert also == "drive.power_m2_s3: Input should be greater than 0 (line 5)"
+
+
 @pytest.mark.parametrize("text, needle", [
     ("drive:\n  band_hz: [20000, 2000]\n", "drive.band_hz: band_hz[1] must be greater"),
     (GOOD.replace("forward: [A1, B]", "forward: [A1, Z9]"), "unknown device 'Z9'"),
