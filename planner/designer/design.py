@@ -68,7 +68,7 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
                     impact_angle=_d.IMPACT_ANGLE, restitution=_d.RESTITUTION,
                     forbidden_drives=(), max_mass_ratio=None, contact="paper",
                     robust_shift=None, target_drives=(), sensitivity=None,
-                    speed_window=None, speed_x0_points=None):
+                    speed_window=None, speed_x0_points=None, min_speed=None):
     """Design one impacter by the paper's max-min problem, eqs. (13)-(18).
 
     Maximise the worst response over initial positions at ``frequency`` subject to
@@ -161,10 +161,19 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         search's worst x0 (an array plan passes its verification's grid): a design can
         lock into an orbit that stops kicking after the design window from an x0 the
         window did not show as the worst.
+    min_speed : float, optional
+        The slowest predicted slider speed a design may have [m/s] (an array plan's
+        ``verification.min_speed_mm_s``): a design predicted slower is infeasible, with
+        the shortfall in ``shortfalls``.  None: no floor (the paper's problem).
 
     Returns
     -------
     DesignResult
+        ``feasible`` only if the design meets every constraint by its own prediction:
+        it responds at ``frequency`` from every x0, is silent at every forbidden
+        frequency and drive on the re-check grid and over the long re-check window, is
+        predicted at least ``min_speed``, and lies within ``max_mass_ratio``, ``bounds``
+        and ``sensitivity``; every miss is in ``shortfalls``, by how much.
 
     Notes
     -----
@@ -188,7 +197,7 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
     a = _checked_inputs(frequency, forbidden, process, environment, bounds, window, slider,
                         budget, x0_points, power, amplitude, seed, guard, impact_angle,
                         restitution, forbidden_drives, target_drives, contact,
-                        max_mass_ratio, robust_shift, sensitivity)
+                        max_mass_ratio, robust_shift, sensitivity, min_speed)
     problem = _Problem(a.frequency, a.forbidden, a.factory, a.tones, a.bounds, a.window,
                        a.budget, a.guard, a.ensembles, mass_cap=a.mass_cap,
                        q_per_kg=a.q_per_kg, robust_shift=a.robust_shift,
@@ -222,12 +231,14 @@ class _Inputs:
     q_per_kg: float
     robust_shift: object           # callable or None
     sensitivity: tuple | None
+    max_mass_ratio: float | None
+    min_speed: float | None
 
 
 def _checked_inputs(frequency, forbidden, process, environment, bounds, window, slider,
                     budget, x0_points, power, amplitude, seed, guard, impact_angle,
                     restitution, forbidden_drives, target_drives, contact, max_mass_ratio,
-                    robust_shift, sensitivity):
+                    robust_shift, sensitivity, min_speed=None):
     """:class:`_Inputs` from :func:`design_impacter`'s arguments; ValueError naming the
     first bad one."""
     from planner.config import EnvironmentConfig, ProcessConfig, SliderConfig, build_slider
@@ -302,11 +313,16 @@ def _checked_inputs(frequency, forbidden, process, environment, bounds, window, 
             raise ValueError(f"sensitivity must satisfy 0 < lo <= hi (finite) [1/m], "
                              f"{sensitivity!r} was given")
         sensitivity = (s_lo, s_hi)
+    if min_speed is not None:
+        min_speed = float(min_speed)
+        if not (math.isfinite(min_speed) and min_speed >= 0.0):
+            raise ValueError(f"min_speed must be finite and >= 0 [m/s], {min_speed!r} was given")
     return _Inputs(frequency=frequency, forbidden=forbidden, window=window, bounds=bounds,
                    slider=slider, budget=budget, budget_name=budget_name, tones=tones, rng=rng,
                    factory=factory, guard=guard, ensembles=ensembles, targets=targets,
                    contact=contact, mass_cap=mass_cap, q_per_kg=q_per_kg,
-                   robust_shift=robust_shift, sensitivity=sensitivity)
+                   robust_shift=robust_shift, sensitivity=sensitivity,
+                   max_mass_ratio=max_mass_ratio, min_speed=min_speed)
 
 
 def _search(problem, rng, budget, report):
@@ -354,7 +370,6 @@ def _result(a, problem, ev, chk, status, history, rounds, report, *, slider, spe
                                                    a.budget, a.tones)
     contact = a.contact
     imp = a.factory(*ev.geometry)
-    feasible = bool(chk["fine_ok"])
     # report: band, margins and slider speed (the only slider simulation)
     nu_n = imp.natural_frequency
     band, margins = _band_and_margins(imp, tones, frequency, forbidden,
@@ -369,7 +384,11 @@ def _result(a, problem, ev, chk, status, history, rounds, report, *, slider, spe
                                     duration=speed_window or window,
                                     contact=contact).mean_velocity for x0 in starts)
     checks = _checks(a, problem, ev, chk, history, rounds)
-    message = _message(a, chk, status, worst_x0, checks["violated_drives"])
+    short = shortfalls(a, chk, imp, float(speed), slider, checks)
+    feasible = not short
+    if not feasible:
+        status = "infeasible"
+    message = _message(a, chk, status, worst_x0, checks["violated_drives"], short)
     report(1.0)
     return DesignResult(
         impacter=imp, frequency_hz=frequency, forbidden_hz=forbidden,
@@ -381,7 +400,81 @@ def _result(a, problem, ev, chk, status, history, rounds, report, *, slider, spe
         evaluations=problem.evaluations, seconds=time.perf_counter() - t_start,
         simulations=problem.simulations, checks=checks, response_band_hz=band, status=status,
         message=message, seed=seed if isinstance(seed, numbers.Integral) else None,
-        budget=a.budget_name, window_s=window, mass_ratio=imp.mass / slider.mass, contact=contact)
+        budget=a.budget_name, window_s=window, mass_ratio=imp.mass / slider.mass, contact=contact,
+        shortfalls=short)
+
+
+#: Relative slack of the bound checks of :func:`shortfalls`: the search clips to the
+#: bounds and solves the beams to ~1e-12, so a design on a bound is inside [-].
+BOUND_SLACK = 1e-9
+
+
+def _shortfall(constraint, value, limit, unit, text):
+    return {"constraint": constraint, "value": float(value), "limit": float(limit),
+            "unit": unit, "text": text}
+
+
+def shortfalls(a, chk, imp, speed, slider, checks):
+    """Every constraint the chosen design misses by its own prediction, by how much.
+
+    Returns
+    -------
+    tuple of dict
+        ``{"constraint", "value", "limit", "unit", "text"}`` each; ``constraint`` is
+        ``response`` (x0 of the re-check grid it does not respond from, out of all),
+        ``silence`` (forbidden frequencies and drives it answers on the re-check grid),
+        ``silence_long`` (the first frequency it answers within the long window),
+        ``speed_floor``, ``mass_ratio``, ``bounds`` or ``sensitivity``.  Empty: feasible.
+    """
+    out = []
+    frequency = a.frequency
+    if not chk["r_min"] > 0:
+        bad = int(np.asarray(chk["bad_target"]).size)
+        out.append(_shortfall("response", bad, 0, "x0",
+                              f"does not respond at {frequency:g} Hz from {bad} of "
+                              f"{chk['points']} x0 of the re-check grid"))
+    loud = [f"{f:g} Hz" for f, r in zip(a.forbidden, chk["r_max"]) if r > 0]
+    loud += [f"the summed drive {label!r}" for label in checks["violated_drives"]]
+    if not chk["fine_ok"] and loud:
+        out.append(_shortfall("silence", len(loud), 0, "frequencies",
+                              "responds at " + ", ".join(loud)))
+    elif not chk["fine_ok"] and chk["r_min"] > 0:
+        # silent at every forbidden tone itself but not across a guard band
+        out.append(_shortfall("silence", 1, 0, "frequencies",
+                              "responds inside the guard band of a forbidden frequency"))
+    if chk["fine_ok"] and not chk["long_ok"]:
+        out.append(_shortfall("silence_long", chk["long_violated_hz"] or math.nan, 0, "Hz",
+                              f"responds at {chk['long_violated_hz']:g} Hz within the "
+                              f"{LONG_WINDOW_FACTOR * a.window * 1e3:g} ms re-check window"))
+    if a.min_speed is not None and not speed >= a.min_speed:
+        out.append(_shortfall("speed_floor", speed, a.min_speed, "m/s",
+                              f"its predicted slider speed {speed * 1e3:.3g} mm/s is below "
+                              f"the floor {a.min_speed * 1e3:g} mm/s (by "
+                              f"{(a.min_speed - speed) * 1e3:.3g} mm/s)"))
+    ratio = imp.mass / slider.mass
+    if a.max_mass_ratio is not None and ratio > a.max_mass_ratio * (1.0 + BOUND_SLACK):
+        out.append(_shortfall("mass_ratio", ratio, a.max_mass_ratio, "-",
+                              f"m/M {ratio:.4g} is above the cap {a.max_mass_ratio:g}"))
+    g = imp.geometry
+    for name, value, (lo, hi), scale, unit in (
+            ("area", g.area, a.bounds.area, 1e12, "um^2"),
+            ("width", g.width, a.bounds.width, 1e6, "um"),
+            ("length", g.length, a.bounds.length, 1e6, "um"),
+            ("gap", g.gap, a.bounds.gap, 1e6, "um")):
+        if value < lo * (1.0 - BOUND_SLACK) or value > hi * (1.0 + BOUND_SLACK):
+            limit = lo if value < lo else hi
+            out.append(_shortfall("bounds", value, limit, name,
+                                  f"its {name} {value * scale:.4g} {unit} is outside "
+                                  f"[{lo * scale:g}, {hi * scale:g}] {unit}"))
+    if a.sensitivity is not None:
+        s = checks["line_width_sensitivity_per_um"] / UM
+        lo, hi = a.sensitivity
+        if s < lo * (1.0 - 1e-6) or s > hi * (1.0 + 1e-6):
+            limit = lo if s < lo else hi
+            out.append(_shortfall("sensitivity", s, limit, "1/m",
+                                  f"its line-width sensitivity {s * UM:.4g}/um is outside "
+                                  f"[{lo * UM:.4g}, {hi * UM:.4g}]/um"))
+    return tuple(out)
 
 
 def _checks(a, problem, ev, chk, history, rounds):
@@ -416,9 +509,14 @@ def _checks(a, problem, ev, chk, history, rounds):
     return checks
 
 
-def _message(a, chk, status, worst_x0, violated_drives):
-    """DesignResult.message: what was met, or where the least violating design fails."""
+def _message(a, chk, status, worst_x0, violated_drives, short=()):
+    """DesignResult.message: what was met, or every constraint the design misses."""
     frequency, forbidden, window = a.frequency, a.forbidden, a.window
+    if short:
+        # the search found no design passing the re-check grid: the least violating
+        head = ("no design met the constraints within the bounds and budget; the least "
+                "violating design is returned: " if not chk["fine_ok"] else "infeasible: ")
+        return head + "; ".join(s["text"] for s in short)
     if status == "ok":
         message = (f"feasible: r_min = {chk['r_min']:.4g} N at x0 = {worst_x0 / UM:.4g} um; "
                    f"silent at {len(forbidden)} forbidden frequencies on {chk['points']} x0")

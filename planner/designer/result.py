@@ -61,9 +61,14 @@ class DesignResult:
         Lowest and highest frequency near nu where the design responds [Hz] (nan if
         not measured).
     status : str
-        "ok", or "infeasible" (no design met the constraints; the least violating is
+        "ok", or "infeasible" (the design misses a constraint: ``shortfalls`` says
+        which; when the search found none that meets them all, the least violating is
         returned).
     message : str
+    shortfalls : tuple of dict
+        Every constraint the design misses by its own prediction, by how much
+        (:func:`planner.designer.design.shortfalls`: ``constraint``, ``value``,
+        ``limit``, ``unit``, ``text``); empty when ``feasible``.
     """
 
     impacter: Impacter
@@ -95,6 +100,7 @@ class DesignResult:
     window_s: float = 3e-3
     mass_ratio: float = math.nan
     contact: str = "paper"
+    shortfalls: tuple = ()
 
     def to_dict(self):
         """JSON-safe dict with the plan's impacter keys (SI units, unit-suffixed)."""
@@ -125,6 +131,8 @@ class DesignResult:
             "mass_ratio": num(self.mass_ratio),
             "contact": self.contact,
             "feasible": bool(self.feasible),
+            "shortfalls": [{k: (num(v) if isinstance(v, float) else v) for k, v in s.items()}
+                           for s in self.shortfalls],
             "status": self.status,
             "message": self.message,
             "checks": {k: (num(v) if isinstance(v, float) else v) for k, v in self.checks.items()},

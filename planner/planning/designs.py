@@ -19,10 +19,16 @@ from planner.planning.settings import Settings
 #: local optimum (measured on A4.backward of the default plan: seeds 0-5 gave
 #: 0.006-0.34 mm/s); most designs stop at the first try, the slow ones are cheap to retry.
 DESIGN_RETRIES = 7
-#: Tries after which a design that was never feasible is given up: another seed rarely
-#: makes an infeasible target feasible, and the planner then reports the impacter,
-#: why and what to change instead of retrying for minutes.
-INFEASIBLE_TRIES = 4
+#: Tries after which a design that never met its silence and response constraints is
+#: given up: the first at the plan's budget, the second searching wider
+#: (:func:`planner.designer.budget.widened`, level 1: about 6 first tries).  Another
+#: seed rarely makes such a target feasible (seed 7 of the default: 0 of 9 tries, the
+#: full budget's 80 s ones included, for the impacter above the positioning cluster),
+#: while the plan's loop can change its inputs (a new phase draw of the summed drive it
+#: sits out, a channel further from its offenders): bounded here, the search costs
+#: about 10 s on an idle 2-core machine, where the four tries of issue 28 (two at level
+#: 2) cost about 40 s and took a loaded machine's design stage to 10 minutes.
+INFEASIBLE_TRIES = 2
 #: A design is retried while its predicted speed is below this multiple of the spec's
 #: minimum.  The prediction is the least over the verification's x0 grid and the
 #: single-impacter step's length (``speed_x0_points``, ``speed_window``); the
@@ -35,16 +41,24 @@ INFEASIBLE_TRIES = 4
 SPEED_MARGIN = 1.75
 
 
+def _hard(res) -> bool:
+    """Whether a design misses more than its speed floor (silence, response, bounds)."""
+    return any(sf["constraint"] != "speed_floor" for sf in res.shortfalls)
+
+
 def _design_task(kwargs, min_speed):
     """One impacter's design; retried with the next seeds while it is predicted slower
     than ``SPEED_MARGIN * min_speed`` [m/s] (the search is stochastic; the best of the
-    tries is kept: feasible first, then the fastest), or given up after
-    ``INFEASIBLE_TRIES`` tries that were all infeasible.  Try k of ``kwargs["seed"]``
-    is seeded by :func:`planner._random.try_seed` with index ``_stream + k``
-    (``_stream``: the re-design offset of a repair round, popped from ``kwargs``), so
-    no two plan seeds share a try.  While no try has been
-    feasible the next one searches wider (:func:`planner.designer.budget.widened`, one
-    level per infeasible try)."""
+    tries is kept: feasible first, then the ones that miss only the speed floor, then
+    the fastest).  A design is infeasible when it misses any constraint by its own
+    prediction, the floor ``min_speed`` included (the designer's ``min_speed``).  A try
+    that misses more than the floor (silence, response) makes the next one search
+    wider (:func:`planner.designer.budget.widened`, one level per such try), and after
+    ``INFEASIBLE_TRIES`` of them without a feasible one the design is given up; tries
+    that miss only the floor retry at the same budget, up to ``1 + DESIGN_RETRIES`` in
+    all.  Try k of ``kwargs["seed"]`` is seeded by :func:`planner._random.try_seed`
+    with index ``_stream + k`` (``_stream``: the re-design offset of a repair round,
+    popped from ``kwargs``), so no two plan seeds share a try."""
     from planner._random import try_seed
     from planner._workers import single_thread_blas
     from planner.designer import design_impacter
@@ -52,24 +66,24 @@ def _design_task(kwargs, min_speed):
 
     kwargs = dict(kwargs)
     stream = int(kwargs.pop("_stream", 0))
-    best, infeasible = None, 0
+    best, hard = None, 0
     # BLAS on one thread wherever this runs (main process, pool or Dask worker): the SQP's
     # last digits depend on its thread count, the plan must not
     with single_thread_blas():
         for k in range(DESIGN_RETRIES + 1):
-            kw = {**kwargs, "seed": try_seed(kwargs["seed"], stream + k)}
-            if infeasible and not best[0][0]:
+            kw = {**kwargs, "seed": try_seed(kwargs["seed"], stream + k), "min_speed": min_speed}
+            if hard and not best[0][0]:
                 # never feasible yet: search wider, not only elsewhere
                 # (of the budget the first try used: design_impacter's default is "full")
-                kw["budget"] = widened(kwargs.get("budget", "full"), infeasible)
+                kw["budget"] = widened(kwargs.get("budget", "full"), hard)
             res = design_impacter(**kw)
-            infeasible += not res.feasible
-            rank = (bool(res.feasible), float(res.predicted_slider_speed_m_s))
+            hard += _hard(res)
+            rank = (bool(res.feasible), not _hard(res), float(res.predicted_slider_speed_m_s))
             if best is None or rank > best[0]:
                 best = (rank, res)
             if res.feasible and res.predicted_slider_speed_m_s >= SPEED_MARGIN * min_speed:
                 break
-            if k + 1 >= INFEASIBLE_TRIES and not best[0][0]:
+            if hard >= INFEASIBLE_TRIES and not best[0][0]:
                 break
     return best[1]
 
