@@ -217,6 +217,9 @@ class Assignment:
     #: impacter node -> index on the position grid (``offset + stride * colour``);
     #: equal to ``channels`` where the guard band is narrower than the separation
     positions: dict = field(default_factory=dict)
+    #: the spec's measured reach the positions were laid on
+    #: (:class:`planner.planning.reach.Reach`), or None
+    reach: object = None
 
     def table(self) -> pd.DataFrame:
         """One row per impacter: device, direction, channel, frequency_hz."""
@@ -281,7 +284,27 @@ def _tolerance_note(settings, n, fit, grid, sep):
             f"scenes in which devices move together and share channels.")
 
 
-def _check_capacity(settings, steps, sep, grid, positions):
+def _reach_note(reach):
+    """The measured reach's part of a refusal (empty without a constrained reach)."""
+    if reach is None or not reach.constrained:
+        return ""
+    return f" Measured for this spec before any design: {reach.summary()}. To widen it: {reach.advice()}."
+
+
+def _positions(settings, grid, sep, reach):
+    """The position grid, on the channels the reach offers with its separations."""
+    if reach is None or not reach.constrained:
+        return position_grid(grid, sep, settings.guard)
+    if not reach.offered:
+        lo, hi = settings.band_hz
+        raise PlanningError(f"no channel of the band {lo:g}-{hi:g} Hz can be used: "
+                            f"{reach.summary()}. {reach.advice()[:1].upper()}"
+                            f"{reach.advice()[1:]}.")
+    return position_grid(grid, sep, settings.guard, allowed=reach.allowed,
+                         min_ratio=reach.min_ratio)
+
+
+def _check_capacity(settings, steps, sep, grid, positions, reach=None):
     """Refuse, in well under a second, a spec whose independently addressable impacters
     cannot fit the band whatever the colouring.
 
@@ -302,7 +325,8 @@ def _check_capacity(settings, steps, sep, grid, positions):
         lo, hi = settings.band_hz
         fit = (count - 1) // sep + 1
         if settings.channel_spacing == "tolerance":
-            raise PlanningError(_tolerance_note(settings, len(nodes), fit, grid, sep))
+            raise PlanningError(_tolerance_note(settings, len(nodes), fit, grid, sep)
+                                + _reach_note(reach))
         what = (f"{count} channels" if count == grid.size else
                 f"{count} positions{_guard_note(settings, grid, sep, count)}")
         raise PlanningError(
@@ -315,10 +339,10 @@ def _check_capacity(settings, steps, sep, grid, positions):
             f"false with scenes in which devices move together and share channels, more "
             f"channels with a narrower separation (drive.channels.count, "
             f"drive.guard.separation_channels), a narrower design guard (design.guard), or "
-            f"a wider band (drive.band_hz).")
+            f"a wider band (drive.band_hz)." + _reach_note(reach))
 
 
-def _span_error(settings, graph, result, grid, sep, count):
+def _span_error(settings, graph, result, grid, sep, count, reach=None):
     """The refusal of a colouring whose span the band's positions cannot hold."""
     lo, hi = settings.band_hz
     what = (f"{grid.size} channels" if count == grid.size else
@@ -336,11 +360,11 @@ def _span_error(settings, graph, result, grid, sep, count):
         f"({graph.number_of_nodes()} channel groups that must be told apart, separation "
         f"{sep} channels) needs a span of {result.span} (lower bound {result.lower_bound}). "
         f"Fixes: {fixes}, fewer independently addressable devices (independent: false), "
-        f"or scenes in which devices move together and share a channel.")
+        f"or scenes in which devices move together and share a channel." + _reach_note(reach))
 
 
 def assign(settings, steps, *, separation=None, pair_separation=None, method="auto",
-           time_limit=None) -> Assignment:
+           time_limit=None, reach=None) -> Assignment:
     """Give every driven impacter a channel and a frequency.
 
     Parameters
@@ -357,6 +381,9 @@ def assign(settings, steps, *, separation=None, pair_separation=None, method="au
     method, time_limit :
         The colouring's strategy and time limit [s]
         (:func:`planner.coloring.solve_bandwidth`).
+    reach : planner.planning.reach.Reach, optional
+        The spec's measured reach: only the channels it offers are used, and positions
+        keep its separations (:func:`planner.separation.position_grid`).
 
     Raises
     ------
@@ -369,8 +396,8 @@ def assign(settings, steps, *, separation=None, pair_separation=None, method="au
     sep = settings.separation_channels if separation is None else int(separation)
     grid = np.asarray(settings.channel_grid_hz, dtype=float)
     # every edge is >= sep positions: on these positions that keeps the designer's guard
-    positions = position_grid(grid, sep, settings.guard)
-    _check_capacity(settings, steps, sep, grid, positions)
+    positions = _positions(settings, grid, sep, reach)
+    _check_capacity(settings, steps, sep, grid, positions, reach)
     graph, groups = conflict_graph(steps, sep, pair_separation,
                                    settings.ensemble_separation_channels)
     if graph.number_of_nodes() == 0:
@@ -379,7 +406,7 @@ def assign(settings, steps, *, separation=None, pair_separation=None, method="au
                              seed=settings.seed)
     count = len(positions)
     if result.span > count:
-        raise _span_error(settings, graph, result, grid, sep, count)
+        raise _span_error(settings, graph, result, grid, sep, count, reach)
     # layout: a colouring read upward or downward is equally valid, and so is any order
     # of its blocks (runs of channels set apart by wide gaps) that keeps every
     # separation within the span; choose the one whose multi-tone steps stir their
@@ -408,7 +435,7 @@ def assign(settings, steps, *, separation=None, pair_separation=None, method="au
     q, o, chans, freqs, viol, where = best
     return Assignment(graph, groups, dict(coloring), result.span, result.lower_bound,
                       result.optimal, result.method, result.seconds, q, o, chans, freqs, viol,
-                      where)
+                      where, reach)
 
 
 def _blocks(coloring, gap):

@@ -72,7 +72,8 @@ def min_gap_hz(f_hz: float, guard: float) -> float:
     return f_hz * guard / (1.0 - guard)
 
 
-def position_grid(grid, separation: int, guard: float) -> np.ndarray:
+def position_grid(grid, separation: int, guard: float, allowed=None,
+                  min_ratio=None) -> np.ndarray:
     """Channel indices of the positions a colouring with ``separation`` is laid out on.
 
     Parameters
@@ -83,6 +84,13 @@ def position_grid(grid, separation: int, guard: float) -> np.ndarray:
         The smallest separation of the colouring [positions] (``>= 1``).
     guard : float
         The designer's relative guard band [-].
+    allowed : array_like of bool, shape (n_channels,), optional
+        Channels a tone may take (the tones a design can serve,
+        :mod:`planner.planning.reach`); default all.
+    min_ratio : array_like, shape (n_channels,), optional
+        The least ratio [-] between a channel's tone and the tone of the position
+        ``separation`` below it (how far a design at that channel answers other tones,
+        measured for the spec: :mod:`planner.planning.reach`); 1 imposes nothing.
 
     Returns
     -------
@@ -102,6 +110,8 @@ def position_grid(grid, separation: int, guard: float) -> np.ndarray:
     guard = float(guard)
     if not (math.isfinite(guard) and 0.0 <= guard < 0.5):
         raise ValueError(f"guard must be in [0, 0.5), {guard!r} was given")
+    if allowed is not None or min_ratio is not None:
+        return _measured_positions(grid, separation, guard, allowed, min_ratio)
     if guard == 0.0:
         return np.arange(grid.size)
     pos = [0]
@@ -116,6 +126,27 @@ def position_grid(grid, separation: int, guard: float) -> np.ndarray:
                 c += 1
         if c >= n:
             break
+        pos.append(c)
+    return np.asarray(pos, dtype=np.int64)
+
+
+def _measured_positions(grid, separation, guard, allowed, min_ratio):
+    """:func:`position_grid` over the ``allowed`` channels, each position at least
+    ``min_ratio`` (at the lower tone) above the one ``separation`` below it."""
+    n = grid.size
+    allowed = np.ones(n, dtype=bool) if allowed is None else np.asarray(allowed, dtype=bool)
+    ratio = np.ones(n) if min_ratio is None else np.asarray(min_ratio, dtype=float)
+    if allowed.shape != (n,) or ratio.shape != (n,):
+        raise ValueError(f"allowed and min_ratio must have one entry per channel ({n})")
+    pos = []
+    for c in range(n):
+        if not allowed[c]:
+            continue
+        if len(pos) >= separation:
+            base = pos[-separation]
+            if not (separated(grid[base], grid[c], guard)
+                    and grid[c] >= grid[base] * ratio[base] * (1.0 - 1e-12)):
+                continue
         pos.append(c)
     return np.asarray(pos, dtype=np.int64)
 

@@ -56,9 +56,11 @@ class _Bars:
 @click.option("--no-figures", is_flag=True, help="Skip the PNG figures (faster).")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @click.option("--dry-run", is_flag=True,
-              help="Stop after the frequency assignment: print it, the designs and "
-                   "verification runs that remain and an estimate of their time, write "
-                   "nothing, exit 0 (seconds, even for a large array).")
+              help="Stop after the frequency assignment: print the tones a design can "
+                   "serve (measured by a few probe designs, kept in the design cache), "
+                   "the assignment, the designs and verification runs that remain and an "
+                   "estimate of their time; write no output; exit 0, or 2 when the spec "
+                   "cannot be planned (seconds to a minute).")
 @click.option("--scheduler", metavar="ADDRESS", default=None,
               help="Run the designs and the verification steps on an existing "
                    "dask.distributed cluster at ADDRESS (tcp://host:8786; its workers "
@@ -113,7 +115,7 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
     path = Path(spec) if spec else default_spec_path()
     loaded = load_spec(path)
     if dry_run:
-        _dry_run(loaded, seed, jobs)
+        _dry_run(loaded, seed, jobs, cache, quiet)
         return
     # refuse the output folder and an unusable scheduler before any work (the plan
     # takes a minute)
@@ -127,6 +129,9 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
         from planner.planning.estimate import estimate
 
         bars.close()
+        if assignment.reach is not None:
+            for line in assignment.reach.lines():
+                click.echo(line, err=True)
         for line in estimate(settings, steps, assignment, jobs).lines():
             click.echo(line, err=True)
         from planner.manufacturability import prediction_lines, predict_from_channels
@@ -182,18 +187,29 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
 command.help = command.help.replace("{EXIT}", EXIT_CODES_HELP.replace("\n", "\n    "))
 
 
-def _dry_run(loaded, seed, jobs):
-    """``--dry-run``: the assignment, the work left and its estimated time; no files."""
+def _dry_run(loaded, seed, jobs, cache, quiet):
+    """``--dry-run``: the reach, the assignment, the work left and its estimated time;
+    no files but the design cache's (the reach's probe designs)."""
     import time
 
     from planner.assign import assign
+    from planner.planning.design_store import DesignStore
     from planner.planning.estimate import estimate
+    from planner.planning.reach import measure_reach
     from planner.planning.settings import resolve_settings
 
-    t0 = time.perf_counter()
     settings = resolve_settings(loaded, seed)
     steps = settings.steps
-    a = assign(settings, steps)
+    bars = _Bars(quiet)
+    try:
+        reach = measure_reach(settings, jobs=jobs, progress=bars,
+                              store=None if cache is None else DesignStore(cache))
+    finally:
+        bars.close()
+    for line in reach.lines():
+        click.echo(line)
+    t0 = time.perf_counter()
+    a = assign(settings, steps, reach=reach)
     seconds = time.perf_counter() - t0
     freqs = sorted(set(a.frequencies.values()))
     click.echo(f"{settings.name}: {len(a.frequencies)} impacters on {len(settings.sliders)} devices, "

@@ -8,9 +8,10 @@ every design from this cache.  An entry is keyed by a SHA-256 digest of
 - every input of the design task (tone, forbidden tones, the summed drives' tones,
   amplitudes and phases, process, environment, bounds, slider, budget, seed ...),
 - the retry policy (:data:`~planner.planning.designs.DESIGN_RETRIES` and the others),
-- the source code that computes a design (``model/``, ``planner/designer/`` and
-  ``planner/planning/designs.py``) and the versions of numpy, scipy and numba, so
-  that a changed solver, designer or library never reads an old result,
+- the source code that computes a design (``model/``, ``planner/designer/``,
+  ``planner/planning/designs.py`` and the reach probes' ``planner/planning/reach.py``)
+  and the versions of numpy, scipy and numba, so that a changed solver, designer or
+  library never reads an old result,
 
 and holds the pickled :class:`~planner.designer.DesignResult`.  A result from the
 cache is the object the computation returned, so the plan is byte-identical either
@@ -57,6 +58,7 @@ def code_fingerprint() -> str:
     files = [(model_dir.parent, f) for f in sorted(model_dir.rglob("*.py"))]
     files += [(planner_dir.parent, f) for f in sorted((planner_dir / "designer").glob("*.py"))]
     files.append((planner_dir.parent, planner_dir / "planning" / "designs.py"))
+    files.append((planner_dir.parent, planner_dir / "planning" / "reach.py"))
     h = hashlib.sha256()
     for root, f in files:
         # the path inside the installation (model/..., planner/...), then the text

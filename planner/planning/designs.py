@@ -46,15 +46,15 @@ def _hard(res) -> bool:
     return any(sf["constraint"] != "speed_floor" for sf in res.shortfalls)
 
 
-def _design_task(kwargs, min_speed):
+def _design_task(kwargs, min_speed, infeasible_tries=INFEASIBLE_TRIES, margin=SPEED_MARGIN):
     """One impacter's design; retried with the next seeds while it is predicted slower
-    than ``SPEED_MARGIN * min_speed`` [m/s] (the search is stochastic; the best of the
+    than ``margin * min_speed`` [m/s] (the search is stochastic; the best of the
     tries is kept: feasible first, then the ones that miss only the speed floor, then
     the fastest).  A design is infeasible when it misses any constraint by its own
     prediction, the floor ``min_speed`` included (the designer's ``min_speed``).  A try
     that misses more than the floor (silence, response) makes the next one search
     wider (:func:`planner.designer.budget.widened`, one level per such try), and after
-    ``INFEASIBLE_TRIES`` of them without a feasible one the design is given up; tries
+    ``infeasible_tries`` of them without a feasible one the design is given up; tries
     that miss only the floor retry at the same budget, up to ``1 + DESIGN_RETRIES`` in
     all.  Try k of ``kwargs["seed"]`` is seeded by :func:`planner._random.try_seed`
     with index ``_stream + k`` (``_stream``: the re-design offset of a repair round,
@@ -81,16 +81,61 @@ def _design_task(kwargs, min_speed):
             rank = (bool(res.feasible), not _hard(res), float(res.predicted_slider_speed_m_s))
             if best is None or rank > best[0]:
                 best = (rank, res)
-            if res.feasible and res.predicted_slider_speed_m_s >= SPEED_MARGIN * min_speed:
+            if res.feasible and res.predicted_slider_speed_m_s >= margin * min_speed:
                 break
-            if hard >= INFEASIBLE_TRIES and not best[0][0]:
+            if hard >= infeasible_tries and not best[0][0]:
                 break
     return best[1]
 
 
 def _design_on_engine(min_speed, kwargs):
-    """:func:`_design_task` as a :func:`planner.engine.run_tasks` task (``shared`` first)."""
+    """:func:`_design_task` as a :func:`dispatch` task (``shared`` first)."""
     return _design_task(kwargs, min_speed)
+
+
+def dispatch(func, shared, args_list, *, jobs=1, scheduler=None, pool=None, on_done=None,
+             on_tick=None):
+    """``[func(shared, *args) for args in args_list]``: on the ``dask.distributed``
+    cluster at ``scheduler``, on the plan's worker pool ``pool`` (or, with ``jobs`` > 1
+    and two or more tasks, on a pool of ``jobs`` started for this call), or in this
+    process.
+
+    ``func`` is a module-level function (workers import it by name).
+    ``on_done(i, result)`` is called for every task as it finishes (on Dask, in order
+    once all have: the engine reports that a task finished, not which; ``on_tick()``
+    is called as each finishes there).  Returns the
+    results in the order of ``args_list``; they do not depend on where they ran.
+    """
+    results = [None] * len(args_list)
+    if not args_list:
+        return results
+
+    def finish(i, res):
+        results[i] = res
+        if on_done is not None:
+            on_done(i, res)
+
+    if scheduler:
+        from planner.engine import run_tasks
+
+        for i, res in enumerate(run_tasks(func, shared, args_list, jobs=jobs,
+                                          scheduler=scheduler, progress=on_tick)):
+            finish(i, res)
+    elif pool is not None or (jobs > 1 and len(args_list) > 1):
+        import concurrent.futures as cf
+        import contextlib
+
+        from planner._workers import process_pool
+
+        with (contextlib.nullcontext(pool) if pool is not None else process_pool(jobs)) as workers:
+            futures = {workers.submit(func, shared, *args): i
+                       for i, args in enumerate(args_list)}
+            for fut in cf.as_completed(futures):
+                finish(futures[fut], fut.result())
+    else:
+        for i, args in enumerate(args_list):
+            finish(i, func(shared, *args))
+    return results
 
 
 def design_all(settings: Settings, steps, assignment, cache, progress=None, waveforms=None,
@@ -178,41 +223,20 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
     order = sorted(tasks, key=lambda k: (-len(tasks[k]["forbidden_drives"])
                                          - len(tasks[k]["target_drives"]),
                                          -tasks[k]["frequency"]))
-    if tasks and scheduler:
-        from planner.engine import run_tasks
-
-        # the engine reports each finished task, not which: the bar counts designs
-        # done (its total, and the end, are exact)
-        done = iter(order)
-
-        def tick():
-            for n in users[next(done)]:
+    def bar(key):
+        for n in users[key]:
+            if progress is not None:
                 progress(n)
 
-        results = run_tasks(_design_on_engine, min_speed, [(tasks[k],) for k in order],
-                            jobs=jobs, scheduler=scheduler,
-                            progress=tick if progress is not None else None)
-        for key, res in zip(order, results):
-            keep(key, res)
-    elif tasks and (pool is not None or (jobs > 1 and len(tasks) > 1)):
-        import concurrent.futures as cf
-        import contextlib
+    def done(i, res):
+        keep(order[i], res)
+        if not scheduler:
+            bar(order[i])
 
-        from planner._workers import process_pool
-
-        with (contextlib.nullcontext(pool) if pool is not None else process_pool(jobs)) as workers:
-            futures = {workers.submit(_design_task, tasks[key], min_speed): key
-                       for key in order}
-            for fut in cf.as_completed(futures):
-                key = futures[fut]
-                keep(key, fut.result())
-                for n in users[key]:
-                    if progress is not None:
-                        progress(n)
-    else:
-        for key in order:
-            keep(key, _design_task(tasks[key], min_speed))
-            for n in users[key]:
-                if progress is not None:
-                    progress(n)
+    # on Dask the engine reports each finished task, not which: the bar counts designs
+    # done (its total, and the end, are exact)
+    ticks = iter(order)
+    dispatch(_design_on_engine, min_speed, [(tasks[k],) for k in order], jobs=jobs,
+             scheduler=scheduler, pool=pool, on_done=done,
+             on_tick=lambda: bar(next(ticks)))
     return {n: cache[key] for n, key in keys.items()}

@@ -22,6 +22,7 @@ from planner.planning.designs import design_all
 from planner.planning.drives import limit_acceleration, synthesize_steps
 from planner.planning.manufacture import assess
 from planner.planning.motion import size_bursts
+from planner.planning.reach import measure_reach
 from planner.planning.record import build_record
 from planner.planning.repair import (reseed_idle, reseed_slow, scenes_and_motion,
                                      widen_separations)
@@ -144,7 +145,7 @@ def _design_round(settings, steps, assignment, clock, tick, design_cache, **desi
                   sliders, run_steps, sizing, ver_rows, failures)
 
 
-def _repair_rounds(settings, clock, tick, on_assignment, design_kw):
+def _repair_rounds(settings, clock, tick, on_assignment, design_kw, reach=None):
     """Assign, design and verify, then repair and repeat up to
     ``settings.repair_rounds`` times: widen the separations the failures point at
     (a re-colouring), re-design impacters that were only too slow, or idle ones that
@@ -162,7 +163,8 @@ def _repair_rounds(settings, clock, tick, on_assignment, design_kw):
     for round_ in range(settings.repair_rounds + 1):
         ts = time.perf_counter()
         try:
-            assignment = assign(settings, steps, separation=sep, pair_separation=pair_sep)
+            assignment = assign(settings, steps, separation=sep, pair_separation=pair_sep,
+                                reach=reach)
         except PlanningError as exc:
             if round_ == 0:
                 raise
@@ -220,9 +222,12 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     store = DesignStore(cache_dir) if cache_dir is not None else None
     jobs = max(1, int(jobs or 1))
     with _plan_pool(jobs, scheduler) as pool:
+        # what a design can serve, and how far apart, before any channel is assigned
+        reach = clock.timed("reach", measure_reach, settings, jobs=jobs, scheduler=scheduler,
+                            pool=pool, store=store, progress=tick)
         kept, rounds, designed = _repair_rounds(
             settings, clock, tick, on_assignment,
-            dict(jobs=jobs, scheduler=scheduler, store=store, pool=pool))
+            dict(jobs=jobs, scheduler=scheduler, store=store, pool=pool), reach)
     cache = (None if store is None else
              {"path": str(store.path), "read": store.hits, "written": store.writes,
               "designed": designed})

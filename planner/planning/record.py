@@ -49,7 +49,8 @@ def impacter_record(n: Node, assignment, design):
     for key in ("mass_kg", "stiffness_n_per_m", "damping_ns_per_m", "gap_m",
                 "impact_angle_rad", "restitution", "natural_frequency_hz", "geometry"):
         rec[key] = d[key]
-    for key in ("r_min_n", "worst_x0_m", "predicted_slider_speed_m_s", "feasible"):
+    for key in ("r_min_n", "worst_x0_m", "predicted_slider_speed_m_s", "feasible",
+                "shortfalls"):
         if key in d:
             rec[key] = d[key]
     rec["mass_ratio"] = getattr(design, "mass_ratio", None)
@@ -166,7 +167,9 @@ def build_record(settings, steps, assignment, designs, sliders, waveforms, ver_r
                        "graph_nodes": assignment.graph.number_of_nodes(),
                        "graph_edges": assignment.graph.number_of_edges(),
                        "separation_problems": verify_assignment(assignment),
-                       "guard_violations": [str(v) for v in assignment.violations]},
+                       "guard_violations": [str(v) for v in assignment.violations],
+                       "reach": (None if assignment.reach is None
+                                 else assignment.reach.to_dict())},
         "impacters": impacter_recs,
         "devices": device_recs,
         "steps": step_recs,
