@@ -253,6 +253,9 @@ def _guard_note(settings, grid, sep, positions):
         return ""
     g = settings.guard
     onset = guard_onset_hz(grid, sep, g)
+    if onset is None:
+        # thinned by the measured reach, not by the guard (see the reach's note)
+        return f" (the channels the spec's reach offers hold only {positions} positions)"
     return (f" (above {onset:g} Hz, {sep} channels are inside the designer's guard band: "
             f"tones there must be more than {100 * g:g} % apart (design.guard {g:g}), so "
             f"the {grid.size} channels hold only {positions} positions {sep} apart)")
@@ -297,9 +300,9 @@ def _positions(settings, grid, sep, reach):
         return position_grid(grid, sep, settings.guard)
     if not reach.offered:
         lo, hi = settings.band_hz
+        advice = reach.advice()
         raise PlanningError(f"no channel of the band {lo:g}-{hi:g} Hz can be used: "
-                            f"{reach.summary()}. {reach.advice()[:1].upper()}"
-                            f"{reach.advice()[1:]}.")
+                            f"{reach.summary()}. {advice[:1].upper()}{advice[1:]}.")
     return position_grid(grid, sep, settings.guard, allowed=reach.allowed,
                          min_ratio=reach.min_ratio)
 

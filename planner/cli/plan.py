@@ -192,7 +192,6 @@ def _dry_run(loaded, seed, jobs, cache, quiet):
     no files but the design cache's (the reach's probe designs)."""
     import time
 
-    from planner.assign import assign
     from planner.planning.design_store import DesignStore
     from planner.planning.estimate import estimate
     from planner.planning.reach import measure_reach
@@ -201,23 +200,22 @@ def _dry_run(loaded, seed, jobs, cache, quiet):
     settings = resolve_settings(loaded, seed)
     steps = settings.steps
     bars = _Bars(quiet)
+    t0 = time.perf_counter()
     try:
-        reach = measure_reach(settings, jobs=jobs, progress=bars,
-                              store=None if cache is None else DesignStore(cache))
+        reach, a = measure_reach(settings, jobs=jobs, progress=bars,
+                                 store=None if cache is None else DesignStore(cache))
     finally:
         bars.close()
+    seconds = time.perf_counter() - t0
     for line in reach.lines():
         click.echo(line)
-    t0 = time.perf_counter()
-    a = assign(settings, steps, reach=reach)
-    seconds = time.perf_counter() - t0
     freqs = sorted(set(a.frequencies.values()))
     click.echo(f"{settings.name}: {len(a.frequencies)} impacters on {len(settings.sliders)} devices, "
                f"{len(steps)} steps; {a.graph.number_of_nodes()} channel groups, "
                f"{len(freqs)} tones {freqs[0]:g}-{freqs[-1]:g} Hz; span {a.span} positions "
                f"({'optimal' if a.optimal else 'not proven optimal'}, {a.method}), stride "
-               f"{a.stride}; {len(a.violations)} guard-rule warnings; assigned in "
-               f"{seconds:.1f} s")
+               f"{a.stride}; {len(a.violations)} guard-rule warnings; reach and assignment "
+               f"in {seconds:.1f} s")
     for line in estimate(settings, steps, a, jobs).lines():
         click.echo(line)
     from planner.manufacturability import prediction_lines, predict_from_channels

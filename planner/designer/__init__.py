@@ -17,7 +17,7 @@ Public API
 ----------
 :func:`design_impacter`, :func:`design_pair`, :func:`response_band`,
 :func:`response_curves`, :func:`x0_grid`, :class:`DesignBounds`, :class:`DesignResult`,
-:class:`PairDesign`, :data:`BUDGETS`.
+:class:`PairDesign`, :data:`BUDGETS`, :func:`recheck_design`.
 
 Layout of this package (each module imports only those listed above it)
 
@@ -34,6 +34,8 @@ Layout of this package (each module imports only those listed above it)
 - :mod:`~planner.designer.search`: Sobol seeding, annealing chains, SQP polish, the
   re-checks and the exchange method.
 - :mod:`~planner.designer.design`: :func:`design_impacter`, :func:`design_pair`.
+- :mod:`~planner.designer.recheck`: :func:`recheck_design`, a finished design kept when
+  some of its forbidden tones or drives change, re-checked where they changed.
 
 Notes
 -----
@@ -117,6 +119,7 @@ from planner.designer.bounds import DEFAULT_UPPER, PAPER_LOWER, UM, DesignBounds
 from planner.designer.budget import BUDGETS, Budget
 from planner.designer.design import GUARD, design_impacter, design_pair
 from planner.designer.problem import NATURAL_RATIO, natural_ratio
+from planner.designer.recheck import recheck_design
 from planner.designer.response import response_band, response_curves
 from planner.designer.result import DesignResult, PairDesign
 from planner.designer.runs import Ensemble, x0_grid

@@ -46,7 +46,8 @@ def _hard(res) -> bool:
     return any(sf["constraint"] != "speed_floor" for sf in res.shortfalls)
 
 
-def _design_task(kwargs, min_speed, infeasible_tries=INFEASIBLE_TRIES, margin=SPEED_MARGIN):
+def _design_task(kwargs, min_speed, infeasible_tries=INFEASIBLE_TRIES, margin=SPEED_MARGIN,
+                 max_tries=1 + DESIGN_RETRIES):
     """One impacter's design; retried with the next seeds while it is predicted slower
     than ``margin * min_speed`` [m/s] (the search is stochastic; the best of the
     tries is kept: feasible first, then the ones that miss only the speed floor, then
@@ -55,8 +56,8 @@ def _design_task(kwargs, min_speed, infeasible_tries=INFEASIBLE_TRIES, margin=SP
     that misses more than the floor (silence, response) makes the next one search
     wider (:func:`planner.designer.budget.widened`, one level per such try), and after
     ``infeasible_tries`` of them without a feasible one the design is given up; tries
-    that miss only the floor retry at the same budget, up to ``1 + DESIGN_RETRIES`` in
-    all.  Try k of ``kwargs["seed"]`` is seeded by :func:`planner._random.try_seed`
+    that miss only the floor retry at the same budget, up to ``max_tries`` (1 +
+    DESIGN_RETRIES) in all.  Try k of ``kwargs["seed"]`` is seeded by :func:`planner._random.try_seed`
     with index ``_stream + k`` (``_stream``: the re-design offset of a repair round,
     popped from ``kwargs``), so no two plan seeds share a try."""
     from planner._random import try_seed
@@ -66,11 +67,16 @@ def _design_task(kwargs, min_speed, infeasible_tries=INFEASIBLE_TRIES, margin=SP
 
     kwargs = dict(kwargs)
     stream = int(kwargs.pop("_stream", 0))
+    keep = kwargs.pop("_keep", None)
+    if keep is not None:
+        kept = _recheck_kept(kwargs, keep, min_speed)
+        if kept.feasible:
+            return kept
     best, hard = None, 0
     # BLAS on one thread wherever this runs (main process, pool or Dask worker): the SQP's
     # last digits depend on its thread count, the plan must not
     with single_thread_blas():
-        for k in range(DESIGN_RETRIES + 1):
+        for k in range(max_tries):
             kw = {**kwargs, "seed": try_seed(kwargs["seed"], stream + k), "min_speed": min_speed}
             if hard and not best[0][0]:
                 # never feasible yet: search wider, not only elsewhere
@@ -86,6 +92,21 @@ def _design_task(kwargs, min_speed, infeasible_tries=INFEASIBLE_TRIES, margin=SP
             if hard >= infeasible_tries and not best[0][0]:
                 break
     return best[1]
+
+
+def _recheck_kept(kwargs, keep, min_speed):
+    """The previous design re-checked against what changed
+    (:func:`planner.designer.recheck_design`)."""
+    from planner._workers import single_thread_blas
+    from planner.designer import recheck_design
+
+    rest = {k: v for k, v in kwargs.items()
+            if k not in ("frequency", "forbidden", "forbidden_drives", "target_drives")}
+    with single_thread_blas():
+        return recheck_design(keep["previous"], kwargs["frequency"], kwargs["forbidden"],
+                              new_forbidden=keep["new_forbidden"],
+                              forbidden_drives=keep["forbidden_drives"],
+                              target_drives=keep["target_drives"], min_speed=min_speed, **rest)
 
 
 def _design_on_engine(min_speed, kwargs):
@@ -139,7 +160,7 @@ def dispatch(func, shared, args_list, *, jobs=1, scheduler=None, pool=None, on_d
 
 
 def design_all(settings: Settings, steps, assignment, cache, progress=None, waveforms=None,
-               jobs=1, scheduler=None, reseed=None, store=None, pool=None):
+               jobs=1, scheduler=None, reseed=None, store=None, pool=None, previous=None):
     """Design every driven impacter; ``cache`` maps the design inputs -> result.
 
     With ``waveforms`` (step key -> Waveform), the summed drive of every multi-tone
@@ -163,6 +184,14 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
     ``pool`` (a :class:`planner._workers.WarmPool`, optional): the plan's worker pool,
     kept for its whole run (its first worker compiled the kernels while the plan
     assigned the channels); without it, ``jobs`` > 1 starts a pool for this call.
+
+    ``previous`` (node -> (key, DesignResult), optional): the last round's designs
+    (:func:`design_keys`).  A node whose tone, settings and seed offset did not change
+    but whose forbidden tones or summed drives did keeps its feasible design if it
+    passes the designer's re-checks against what changed
+    (:func:`planner.designer.recheck_design`), and is designed anew only if it does
+    not: a channel moved or a step's phases drawn anew re-designs the impacters they
+    touch, not the array.  The kept design's key records what it was kept from.
     """
     from planner.designer import Ensemble
 
@@ -185,6 +214,12 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
         offset = int((reseed or {}).get(n, 0))
         key = (round(assignment.frequencies[n], 6), forbidden[n], drives,
                tuple(ident(k) for k in targets[n]), settings.impacters[n], offset)
+        was = (previous or {}).get(n)
+        keep = None
+        if (was is not None and was[1].feasible and was[0][0] == key[0]
+                and was[0][4:6] == key[4:6] and was[0][:4] != key[:4]):
+            keep = _keep_inputs(was, key, waveforms)
+            key = key + (was[0],)
         keys[n] = key
         if key not in cache and key not in tasks:
             tasks[key] = dict(
@@ -193,13 +228,20 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
                 target_drives=[Ensemble(drive_of(waveforms[k]), k) for k in targets[n]],
                 **settings.design_kwargs(n))
             tasks[key]["_stream"] = offset
+            if keep is not None:
+                tasks[key]["_keep"] = keep
     min_speed = settings.min_speed_m_s
     digests = {}
     if store is not None and tasks:
         from planner.planning.design_store import task_digest
 
         for key in list(tasks):
-            digests[key] = task_digest(tasks[key], min_speed, DESIGN_RETRIES,
+            # a kept design is keyed by what it was kept from (the previous key), not by
+            # the previous result object
+            shown = dict(tasks[key])
+            if "_keep" in shown:
+                shown["_keep"] = {**shown["_keep"], "previous": key[-1]}
+            digests[key] = task_digest(shown, min_speed, DESIGN_RETRIES,
                                        INFEASIBLE_TRIES, SPEED_MARGIN)
             res = store.get(digests[key])
             if res is not None:
@@ -219,8 +261,10 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
             progress(n)
     # longest first, so that no worker is left with a long design at the end: a
     # design's cost grows with the summed drives it checks and with the drive
-    # cycles in its window (its frequency).  Results do not depend on the order.
-    order = sorted(tasks, key=lambda k: (-len(tasks[k]["forbidden_drives"])
+    # cycles in its window (its frequency); a re-check costs a small part of one.
+    # Results do not depend on the order.
+    order = sorted(tasks, key=lambda k: ("_keep" in tasks[k],
+                                         -len(tasks[k]["forbidden_drives"])
                                          - len(tasks[k]["target_drives"]),
                                          -tasks[k]["frequency"]))
     def bar(key):
@@ -240,3 +284,40 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
              scheduler=scheduler, pool=pool, on_done=done,
              on_tick=lambda: bar(next(ticks)))
     return {n: cache[key] for n, key in keys.items()}
+
+
+def design_keys(settings: Settings, steps, assignment, waveforms, designs, reseed=None):
+    """Node -> (key, design) of a round's designs, as :func:`design_all` keys them: the
+    ``previous`` of the next round's :func:`design_all`."""
+    forbidden = played_tones(steps, assignment.frequencies, waveforms)
+    ensembles = idle_ensembles(steps, assignment.frequencies)
+    targets = driven_ensembles(steps, assignment.frequencies)
+
+    def ident(k):
+        w = waveforms[k]
+        return (k, tuple(np.round(w.frequencies, 6)), tuple(np.round(w.phases, 9)),
+                tuple(np.round(w.amplitudes, 15)))
+
+    out = {}
+    for n, d in designs.items():
+        key = (round(assignment.frequencies[n], 6), forbidden[n],
+               tuple(ident(k) for k in ensembles[n]), tuple(ident(k) for k in targets[n]),
+               settings.impacters[n], int((reseed or {}).get(n, 0)))
+        out[n] = (key, d)
+    return out
+
+
+def _keep_inputs(was, key, waveforms):
+    """What a kept design must be re-checked against: the forbidden tones and summed
+    drives of ``key`` that the previous key ``was[0]`` did not have, and every target
+    drive when any changed."""
+    from planner.designer import Ensemble
+
+    old, new = was[0], key
+    new_forbidden = tuple(f for f in new[1] if f not in set(old[1]))
+    old_drives = set(old[2])
+    drives = [Ensemble(drive_of(waveforms[d[0]]), d[0]) for d in new[2] if d not in old_drives]
+    targets = ([Ensemble(drive_of(waveforms[d[0]]), d[0]) for d in new[3]]
+               if tuple(new[3]) != tuple(old[3]) else [])
+    return {"previous": was[1], "new_forbidden": new_forbidden, "forbidden_drives": drives,
+            "target_drives": targets}

@@ -39,7 +39,8 @@ def merged_tones(freqs):
     return played, {f: p for g, p in zip(groups, played) for f in g}
 
 
-def synthesize_steps(settings: Settings, steps, assignment, seed=None, phases=None):
+def synthesize_steps(settings: Settings, steps, assignment, seed=None, phases=None,
+                     draws=None):
     """Waveform of every step (the sum of its active impacters' tones), by step key.
 
     ``assignment``: an :class:`~planner.assign.Assignment`, or a mapping Node -> tone
@@ -47,8 +48,12 @@ def synthesize_steps(settings: Settings, steps, assignment, seed=None, phases=No
     default ``settings.seed``).  ``phases`` (optional): step key -> {Node -> phase
     [rad]}; a step whose every impacter has one plays its tones at those phases
     instead of optimised ones (a re-plan keeps the phases its designs were verified
-    under).
+    under).  ``draws`` (optional): step key -> k, the k-th phase draw of that step
+    (seeded :func:`planner._random.try_seed` ``(seed + i, k)``; 0, the first, is
+    ``seed + i``): the plan's loop draws a multi-tone step's phases anew when an idle
+    impacter cannot be made silent under its summed drive.
     """
+    from planner._random import try_seed
     from planner.synthesis import synthesize
 
     seed = settings.seed if seed is None else seed
@@ -70,7 +75,9 @@ def synthesize_steps(settings: Settings, steps, assignment, seed=None, phases=No
             for n in nodes:                     # a shared tone: its first impacter's phase
                 first.setdefault(tone_of[frequencies[n]], given[n])
             ph = [first[f] for f in freqs]
-        out[st.key] = synthesize(freqs, amps, settings.sample_rate_hz, seed=seed + st.index,
+        draw = int((draws or {}).get(st.key, 0))
+        out[st.key] = synthesize(freqs, amps, settings.sample_rate_hz,
+                                 seed=try_seed(seed + st.index, draw),
                                  peak_limit=settings.peak_limit_m, frequency_tolerance=tol,
                                  phases=ph)
     return out

@@ -15,10 +15,13 @@ assignment cannot know yet multiply the time:
   (:func:`planner.designer.budget.widened`), so the slowest design is either
   1 + DESIGN_RETRIES tries or INFEASIBLE_TRIES ever wider ones, counted in first-try
   units by their candidate evaluations (:func:`planner.designer.budget.search_cost`);
-* **repair rounds**: when a step fails verification, the separations are widened and
-  the plan re-assigned, re-designed and re-verified, up to ``verification.repair_rounds``
-  more rounds (the upper end assumes every design is redone in every round; in fact
-  designs whose inputs did not change come from the cache).
+* **the loop's rounds**: when a design is infeasible or a step fails verification, the
+  plan draws a step's phases anew, moves channels or re-designs from further seeds, and
+  designs and verifies again, up to ``verification.repair_rounds`` more rounds
+  (:func:`planner.planning.pipeline._repair_rounds`).  A later round designs again only
+  the impacters whose tone moved or that were re-seeded; every other one is kept by a
+  re-check of what changed (a few per cent of a design) or comes from the cache.  The
+  upper end assumes every design is redone at its last try in every round.
 
 Low end: compilation (if cold) + one round with every design kept at its first try +
 scenes and coupling.  High end: compilation + (1 + repair_rounds) rounds with every
@@ -207,9 +210,10 @@ class Estimate:
             f"  per round: designs {_range(self.design_s, self.worst_tries * self.design_s)} "
             f"(1-{self.tries} tries each, infeasible ones searching wider: up to "
             f"{self.worst_tries:.0f} x a first try), verification {_fmt(self.verify_s)}; up to "
-            f"{self.rounds} round{'s' if self.rounds != 1 else ''} (1 if every step "
-            f"verifies; the high end redoes every "
-            f"design in every round at its last try); then scenes and coupling "
+            f"{self.rounds} round{'s' if self.rounds != 1 else ''} (1 if every design is "
+            f"feasible and every step verifies; a later round designs again only what it "
+            f"moved or re-seeded, the high end redoes every design in every round at its "
+            f"last try); then scenes and coupling "
             f"{_fmt(self.coupling_s)}, manufacturability {_fmt(self.manufacturability_s)}; "
             f"{comp}",
         ] + self._load_lines()

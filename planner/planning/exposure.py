@@ -82,19 +82,26 @@ def idle_ensembles(steps, frequencies):
     return _multi_tone_steps(steps, frequencies, False)
 
 
-def design_offenders(designs, steps, assignment):
-    """(node, (node, offender)) for every infeasible design: the node playing each
-    forbidden frequency it responds at, and the nearest tone of each summed drive
-    (step) it responds under."""
+def tone_players(frequencies):
+    """A function: a forbidden tone [Hz] -> the nodes playing it (``frequencies``: node
+    -> tone [Hz]).  A forbidden tone is a channel frequency or that tone as played
+    (snapped by at most 0.1 %, less than half the channel grid): its nearest channel."""
     by_freq = {}
-    for m, f in assignment.frequencies.items():
+    for m, f in frequencies.items():
         by_freq.setdefault(round(f, 6), []).append(m)
     channels = np.array(sorted(by_freq))
 
     def playing(hz):
-        # a forbidden tone is a channel frequency or that tone as played (snapped by
-        # at most 0.1 %, less than half the channel grid): its nearest channel
         return by_freq[float(channels[np.argmin(np.abs(np.log(channels / hz)))])]
+
+    return playing
+
+
+def design_offenders(designs, steps, assignment):
+    """(node, (node, offender)) for every infeasible design: the node playing each
+    forbidden frequency it responds at, and the nearest tone of each summed drive
+    (step) it responds under."""
+    playing = tone_players(assignment.frequencies)
     by_key = {st.key: st for st in steps}
     out = []
     for n in sorted(designs):

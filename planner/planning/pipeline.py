@@ -37,24 +37,60 @@ from planner.planning.verify import TRAVEL_OVER, UNSETTLED, check_steps, couplin
 MOTION_KINDS = (TRAVEL_OVER, UNSETTLED)
 
 
-def design_problems(designs, settings):
-    """One readable entry per infeasible design: which impacter, why, what to change."""
+#: What to change for each kind of shortfall (:func:`planner.designer.design.shortfalls`).
+ADVICE = {
+    "silence": ("widen the separations (drive.guard.separation_channels) or the band "
+                "(drive.band_hz), so that the tones it answers sit further from its own"),
+    "silence_long": ("widen the separations (drive.guard.separation_channels) or the band "
+                     "(drive.band_hz): it answers a tone late in the re-check window"),
+    "response": ("it cannot respond from every x0 while silent at its neighbours: a wider "
+                 "separation (drive.guard.separation_channels) or band"),
+    "speed_floor": ("a lower floor (verification.min_speed_mm_s), a heavier impacter for its "
+                    "slider (design.max_mass_ratio) or a lighter slider (device.slider."
+                    "area_um2), or a band where designs are faster (the plan's reach)"),
+    "mass_ratio": "a higher design.max_mass_ratio or a heavier slider",
+    "bounds": "wider design.bounds",
+    "sensitivity": ("a wider design.sensitivity_tolerance or another "
+                    "design.sensitivity_per_um"),
+}
+
+
+def design_problems(designs, settings, rounds=()):
+    """One readable entry per infeasible design: which impacter, the constraint it
+    misses and by how much, what the planner's loop tried, and what to change."""
+    tried = {}
+    for rnd in rounds:
+        for mv in rnd.get("moved", ()):
+            tried.setdefault(mv["impacter"], []).append(
+                f"moved {mv['from_hz']:.0f} -> {mv['to_hz']:.0f} Hz in round {rnd['round']}")
+        blocked = rnd.get("no_channel")
+        if blocked:
+            for n in blocked["impacters"]:
+                tried.setdefault(n, []).append(
+                    f"no free channel kept its widened separations in round {rnd['round']}")
+        for n in [*rnd.get("redesigned_slow", []), *rnd.get("redesigned_idle", [])]:
+            tried.setdefault(n, []).append(f"re-designed from further seeds in round "
+                                           f"{rnd['round']}")
     out = []
     for n in sorted(designs):
         d = designs[n]
         if d.feasible:
             continue
-        advice = ("widen the separations (drive.guard.separation_channels, "
-                  "ensemble_separation_channels) or the band, so that its forbidden tones "
-                  "sit further from its own")
-        if d.checks.get("violated_drives"):
-            advice += ("; it responds under the summed drive of a step it sits out: fewer "
-                       "tones per step or a lower drive.power_m2_s3 also help")
+        kinds = [sf["constraint"] for sf in d.shortfalls] or ["silence"]
+        advice = [ADVICE.get(k, "") for k in dict.fromkeys(kinds)]
+        drives = d.checks.get("violated_drives")
+        if drives:
+            advice.append("it answers the summed drive of " + ", ".join(map(repr, drives))
+                          + " (a step it sits out): fewer tones per step, a lower "
+                          "drive.max_acceleration_g or drive.power_m2_s3, or a wider "
+                          "drive.guard.ensemble_separation_channels")
         if getattr(d, "mass_ratio", 0.0) >= 0.99 * settings.max_mass_ratio:
-            advice += (f"; it sits at the mass-ratio cap m/M = {settings.max_mass_ratio:g} "
-                       "(design.max_mass_ratio, or a heavier slider)")
-        out.append({"impacter": n.text, "frequency_hz": d.frequency_hz, "why": d.message,
-                    "what_to_change": advice})
+            advice.append(f"it sits at the mass-ratio cap m/M = {settings.max_mass_ratio:g} "
+                          "(design.max_mass_ratio, or a heavier slider)")
+        out.append({"impacter": n.text, "frequency_hz": d.frequency_hz,
+                    "constraint": kinds[0], "shortfalls": [dict(sf) for sf in d.shortfalls],
+                    "why": d.message, "tried": tried.get(n.text, []),
+                    "what_to_change": "; ".join(a for a in advice if a)})
     return out
 
 
@@ -105,12 +141,14 @@ class _Round:
                 sum(1 for f in self.failures if f.kind not in MOTION_KINDS))
 
 
-def _design_round(settings, steps, assignment, clock, tick, design_cache, **design_kw):
+def _design_round(settings, steps, assignment, clock, tick, design_cache, draws=None,
+                  **design_kw):
     """Drives, designs, burst sizing, gates and the per-step verification for one
-    assignment."""
+    assignment (``draws``: step key -> phase draw, :func:`synthesize_steps`)."""
     # the drives depend on the frequencies only, so they come before the designs,
     # which must be silent under the summed drive of every step they sit out
-    synthesized = clock.timed("drive", synthesize_steps, settings, steps, assignment)
+    synthesized = clock.timed("drive", synthesize_steps, settings, steps, assignment,
+                              draws=draws)
     waveforms, drive_notes = clock.timed("drive", limit_acceleration, settings, synthesized)
     tick("design", total=len(assignment.frequencies))
     designs = clock.timed("design", design_all, settings, steps, assignment, design_cache,
@@ -145,11 +183,36 @@ def _design_round(settings, steps, assignment, clock, tick, design_cache, **desi
                   sliders, run_steps, sizing, ver_rows, failures)
 
 
-def _repair_rounds(settings, clock, tick, on_assignment, design_kw, reach=None):
-    """Assign, design and verify, then repair and repeat up to
-    ``settings.repair_rounds`` times: widen the separations the failures point at
-    (a re-colouring), re-design impacters that were only too slow, or idle ones that
-    answered once although their designs were feasible, alone from further seeds.
+def _design_stats(designs, before):
+    """How the round's designs were made: {"designed", "kept", "reused"} (a re-check
+    kept a design whose inputs changed; reused: from an earlier round or the cache)."""
+    out = {"designed": 0, "kept": 0, "reused": 0}
+    for n, d in designs.items():
+        if before is not None and before.get(n) is d:
+            out["reused"] += 1
+        elif d.checks.get("kept_by_recheck") and before is not None:
+            out["kept"] += 1
+        else:
+            out["designed"] += 1
+    return out
+
+
+def _repair_rounds(settings, clock, tick, on_assignment, design_kw, first):
+    """The assigner and the designer in one loop: assign, design and verify, then change
+    what the failures point at and repeat, up to ``settings.repair_rounds`` times.
+
+    An infeasible design (:func:`planner.planning.repair.design_levers`) gets a new
+    phase draw of the summed drive it answers, a channel further from the tones it
+    answers (the movers placed alone on free positions, every other channel kept:
+    :func:`planner.reassign.move_groups`; the whole graph coloured again only when no
+    free position fits) or a re-design from further seeds; the verification's
+    failures widen separations or re-design the impacters that answered or were slow
+    (:mod:`planner.planning.repair`).  A design whose own tone did not move is kept
+    when it passes a re-check against what changed (:func:`design_all`'s
+    ``previous``): a move re-designs what it touches, not the array.
+
+    ``first`` is the first assignment (:func:`planner.planning.reach.measure_reach`'s),
+    on the channels the spec's reach offers; every later one keeps its reach.
 
     Returns
     -------
@@ -157,43 +220,78 @@ def _repair_rounds(settings, clock, tick, on_assignment, design_kw, reach=None):
         The round kept (the lowest :attr:`_Round.score`, the later one on a tie),
         plan.json's ``repair_rounds`` log and the distinct designs made over the rounds.
     """
+    from planner.planning.designs import design_keys
+    from planner.planning.repair import design_levers
+    from planner.reassign import move_groups
+
     steps, sep = settings.steps, settings.separation_channels
     pair_sep, design_cache, rounds, reseed, idle_redesigned = {}, {}, [], {}, set()
-    best = None
+    draws, reseeded = {}, set()
+    best, previous, before = None, None, None
+    assignment = first
+    reach = first.reach
+    if on_assignment is not None:
+        on_assignment(settings, steps, assignment)
     for round_ in range(settings.repair_rounds + 1):
-        ts = time.perf_counter()
-        try:
-            assignment = assign(settings, steps, separation=sep, pair_separation=pair_sep,
-                                reach=reach)
-        except PlanningError as exc:
-            if round_ == 0:
-                raise
-            # the widened separations no longer fit the band: keep the last plan and
-            # report what still fails
-            rounds.append({"round": round_, "span": None, "failures": None,
-                           "stopped": str(exc)})
-            break
-        clock.add("assign", ts)
-        if round_ == 0 and on_assignment is not None:
-            on_assignment(settings, steps, assignment)
         got = _design_round(settings, steps, assignment, clock, tick, design_cache,
-                            reseed=reseed, **design_kw)
+                            draws=dict(draws), reseed=dict(reseed), previous=previous,
+                            **design_kw)
         failed_rows = sum(1 for r in got.ver_rows if not r["passed"])
-        rounds.append({"round": round_, "span": assignment.span, "failures": failed_rows})
+        infeasible = sorted(n for n, d in got.designs.items() if not d.feasible)
+        entry = {"round": round_, "span": assignment.span, "failures": failed_rows,
+                 "infeasible": [n.text for n in infeasible],
+                 "designs": _design_stats(got.designs, before)}
+        rounds.append(entry)
         if best is None or got.score <= best[0].score:
             best = (got, round_)
-        if not failed_rows or round_ == settings.repair_rounds:
+        if (not failed_rows and not infeasible) or round_ == settings.repair_rounds:
             break
+        offsets, drawn_before = dict(reseed), dict(draws)
+        actions, away = design_levers(got.designs, steps, assignment, draws, pair_sep, sep,
+                                      reseed, reseeded)
         answered = reseed_idle(got.failures, got.designs, reseed, idle_redesigned)
-        widened = widen_separations(got.failures, got.designs, steps, assignment, pair_sep,
-                                    sep, skip=answered)
-        reseeded = reseed_slow(got.failures, got.designs, steps, reseed)
-        if reseeded:
-            rounds[-1]["redesigned_slow"] = [n.text for n in reseeded]
+        for n, near in widen_separations(got.failures, got.designs, steps, assignment,
+                                         pair_sep, sep, skip=answered).items():
+            away.setdefault(n, set()).update(near)
+            actions.append(f"{n}: moved away from " + ", ".join(m.text for m in sorted(near))
+                           + " (it answered in a step it sits out)")
+        reseeded_slow = reseed_slow(got.failures, got.designs, steps, reseed)
+        if reseeded_slow:
+            entry["redesigned_slow"] = [n.text for n in reseeded_slow]
         if answered:
-            rounds[-1]["redesigned_idle"] = [n.text for n in answered]
-        if not (widened or reseeded or answered):
+            entry["redesigned_idle"] = [n.text for n in answered]
+        new = assignment
+        if away:
+            ts = time.perf_counter()
+            moved = move_groups(settings, steps, assignment, away, pair_sep, away=away)
+            if moved is not None:
+                new, moves = moved
+                entry["moved"] = [{"impacter": n.text, "from_hz": a, "to_hz": b}
+                                  for n, (a, b) in sorted(moves.items())]
+            else:
+                try:
+                    new = assign(settings, steps, separation=sep, pair_separation=pair_sep,
+                                 reach=reach)
+                except PlanningError as exc:
+                    # no channel keeps the tightened separations: the movers stay
+                    entry["no_channel"] = {"impacters": sorted(n.text for n in away),
+                                           "why": str(exc)}
+                else:
+                    entry["recoloured"] = sum(1 for n in new.frequencies
+                                              if new.frequencies[n] != assignment.frequencies[n])
+            clock.add("assign", ts)
+        if actions:
+            entry["actions"] = actions
+        drawn = {k: v for k, v in draws.items() if v}
+        if drawn:
+            entry["phase_draws"] = dict(sorted(drawn.items()))
+        changed = (new is not assignment or reseed != offsets or draws != drawn_before)
+        if not changed:
             break
+        previous = design_keys(settings, steps, assignment, got.waveforms, got.designs,
+                               offsets)
+        before = dict(got.designs)
+        assignment = new
     kept, kept_round = best
     if kept_round != rounds[-1]["round"]:
         rounds.append({"round": None, "kept_round": kept_round,
@@ -222,12 +320,13 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     store = DesignStore(cache_dir) if cache_dir is not None else None
     jobs = max(1, int(jobs or 1))
     with _plan_pool(jobs, scheduler) as pool:
-        # what a design can serve, and how far apart, before any channel is assigned
-        reach = clock.timed("reach", measure_reach, settings, jobs=jobs, scheduler=scheduler,
-                            pool=pool, store=store, progress=tick)
+        # what a design can serve, the channels on it, and how far apart they must be
+        # (the stage's time includes the first assignment's)
+        _, first = clock.timed("reach", measure_reach, settings, jobs=jobs,
+                               scheduler=scheduler, pool=pool, store=store, progress=tick)
         kept, rounds, designed = _repair_rounds(
             settings, clock, tick, on_assignment,
-            dict(jobs=jobs, scheduler=scheduler, store=store, pool=pool), reach)
+            dict(jobs=jobs, scheduler=scheduler, store=store, pool=pool), first)
     cache = (None if store is None else
              {"path": str(store.path), "read": store.hits, "written": store.writes,
               "designed": designed})
@@ -269,7 +368,7 @@ def _finish(settings, kept: _Round, rounds, clock, scheduler, design_cache) -> P
     manufacturability = clock.timed("manufacturability", assess, settings, run_steps,
                                     assignment, designs, kept.waveforms)
     ver = pd.DataFrame(ver_rows)
-    problems = design_problems(designs, settings)
+    problems = design_problems(designs, settings, rounds)
     # an infeasible design fails the plan even if the steps happen to verify: it was
     # not shown silent at its forbidden tones on the designer's fine grid
     passed = bool(ver["passed"].all()) and not problems

@@ -6,31 +6,40 @@ design can drive its slider at the speed floor: too low, no matched beam is soft
 (the beam length at its bound); too high, no impacter with the smallest gap hits hard
 enough under the drive's power.  And the environment decides how far a design answers
 tones other than its own: in air a few hundred Hz, in vacuum (undamped) far.  Neither
-follows from the spec alone, so the planner measures both with the designer itself, at a
-few probe channels (:data:`PROBE_COUNT`, log-spaced over the channel grid):
+follows from the spec alone, so the planner measures both with the designer itself, at
+:data:`PROBE_COUNT` probe channels log-spaced over the channel grid, before it assigns:
 
-- **separation**: a design for the probe's tone with a neighbour on each side at the
-  grid's packed separation (``drive.guard.separation_channels`` positions away), by the
-  planner's own retry policy (:func:`planner.planning.designs._design_task`).  Feasible
-  (silent at both, responding from every x0, at least the speed floor): the spec's
-  separation holds there.  Otherwise the neighbours move out: first to
-  :data:`RATIO_LIMIT` (infeasible there too: no tone there can be told apart from
-  another), then from the packed ratio r0 to 1 + 2^k (r0 - 1), k = 1, 2 ..., and one
-  bisection in log ratio below the first feasible rung: the separation the assigner
-  must keep there.
-- **reach**: a design alone at the tone (no forbidden tone), the best of the planner's
-  tries: infeasible means no design serves that tone at the floor.  Between a reachable
-  and an unreachable probe the edge is bisected to the channel.
+1. A design for the probe's tone with a neighbour on each side at the grid's packed
+   spacing (the positions ``drive.guard.separation_channels`` away, as in a full band),
+   by the planner's own tries (:func:`planner.planning.designs._design_task`, at most
+   :data:`PROBE_TRIES`).  Feasible (silent at both, responding from every x0, at least
+   the speed floor): the tone can be served and the spacing holds.
+2. Otherwise the neighbours move out to :data:`RATIO_LIMIT` (a factor 4): infeasible
+   there too, a design alone at the tone decides -- it can be served (but told apart
+   from no other tone: the channels nearest the probe are not offered) or not (the tone
+   is out of reach).  Feasible there, the neighbour ratio is narrowed to 1 + 2^k (r0 -
+   1), k = 1, 2 ..., and bisected once in log ratio below the first feasible rung: the
+   spacing the assigner must keep there (:func:`planner.separation.position_grid`'s
+   ``min_ratio``).
+3. Between a probe that can be served and one that cannot, the edge is bisected to the
+   channel (each step one design with neighbours, and one alone if that fails).
 
-Channels outside the reach are not offered to the assigner, and the positions it lays
-the colouring on keep the measured separations (:func:`planner.separation.position_grid`);
-a spec whose steps cannot fit what remains is refused before any design, naming the
-reachable tones and the separations (:func:`planner.assign.assign`).  Every probe is a
-design task, run on the plan's worker pool and kept in the design cache.
+A design alone is no measure of the speed a tone allows: unconstrained, the max-min
+design of eq. (13) favours light impacters that hit often with small kicks, which
+friction swallows (at 51 kHz in the default: m/M 0.03-0.05 and 0.04-0.07 mm/s alone,
+0.14-0.40 and 0.10-0.37 mm/s with neighbours at the packed spacing), so it is asked
+only when the designs with neighbours fail.
+
+Channels out of reach are not offered to the assigner, and the positions it lays the
+colouring on keep the measured spacing; a spec whose steps cannot fit what remains is
+refused before any design, naming the reachable tones, the spacing and what would widen
+them (:func:`planner.assign.assign`).  Every probe is a design task, run on the plan's
+worker pool and kept in the design cache.
 """
 
 from __future__ import annotations
 
+import collections
 import math
 import time
 from dataclasses import dataclass, field
@@ -51,6 +60,10 @@ RATIO_BISECTIONS = 1
 #: Hard-infeasible tries of a separation probe beyond the packed ratio (one: those
 #: rungs measure where a design stops answering, not whether a hard target is met).
 WIDE_RUNG_TRIES = 1
+#: Most tries of one probe design (the plan's designs take up to 1 + DESIGN_RETRIES
+#: while they are only too slow; a probe asks whether a design exists, and stops at
+#: its first feasible one).
+PROBE_TRIES = 4
 
 
 @dataclass(frozen=True)
@@ -67,7 +80,7 @@ class Probe:
         The ratio of its neighbours on the packed position grid [-].
     ratio : float or None
         The least neighbour ratio at which a design was feasible [-] (``packed_ratio``
-        when the spec's separation holds); None: none up to :data:`RATIO_LIMIT`.
+        when the grid's spacing holds); None: none up to :data:`RATIO_LIMIT`.
     reachable : bool
         A design serves the tone at the speed floor (with its neighbours, or alone).
     speed_m_s : float
@@ -83,6 +96,12 @@ class Probe:
     reachable: bool
     speed_m_s: float
     tried: tuple = ()
+
+    @property
+    def hopeless(self) -> bool:
+        """Reachable (alone), but no design was silent even at neighbours
+        :data:`RATIO_LIMIT` away: no tone here can be told apart from another."""
+        return self.reachable and self.ratio is None
 
     def to_dict(self) -> dict:
         return {"channel": self.channel, "tone_hz": self.tone_hz,
@@ -148,7 +167,7 @@ class Reach:
         return (self.grid_hz[int(idx[0])], self.grid_hz[int(idx[-1])])
 
     def widened(self):
-        """Probes whose separation had to be widened beyond the packed grid's."""
+        """Probes whose spacing had to be widened beyond the packed grid's."""
         return [p for p in self.probes if p.ratio is not None and p.ratio > p.packed_ratio]
 
     def summary(self) -> str:
@@ -173,7 +192,7 @@ class Reach:
                      "separation: " + ", ".join(
                          f"at {p.tone_hz / 1e3:.3g} kHz neighbours must be x{p.ratio:.3g} "
                          f"away (the grid packs them x{p.packed_ratio:.3g})" for p in wide))
-        lost = [p for p in self.probes if p.reachable and p.ratio is None]
+        lost = [p for p in self.probes if p.hopeless]
         if lost:
             text += ("; but no design could be told apart from another tone: none was "
                      f"silent even at neighbours x{RATIO_LIMIT:g} away, at " + ", ".join(
@@ -202,7 +221,15 @@ class Reach:
             out.append("or a lower floor (verification.min_speed_mm_s), a heavier "
                        "impacter for its slider (design.max_mass_ratio) or a lighter "
                        "slider (device.slider.area_um2)")
-        if self.widened() or any(p.ratio is None for p in self.probes if p.reachable):
+        if rng is None and self.probes:
+            fastest = max(self.probes, key=lambda p: p.speed_m_s)
+            where = ("higher" if fastest is self.probes[-1] else
+                     "lower" if fastest is self.probes[0] else None)
+            if where:
+                out.append(f"or a {where} band (drive.band_hz): the fastest design was found "
+                           f"at {fastest.tone_hz:.0f} Hz, the band's "
+                           f"{'top' if where == 'higher' else 'bottom'}")
+        if self.widened() or any(p.hopeless for p in self.probes):
             out.append("to bring separations down: more damping (environment."
                        "viscosity_mpa_s: an undamped impacter released from x0 = +-c "
                        "never stops ringing, and any tone it sits out adds to it until "
@@ -216,8 +243,8 @@ class Reach:
         head = (f"reach (measured in {self.seconds:.1f} s, {self.designs} probe designs): ")
         if not self.constrained:
             return [head + f"every channel {self.grid_hz[0]:.0f}-{self.grid_hz[-1]:.0f} Hz "
-                    f"can be served at {self.floor_m_s * 1e3:g} mm/s at the grid's "
-                    "separation"]
+                    f"can be served at {self.floor_m_s * 1e3:g} mm/s at the grid's packed "
+                    "spacing"]
         out = [head + self.summary()]
         out.append(f"  channels offered to the assigner: {self.offered} of "
                    f"{len(self.grid_hz)}")
@@ -243,77 +270,82 @@ def _why(res) -> str:
     return "; ".join(s["text"] for s in res.shortfalls)
 
 
-def _alone(shared, tone):
-    """(feasible, speed [m/s], why) of a design alone at ``tone`` [Hz]."""
-    return _rung(shared, tone, (), INFEASIBLE_TRIES)
-
-
 def _rung(shared, tone, neighbours, tries):
     """(feasible, speed [m/s], why) of a design at ``tone`` [Hz] silent at
-    ``neighbours`` [Hz]: the planner's tries, stopping at the first feasible one (a
-    probe asks whether a design exists, not for the fastest)."""
+    ``neighbours`` [Hz]: at most :data:`PROBE_TRIES` of the planner's tries (``tries``
+    of them hard-infeasible), stopping at the first feasible one."""
     base, floor = shared
     res = _design_task({**base, "frequency": float(tone), "forbidden": tuple(neighbours)},
-                       floor, infeasible_tries=tries, margin=1.0)
+                       floor, infeasible_tries=tries, margin=1.0, max_tries=PROBE_TRIES)
     return bool(res.feasible), float(res.predicted_slider_speed_m_s), _why(res)
 
 
-def _ladder(shared, tone, packed, packed_neighbours):
-    """One separation probe (see the module docstring): returns (ratio or None,
-    reachable, speed, tried)."""
+def _tone(shared, tone, packed, packed_neighbours):
+    """One probe (see the module docstring): returns (ratio or None, reachable, speed
+    [m/s], tried), ``tried`` every rung as (ratio, feasible, why), ratio 0 alone."""
     tried = []
-    ok, speed, why = _rung(shared, tone, packed_neighbours, INFEASIBLE_TRIES)
-    tried.append((packed, ok, why))
-    if ok:
-        return packed, True, speed, tuple(tried)
-    alone_ok, alone_speed, alone_why = _alone(shared, tone)
-    tried.append((0.0, alone_ok, alone_why))
-    if not alone_ok:
-        return None, False, max(speed, alone_speed), tuple(tried)
+    best = [0.0]
 
-    def at(ratio):
-        ok, v, why = _rung(shared, tone, (tone / ratio, tone * ratio), WIDE_RUNG_TRIES)
+    def at(ratio, neighbours, tries):
+        ok, v, why = _rung(shared, tone, neighbours, tries)
         tried.append((ratio, ok, why))
-        return ok, v
+        best[0] = max(best[0], v)
+        return ok
 
-    ok, best = at(RATIO_LIMIT)
-    if not ok:
-        return None, True, alone_speed, tuple(tried)
+    if at(packed, packed_neighbours, INFEASIBLE_TRIES):
+        return packed, True, best[0], tuple(tried)
+    if packed >= RATIO_LIMIT or not at(RATIO_LIMIT, (tone / RATIO_LIMIT, tone * RATIO_LIMIT),
+                                       WIDE_RUNG_TRIES):
+        alone = at(0.0, (), 1)
+        return None, alone, best[0], tuple(tried)
     lo, hi, k = packed, RATIO_LIMIT, 1
     while True:
         rung = 1.0 + 2.0 ** k * (packed - 1.0)
         if rung >= RATIO_LIMIT:
             break
-        ok, v = at(rung)
-        if ok:
-            hi, best = rung, v
+        if at(rung, (tone / rung, tone * rung), WIDE_RUNG_TRIES):
+            hi = rung
             break
         lo, k = rung, k + 1
     for _ in range(RATIO_BISECTIONS):
         mid = math.sqrt(lo * hi)
-        ok, v = at(mid)
-        if ok:
-            hi, best = mid, v
+        if at(mid, (tone / mid, tone * mid), WIDE_RUNG_TRIES):
+            hi = mid
         else:
             lo = mid
-    return hi, True, best, tuple(tried)
+    return hi, True, best[0], tuple(tried)
 
 
-def _edge(shared, tones, reachable_first):
+def _served(shared, tone, neighbours):
+    """(reachable, speed): a design with ``neighbours``, or else alone, is feasible."""
+    ok, v, _ = _rung(shared, tone, neighbours, 1)
+    if ok:
+        return True, v
+    ok, w, _ = _rung(shared, tone, (), 1)
+    return ok, max(v, w)
+
+
+def _edge(shared, tones, neighbours, reachable_first):
     """Bisect the channels ``tones`` [Hz] (increasing; the first is reachable iff
-    ``reachable_first``, the last is not) for the last channel on the first one's side:
-    returns (index into ``tones``, probes as (index, reachable, speed))."""
+    ``reachable_first``, the last is not) for the last channel on the first one's side
+    (``neighbours[i]``: channel i's packed neighbours): returns (index into ``tones``,
+    probes as (index, reachable, speed))."""
     a, b = 0, len(tones) - 1
     seen = []
     while b - a > 1:
         mid = (a + b) // 2
-        ok, speed, _ = _alone(shared, tones[mid])
+        ok, speed = _served(shared, tones[mid], neighbours[mid])
         seen.append((mid, ok, speed))
         if ok == reachable_first:
             a = mid
         else:
             b = mid
     return a, tuple(seen)
+
+
+def _probe(shared, kind, *args):
+    """One probe task of ``kind`` ("tone" or "edge") on a worker."""
+    return {"tone": _tone, "edge": _edge}[kind](shared, *args)
 
 
 # the stage ---------------------------------------------------------------------------
@@ -327,10 +359,21 @@ def probe_channels(grid, count=PROBE_COUNT):
     return sorted({int(np.argmin(np.abs(np.log(grid / f)))) for f in want})
 
 
+def _kinds(settings: Settings):
+    """One representative node per distinct impacter setting among the driven nodes."""
+    from planner.nodes import Node
+
+    driven = sorted({Node(d, dr) for st in settings.steps for d, dr in st.active_nodes()})
+    out = {}
+    for n in driven:
+        out.setdefault(settings.impacters[n], n)
+    return list(out.values())
+
+
 def packed_neighbours(grid, positions, separation, channel):
     """(ratio, neighbours [Hz]) of ``channel`` on the packed positions: the tones
     ``separation`` positions above and below it that lie in the grid, and the smaller of
-    their ratios to its tone."""
+    their ratios to its tone (:data:`RATIO_LIMIT` with none)."""
     grid = np.asarray(grid, dtype=float)
     i = int(np.argmin(np.abs(np.asarray(positions) - channel)))
     f = grid[channel]
@@ -344,20 +387,10 @@ def packed_neighbours(grid, positions, separation, channel):
     return (min(ratios) if ratios else RATIO_LIMIT), tuple(nb)
 
 
-def _kinds(settings: Settings):
-    """One representative node per distinct impacter setting among the driven nodes."""
-    from planner.nodes import Node
-
-    driven = sorted({Node(d, dr) for st in settings.steps for d, dr in st.active_nodes()})
-    out = {}
-    for n in driven:
-        out.setdefault(settings.impacters[n], n)
-    return list(out.values())
-
-
 def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, store=None,
-                  progress=None) -> Reach:
-    """Probe the spec's reach and separations (see the module docstring).
+                  progress=None):
+    """Probe the spec's reach and spacing (see the module docstring) and assign the
+    channels it offers.
 
     Parameters
     ----------
@@ -367,15 +400,23 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
     store : planner.planning.design_store.DesignStore, optional
         The design cache: a probe it holds is read, not run.
     progress : callable(stage, item=None, total=None), optional
-        The plan's progress callback (stage "reach").
+        The plan's progress callback (stages "reach" and "edges").
 
     Returns
     -------
-    Reach
-        Channels allowed and separations per channel: with several kinds of impacter
-        (devices set apart by ``devices:``), the channels every kind can serve and the
-        widest separation any needs.
+    (Reach, Assignment)
+        The reach (channels offered and spacing per channel: with several kinds of
+        impacter, set apart by ``devices:``, the channels every kind can serve and the
+        widest spacing any needs) and the assignment on it
+        (:func:`planner.assign.assign`; its ``reach`` is this one).
+
+    Raises
+    ------
+    planner.errors.PlanningError
+        The steps cannot fit the channels a design can serve with the spacing it needs
+        (the message names the reachable tones, the spacing and what would widen them).
     """
+    from planner.assign import assign
     from planner.separation import position_grid
 
     t0 = time.perf_counter()
@@ -385,60 +426,72 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
     positions = position_grid(grid, sep, settings.guard)
     floor = settings.min_speed_m_s
     probes_at = probe_channels(grid)
+    packed = [packed_neighbours(grid, positions, sep, c) for c in probes_at]
+    env = "vacuum" if settings.environment.viscosity_mpa_s == 0 else ""
+    kinds = _kinds(settings)
+    ran = [0]
     reachable = np.ones(grid.size, dtype=bool)
     allowed = np.ones(grid.size, dtype=bool)
     need = np.ones(grid.size)
-    all_probes, all_edges, ran = [], [], [0]
-    kinds = _kinds(settings)
-    tick("reach", total=len(kinds) * len(probes_at))
+    probes, all_edges = [], []
     for node in kinds:
-        base = settings.design_kwargs(node)
-        shared = (base, floor)
-        packed = [packed_neighbours(grid, positions, sep, c) for c in probes_at]
-        args = [(float(grid[c]), r, nb) for c, (r, nb) in zip(probes_at, packed)]
-        found = _cached_run(_ladder, shared, args, "ladder", store, ran, jobs, scheduler, pool,
+        shared = (settings.design_kwargs(node), floor)
+        tick("reach", total=len(probes_at))
+        found = _cached_run(shared, [("tone", float(grid[c]), r, nb)
+                                     for c, (r, nb) in zip(probes_at, packed)],
+                            store, ran, jobs, scheduler, pool,
                             on_done=lambda i, res: tick("reach", i))
-        probes = [Probe(c, float(grid[c]), r, ratio, reach, speed, tried)
-                  for c, (r, _), (ratio, reach, speed, tried) in zip(probes_at, packed, found)]
-        # edges between probes that disagree on reach
-        pairs = [(a, b) for a, b in zip(probes, probes[1:]) if a.reachable != b.reachable
-                 and b.channel - a.channel > 1]
-        edge_args = [(tuple(float(f) for f in grid[a.channel:b.channel + 1]), a.reachable)
-                     for a, b in pairs]
-        edges = _cached_run(_edge, shared, edge_args, "edge", store, ran, jobs, scheduler,
-                            pool)
-        ok = _reachable_mask(grid.size, probes, pairs, edges)
+        mine = [Probe(c, float(grid[c]), r, ratio, ok, speed, tried)
+                for c, (r, _), (ratio, ok, speed, tried) in zip(probes_at, packed, found)]
+        pairs = [(i, i + 1) for i in range(len(mine) - 1)
+                 if mine[i].reachable != mine[i + 1].reachable
+                 and probes_at[i + 1] - probes_at[i] > 1]
+        if pairs:
+            tick("edges", total=len(pairs))
+        edges = _cached_run(
+            shared, [("edge", tuple(float(f) for f in grid[probes_at[i]:probes_at[j] + 1]),
+                      tuple(packed_neighbours(grid, positions, sep, c)[1]
+                            for c in range(probes_at[i], probes_at[j] + 1)),
+                      mine[i].reachable) for i, j in pairs],
+            store, ran, jobs, scheduler, pool, on_done=lambda i, res: tick("edges", i))
+        ok = _reachable_mask(grid.size, probes_at, [p.reachable for p in mine], pairs, edges)
         reachable &= ok
         allowed &= ok
-        need = np.maximum(need, _needed_ratio(grid, probes, allowed))
-        for (a, _), (_, seen) in zip(pairs, edges):
-            all_edges += [(a.channel + i, bool(r), float(v)) for i, r, v in seen]
-        all_probes += probes
-    env = "vacuum" if settings.environment.viscosity_mpa_s == 0 else ""
-    return Reach(floor, tuple(float(f) for f in grid), tuple(bool(a) for a in reachable),
-                 tuple(bool(a) for a in allowed),
-                 tuple(float(r) for r in need), tuple(all_probes), tuple(all_edges),
-                 ran[0], time.perf_counter() - t0, env)
+        need = np.maximum(need, _needed_ratio(grid, mine, allowed))
+        for (i, _), (_, seen) in zip(pairs, edges):
+            all_edges += [(probes_at[i] + k, bool(r), float(v)) for k, r, v in seen]
+        probes += mine
+    reach = Reach(floor, tuple(float(f) for f in grid), tuple(bool(a) for a in reachable),
+                  tuple(bool(a) for a in allowed), tuple(float(r) for r in need),
+                  tuple(probes), tuple(all_edges), ran[0], time.perf_counter() - t0, env)
+    return reach, assign(settings, settings.steps, reach=reach)
 
 
-def _cached_run(func, shared, args_list, kind, store, ran, jobs, scheduler, pool,
-                on_done=None):
-    """:func:`dispatch` of probe tasks, each read from / written to the design cache."""
+#: Probe results of this process by task digest (at most :data:`MEMO_SIZE`, oldest
+#: dropped): a process that plans one spec several times (the tests, a notebook) probes
+#: it once even without a design cache; the results are deterministic.
+_MEMO: collections.OrderedDict = collections.OrderedDict()
+MEMO_SIZE = 4096
+
+
+def _cached_run(shared, args_list, store, ran, jobs, scheduler, pool, on_done=None):
+    """:func:`dispatch` of probe tasks (:func:`_probe`; ``args_list``: (kind, *args)
+    each), each read from this process's memo or the design cache, and written to both."""
+    from planner.planning.design_store import task_digest
+
     out = [None] * len(args_list)
-    digests = []
-    if store is not None:
-        from planner.planning.design_store import task_digest
-
-        base, floor = shared
-        for args in args_list:
-            digests.append(task_digest({"reach_probe": kind, "args": args, **base}, floor,
-                                       DESIGN_RETRIES, INFEASIBLE_TRIES, SPEED_MARGIN,
-                                       RATIO_LIMIT, RATIO_BISECTIONS, WIDE_RUNG_TRIES))
+    base, floor = shared
+    digests = [task_digest({"reach_probe": args, **base}, floor, DESIGN_RETRIES,
+                           INFEASIBLE_TRIES, SPEED_MARGIN, RATIO_LIMIT, RATIO_BISECTIONS,
+                           WIDE_RUNG_TRIES, PROBE_TRIES) for args in args_list]
     todo = []
-    for i, args in enumerate(args_list):
-        hit = store.get(digests[i]) if store is not None else None
+    for i, digest in enumerate(digests):
+        hit = _MEMO.get(digest)
+        if hit is None and store is not None:
+            hit = store.get(digest)
         if hit is not None:
             out[i] = hit
+            _remember(digest, hit)
             if on_done is not None:
                 on_done(i, hit)
         else:
@@ -448,42 +501,51 @@ def _cached_run(func, shared, args_list, kind, store, ran, jobs, scheduler, pool
         i = todo[j]
         out[i] = res
         ran[0] += 1
+        _remember(digests[i], res)
         if store is not None:
             store.put(digests[i], res)
         if on_done is not None:
             on_done(i, res)
 
-    dispatch(func, shared, [args_list[i] for i in todo], jobs=jobs, scheduler=scheduler,
+    dispatch(_probe, shared, [args_list[i] for i in todo], jobs=jobs, scheduler=scheduler,
              pool=pool, on_done=done)
     return out
 
 
-def _reachable_mask(n, probes, pairs, edges):
-    """Channels reachable by the probes and the edges bisected between them."""
-    ok = np.zeros(n, dtype=bool)
-    if not probes:
-        return ok
-    edge_of = {a.channel: a.channel + last for (a, _), (last, _) in zip(pairs, edges)}
-    first, last = probes[0], probes[-1]
-    if first.reachable:
-        ok[:first.channel + 1] = True
-    if last.reachable:
-        ok[last.channel:] = True
-    for a, b in zip(probes, probes[1:]):
-        if a.reachable and b.reachable:
-            ok[a.channel:b.channel + 1] = True
-        elif a.reachable != b.reachable:
-            cut = edge_of.get(a.channel, a.channel)     # the last channel on a's side
-            if a.reachable:
-                ok[a.channel:cut + 1] = True
+def _remember(digest, result):
+    _MEMO[digest] = result
+    _MEMO.move_to_end(digest)
+    while len(_MEMO) > MEMO_SIZE:
+        _MEMO.popitem(last=False)
+
+
+def _reachable_mask(n, probes_at, ok, pairs, edges):
+    """Channels reachable by the probes at ``probes_at`` (reachable where ``ok``) and the
+    edges bisected between the probe index pairs ``pairs``."""
+    mask = np.zeros(n, dtype=bool)
+    if not len(probes_at):
+        return mask
+    edge_of = {i: probes_at[i] + last for (i, _), (last, _) in zip(pairs, edges)}
+    if ok[0]:
+        mask[:probes_at[0] + 1] = True
+    if ok[-1]:
+        mask[probes_at[-1]:] = True
+    for i in range(len(probes_at) - 1):
+        a, b = probes_at[i], probes_at[i + 1]
+        if ok[i] and ok[i + 1]:
+            mask[a:b + 1] = True
+        elif ok[i] != ok[i + 1]:
+            cut = edge_of.get(i, a)          # the last channel on probe i's side
+            if ok[i]:
+                mask[a:cut + 1] = True
             else:
-                ok[cut + 1:b.channel + 1] = True
-    return ok
+                mask[cut + 1:b + 1] = True
+    return mask
 
 
 def _needed_ratio(grid, probes, allowed):
-    """Per channel, the least neighbour ratio [-] the probes measured: 1 where the packed
-    grid's holds, interpolated in log ratio and log frequency between probes that needed
+    """Per channel, the least neighbour ratio [-] the probes measured: 1 where the
+    packed grid's holds, interpolated in log ratio and log frequency between probes that needed
     more, constant beyond the first and last; a channel nearest a probe at which no
     ratio up to :data:`RATIO_LIMIT` worked is left out (``allowed`` is updated)."""
     grid = np.asarray(grid, dtype=float)
@@ -492,14 +554,14 @@ def _needed_ratio(grid, probes, allowed):
     if not usable:
         return need
     # a probe that held at the packed ratio needs nothing more
-    excess = {p.channel: (0.0 if p.ratio is None or p.ratio <= p.packed_ratio
-                          else math.log(p.ratio)) for p in usable if p.ratio is not None}
+    excess = {p.channel: (0.0 if p.ratio <= p.packed_ratio else math.log(p.ratio))
+              for p in usable if p.ratio is not None}
     chans = np.array(sorted(excess))
     if chans.size:
         logf = np.log(grid)
         vals = np.array([excess[c] for c in chans])
         need = np.exp(np.interp(logf, logf[chans], vals))
-    hopeless = [p.channel for p in usable if p.ratio is None]
+    hopeless = [p.channel for p in usable if p.hopeless]
     if hopeless:
         centres = np.array([p.channel for p in probes])
         nearest = centres[np.argmin(np.abs(np.arange(grid.size)[:, None] - centres[None, :]),

@@ -10,7 +10,6 @@ import math
 
 from planner.nodes import Node
 from planner.planning.designs import DESIGN_RETRIES
-from planner.planning.exposure import design_offenders
 from planner.planning.verify import IDLE_RESPONSE, TOO_SLOW
 
 
@@ -23,17 +22,12 @@ def _widen(pair_sep, assignment, a, b, sep):
 
 
 def widen_separations(failures, designs, steps, assignment, pair_sep, sep, skip=()):
-    """Update ``pair_sep`` (frozenset of two nodes -> separation [channels]) in place.
-
-    Each impacter whose design is infeasible moves away from the tones it could not be
-    made silent under; each idle impacter that responds in a step moves away from the
-    nearest tone of that step, unless it is in ``skip`` (re-designed in place instead,
-    :func:`reseed_idle`).  Returns whether anything changed.
-    """
-    changed = False
-    for _, (a, b) in design_offenders(designs, steps, assignment):
-        _widen(pair_sep, assignment, a, b, sep)
-        changed = True
+    """Update ``pair_sep`` (frozenset of two nodes -> separation [channels]) in place for
+    the verification's failures: each idle impacter that responds in a step moves away
+    from the nearest tone of that step, unless it is in ``skip`` (re-designed in place
+    instead, :func:`reseed_idle`).  Returns ``{node: offenders}`` of the impacters to
+    move (infeasible designs are :func:`design_levers`' part)."""
+    out = {}
     for fail in failures:
         if fail.kind != IDLE_RESPONSE or fail.impacter not in designs or fail.impacter in skip:
             continue
@@ -41,8 +35,114 @@ def widen_separations(failures, designs, steps, assignment, pair_sep, sep, skip=
         f = assignment.frequencies[fail.impacter]
         near = min(active, key=lambda a: abs(math.log(assignment.frequencies[a] / f)))
         _widen(pair_sep, assignment, fail.impacter, near, sep)
-        changed = True
-    return changed
+        out.setdefault(fail.impacter, set()).add(near)
+    return out
+
+
+#: Phase draws of one multi-tone step the loop makes (the first included) before it
+#: moves the impacters that cannot be made silent under its summed drive instead: the
+#: phases decide how the step's tones add up in an idle impacter (seed 7 of the
+#: default: the two backward impacters just above the 25-tone positioning cluster had
+#: no feasible design in 9 tries under its first draw, and one in every try under
+#: each of four other draws).
+MAX_PHASE_DRAWS = 3
+
+
+def _nearest_tones(node, designs, assignment, count=1):
+    """The impacters playing the forbidden tones nearest ``node``'s own, one each side."""
+    f = assignment.frequencies[node]
+    below = sorted((m for m in assignment.frequencies if m != node
+                    and assignment.frequencies[m] < f and m in designs),
+                   key=lambda m: f - assignment.frequencies[m])[:count]
+    above = sorted((m for m in assignment.frequencies if m != node
+                    and assignment.frequencies[m] > f and m in designs),
+                   key=lambda m: assignment.frequencies[m] - f)[:count]
+    return below + above
+
+
+def design_levers(designs, steps, assignment, draws, pair_sep, sep, reseed, reseeded):
+    """What the loop changes for every infeasible design (their shortfalls say why).
+
+    - it answers the summed drive of a multi-tone step it sits out: that step's phases
+      are drawn anew (``draws``, step key -> draw, updated in place), up to
+      :data:`MAX_PHASE_DRAWS` draws; after that it moves away from the step's tones;
+    - it answers single tones (on the re-check grid or over the long window): it moves
+      away from the impacters playing them (``pair_sep`` widened in place);
+    - it does not respond from every x0 while silent: its nearest neighbours squeeze
+      it, it moves away from them;
+    - it misses only the speed floor, the mass cap, a bound or its sensitivity: it is
+      re-designed from further seeds (``reseed``, in place) once (``reseeded``, a set
+      updated in place), then moves away from its nearest neighbours.
+
+    Returns
+    -------
+    (actions, away)
+        ``actions``: readable lines; ``away``: node -> set of nodes it should move away
+        from (the movers).
+    """
+    from planner.planning.exposure import idle_ensembles, tone_players
+
+    by_key = {st.key: st for st in steps}
+    playing = tone_players(assignment.frequencies)
+    sits_out = idle_ensembles(steps, assignment.frequencies)
+    actions, away, drawn = [], {}, set()
+    for n in sorted(designs):
+        d = designs[n]
+        if d.feasible:
+            continue
+        kinds = {s["constraint"] for s in d.shortfalls}
+        drives = [k for k in d.checks.get("violated_drives", ()) if k in by_key]
+        singles = {m for hz, r in zip(d.forbidden_hz, d.r_max_forbidden_n) if r > 0
+                   for m in playing(float(hz)) if m != n}
+        if "silence_long" in kinds and not singles and not drives:
+            hz = next(s["value"] for s in d.shortfalls if s["constraint"] == "silence_long")
+            if math.isfinite(hz):
+                singles.update(m for m in playing(hz) if m != n)
+        if (not drives and not singles and sits_out.get(n)
+                and kinds & {"response", "silence", "silence_long"}):
+            # silent under every summed drive it sits out but unable to respond from
+            # every x0: the other side of the same trade-off; the step whose tones come
+            # nearest its own squeezes it most
+            f = assignment.frequencies[n]
+            drives = [min(sits_out[n], key=lambda k: min(
+                abs(math.log(assignment.frequencies[Node(dv, dr)] / f))
+                for dv, dr in by_key[k].active_nodes()))]
+        for k in drives:
+            if k in drawn:
+                continue
+            if draws.get(k, 0) + 1 < MAX_PHASE_DRAWS:
+                draws[k] = draws.get(k, 0) + 1
+                drawn.add(k)
+                actions.append(f"{k}: phases drawn anew (draw {draws[k] + 1}): {n} answers "
+                               "its summed drive")
+            else:
+                players = sorted(Node(dv, dr) for dv, dr in by_key[k].active_nodes())
+                f = assignment.frequencies[n]
+                near = min(players, key=lambda a: abs(math.log(assignment.frequencies[a] / f)))
+                _widen(pair_sep, assignment, n, near, sep)
+                away.setdefault(n, set()).update(players)
+                actions.append(f"{n}: moved further from the tones of {k} (its summed drive "
+                               f"still answered after {MAX_PHASE_DRAWS} phase draws)")
+        for m in sorted(singles):
+            _widen(pair_sep, assignment, n, m, sep)
+            away.setdefault(n, set()).add(m)
+        if singles:
+            actions.append(f"{n}: moved away from " + ", ".join(m.text for m in sorted(singles))
+                           + " (it answers their tones)")
+        if not drives and not singles:
+            soft = kinds <= {"speed_floor", "mass_ratio", "bounds", "sensitivity"}
+            if soft and n not in reseeded:
+                _next_seeds(reseed, n)
+                reseeded.add(n)
+                actions.append(f"{n}: re-designed from further seeds ("
+                               + "; ".join(s["text"] for s in d.shortfalls) + ")")
+            else:
+                for m in _nearest_tones(n, designs, assignment):
+                    _widen(pair_sep, assignment, n, m, sep)
+                    away.setdefault(n, set()).add(m)
+                actions.append(f"{n}: moved away from its nearest neighbours ("
+                               + "; ".join(s["text"] for s in d.shortfalls) + ")")
+    return actions, away
 
 
 def _next_seeds(reseed, node):

@@ -111,8 +111,9 @@ def _head(result):
     if problems:
         lines += [f"**{len(problems)} impacter design(s) infeasible** (the plan fails on them "
                   "whatever the checks below say):", ""]
-        lines += [f"- {p['impacter']} at {p['frequency_hz'] / 1e3:.2f} kHz: {p['why']}. "
-                  f"What to change: {p['what_to_change']}." for p in problems] + [""]
+        lines += [f"- {p['impacter']} at {p['frequency_hz'] / 1e3:.2f} kHz: {p['why']}."
+                  + (f" The planner tried: {'; '.join(p['tried'])}." if p.get("tried") else "")
+                  + f" What to change: {p['what_to_change']}." for p in problems] + [""]
     return lines
 
 
@@ -308,13 +309,45 @@ def _motion_notes(d):
             lines.append(f"- {key}: burst {sized * 1e3:g} ms sized for "
                          f"{rec['requested_travel_m'] / UM:g} um at the slowest predicted "
                          f"speed {fmt(v * 1e3 if v is not None else None, '.3g')} mm/s")
+    reach = (d.get("assignment") or {}).get("reach")
+    if reach and reach.get("constrained"):
+        rng = reach.get("range_hz")
+        text = (f"- reach: {reach['channels_offered']} of the grid's "
+                f"{reach['channels_in_grid']} channels offered to the assigner")
+        if rng:
+            text += f" (a design serves {rng[0]:.0f}-{rng[1]:.0f} Hz at the speed floor)"
+        wide = [f"x{p['ratio']:.3g} at {p['tone_hz'] / 1e3:.3g} kHz" for p in reach["probes"]
+                if p["ratio"] is not None and p["ratio"] > p["packed_ratio"]]
+        if wide:
+            text += ("; neighbours kept further apart than the grid packs them: "
+                     + ", ".join(wide))
+        lines.append(text)
     for rnd in d["verification"].get("repair_rounds", []):
         # a design round that failed checks and what the next round changed
+        r = rnd["round"]
+        if rnd.get("infeasible"):
+            lines.append(f"- design round {r}: {len(rnd['infeasible'])} infeasible "
+                         f"design(s): {', '.join(rnd['infeasible'])}")
+        for action in rnd.get("actions", ()):
+            lines.append(f"- design round {r}: {action}")
+        for mv in rnd.get("moved", ()):
+            lines.append(f"- design round {r}: {mv['impacter']} moved {mv['from_hz']:.0f} -> "
+                         f"{mv['to_hz']:.0f} Hz, every other channel kept")
+        if rnd.get("recoloured"):
+            lines.append(f"- design round {r}: no free channel kept the widened separations; "
+                         f"coloured again ({rnd['recoloured']} channels moved)")
+        if rnd.get("no_channel"):
+            lines.append(f"- design round {r}: no channel keeps the widened separations of "
+                         f"{', '.join(rnd['no_channel']['impacters'])}; they stay")
         for field, why in (("redesigned_slow", "too slow in a step"),
                            ("redesigned_idle", "answered a step it sits out")):
             if rnd.get(field):
-                lines.append(f"- design round {rnd['round']}: re-designed from further seeds "
+                lines.append(f"- design round {r}: re-designed from further seeds "
                              f"({why}): {', '.join(rnd[field])}")
+        st = rnd.get("designs")
+        if st and r and (st.get("kept") or st.get("designed")):
+            lines.append(f"- design round {r}: {st['designed']} designed, {st['kept']} kept "
+                         f"after a re-check, {st['reused']} unchanged")
         if rnd.get("kept_round") is not None:
             lines.append(f"- design round {rnd['kept_round']} kept: {rnd['why']}")
     for rnd in d["verification"].get("motion_repairs", []):
