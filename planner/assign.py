@@ -291,7 +291,8 @@ def _reach_note(reach):
     """The measured reach's part of a refusal (empty without a constrained reach)."""
     if reach is None or not reach.constrained:
         return ""
-    return f" Measured for this spec before any design: {reach.summary()}. To widen it: {reach.advice()}."
+    return (f" Measured for this spec before any design: {reach.summary()}. To widen it: "
+            f"{reach.advice()}.")
 
 
 def _positions(settings, grid, sep, reach):

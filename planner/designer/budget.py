@@ -115,8 +115,11 @@ def widened(budget, level):
 
     Level 1 draws 4x the initial samples and runs 3x the chains, each 2x as long;
     level 2 (and above) 8x the samples, 4x the chains, 2.5x as long, and re-checks
-    twice the archive.  The fast budget's single chain settles in the first basin it
-    finds; where the feasible region is small (the default plan's lowest tone, 4.3 kHz
+    twice the archive.  A widened search does not escalate again when it finds no
+    feasible design on its grid (``escalations`` 0): it is the escalation, and an array
+    plan's loop changes the design's inputs instead (a vacuum design escalated to 46
+    first tries' worth of candidates).  The fast budget's single chain settles in the
+    first basin it finds; where the feasible region is small (the default plan's lowest tone, 4.3 kHz
     with a neighbour 500 Hz away: 0 of 4 fast tries feasible) the wider searches found
     it in 2 of 3 and 2 of 2 tries, at 2-4x the cost of a fast try.
 
@@ -137,9 +140,10 @@ def widened(budget, level):
         return b
     if level == 1:
         return replace(b, initial=4 * b.initial, chains=3 * b.chains,
-                       anneal_steps=2 * b.anneal_steps)
+                       anneal_steps=2 * b.anneal_steps, escalations=0)
     return replace(b, initial=8 * b.initial, chains=4 * b.chains,
-                   anneal_steps=round(2.5 * b.anneal_steps), archive=2 * b.archive)
+                   anneal_steps=round(2.5 * b.anneal_steps), archive=2 * b.archive,
+                   escalations=0)
 
 
 def search_cost(budget) -> int:
@@ -147,6 +151,16 @@ def search_cost(budget) -> int:
     (the cost unit that :func:`widened` multiplies; the re-checks are extra)."""
     b = _as_budget(budget)
     return b.initial + b.chains * b.anneal_steps
+
+
+def escalated_cost(budget) -> int:
+    """Candidate evaluations of one search round and every escalation it may make when
+    it finds no feasible design on its grid (the k-th: 4^k x the samples, 2^k x the
+    moves per chain): a try's most."""
+    b = _as_budget(budget)
+    return search_cost(b) + sum(b.initial * 4 ** (k + 1)
+                                + b.chains * b.anneal_steps * 2 ** (k + 1)
+                                for k in range(b.escalations))
 
 
 def _as_budget(budget, x0_points=None):

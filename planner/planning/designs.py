@@ -57,9 +57,11 @@ def _design_task(kwargs, min_speed, infeasible_tries=INFEASIBLE_TRIES, margin=SP
     wider (:func:`planner.designer.budget.widened`, one level per such try), and after
     ``infeasible_tries`` of them without a feasible one the design is given up; tries
     that miss only the floor retry at the same budget, up to ``max_tries`` (1 +
-    DESIGN_RETRIES) in all.  Try k of ``kwargs["seed"]`` is seeded by :func:`planner._random.try_seed`
-    with index ``_stream + k`` (``_stream``: the re-design offset of a repair round,
-    popped from ``kwargs``), so no two plan seeds share a try."""
+    DESIGN_RETRIES) in all.  Try k of ``kwargs["seed"]`` is seeded by
+    :func:`planner._random.try_seed` with index ``_stream + k`` (``_stream``: the
+    re-design offset of a repair round, popped from ``kwargs``), so no two plan seeds
+    share a try.  A ``_keep`` entry (:func:`design_all`'s ``previous``) is tried first:
+    the previous design, re-checked where its inputs changed."""
     from planner._random import try_seed
     from planner._workers import single_thread_blas
     from planner.designer import design_impacter

@@ -278,7 +278,7 @@ def numba_cache_state(kernels=PLAN_KERNELS):
     return cold, len(kernels)
 
 
-def estimate(settings, steps, assignment, jobs=1) -> Estimate:
+def estimate(settings, steps, assignment, jobs=1, kernels=None) -> Estimate:
     """Estimate the work and time left once ``assignment`` is known.
 
     Parameters
@@ -288,6 +288,10 @@ def estimate(settings, steps, assignment, jobs=1) -> Estimate:
     assignment : planner.assign.Assignment
     jobs : int
         Worker processes for the designs and threads for the simulations.
+    kernels : (int, int), optional
+        numba's cache state the plan started with (:func:`numba_cache_state`); default:
+        the assignment's reach's (its probes compiled what was cold, as part of the
+        plan), else read now.
 
     Returns
     -------
@@ -322,7 +326,10 @@ def estimate(settings, steps, assignment, jobs=1) -> Estimate:
     tones = sorted(set(freqs.values()))
     coup_units = len(freqs) * x0 * settings.single_step_s * sum(tones) / 1e3
     coup_runs = len(freqs) * len(tones) * x0
-    cold, total = numba_cache_state()
+    reach = getattr(assignment, "reach", None)
+    if kernels is None and reach is not None and reach.kernels_cold[1]:
+        kernels = reach.kernels_cold
+    cold, total = numba_cache_state() if kernels is None else kernels
     # manufacturability: one separation per distinct design (in this process, on the
     # numba threads), and the Monte Carlo over the pairs the steps must tell apart
     from planner.assign import told_apart_pairs
@@ -347,12 +354,14 @@ def estimate(settings, steps, assignment, jobs=1) -> Estimate:
 
 def worst_design_tries(budget="fast") -> float:
     """The slowest design in units of a first try: 1 + ``DESIGN_RETRIES`` tries, or
-    ``INFEASIBLE_TRIES`` infeasible ones, each searching wider than the last
-    (their candidate evaluations relative to a first try's)."""
-    from planner.designer.budget import search_cost, widened
+    ``INFEASIBLE_TRIES`` infeasible ones, each searching wider than the last, every one
+    with the escalations it may make when it finds nothing feasible on its grid (their
+    candidate evaluations relative to a first try's,
+    :func:`planner.designer.budget.escalated_cost`)."""
+    from planner.designer.budget import escalated_cost, search_cost, widened
 
     base = search_cost(budget)
-    wider = sum(search_cost(widened(budget, k)) / base for k in range(INFEASIBLE_TRIES))
+    wider = sum(escalated_cost(widened(budget, k)) / base for k in range(INFEASIBLE_TRIES))
     return max(1.0 + DESIGN_RETRIES, wider)
 
 

@@ -40,11 +40,16 @@ def write_outputs(result: Plan, out_dir: Path, *, figures=True) -> float:
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "plan.json").write_text(json.dumps(result.data, indent=2, sort_keys=False) + "\n")
     result.coupling.to_csv(out_dir / "coupling.csv", float_format="%.6g")
-    result.impacters.assign(
+    table = result.impacters.assign(
         area_m2=[g["area_m2"] for g in result.impacters["geometry"]],
         width_m=[g["width_m"] for g in result.impacters["geometry"]],
         length_m=[g["length_m"] for g in result.impacters["geometry"]],
-    ).drop(columns=["geometry"]).to_csv(out_dir / "designs.csv", index=False, float_format="%.8g")
+    ).drop(columns=["geometry"])
+    if "shortfalls" in table:
+        # what an infeasible design misses, as the report says it (empty when feasible)
+        table["shortfalls"] = ["; ".join(sf["text"] for sf in (v or ()))
+                               for v in table["shortfalls"]]
+    table.to_csv(out_dir / "designs.csv", index=False, float_format="%.8g")
     (out_dir / "waveforms").mkdir(exist_ok=True)
     for rec in result.data["steps"]:
         w = result.waveforms[f"{rec['scene']}/{rec['name']}"]

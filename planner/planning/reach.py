@@ -147,6 +147,9 @@ class Reach:
     designs: int = 0
     seconds: float = 0.0
     environment: str = field(default="", compare=False)
+    #: numba's cache before the probes ran: (kernels that had to compile, all of them)
+    #: (:func:`planner.planning.estimate.numba_cache_state`); the probes compile them
+    kernels_cold: tuple = field(default=(0, 0), compare=False)
 
     @property
     def constrained(self) -> bool:
@@ -240,7 +243,10 @@ class Reach:
     def lines(self) -> list[str]:
         """Lines for the CLI before any design."""
         rng = self.range_hz
-        head = (f"reach (measured in {self.seconds:.1f} s, {self.designs} probe designs): ")
+        compiled = (f", numba's cache cold: {self.kernels_cold[0]} of {self.kernels_cold[1]} "
+                    "kernels compiled first" if self.kernels_cold[0] and self.designs else "")
+        head = (f"reach (measured in {self.seconds:.1f} s, {self.designs} probe "
+                f"designs{compiled}): ")
         if not self.constrained:
             return [head + f"every channel {self.grid_hz[0]:.0f}-{self.grid_hz[-1]:.0f} Hz "
                     f"can be served at {self.floor_m_s * 1e3:g} mm/s at the grid's packed "
@@ -251,6 +257,8 @@ class Reach:
         return out
 
     def to_dict(self) -> dict:
+        """plan.json's ``assignment.reach``: what was measured, not how long it took or
+        what the cache answered (the same spec and seed give the same bytes)."""
         rng = self.range_hz
         return {"floor_m_s": self.floor_m_s,
                 "range_hz": None if rng is None else [float(rng[0]), float(rng[1])],
@@ -260,8 +268,7 @@ class Reach:
                 "constrained": self.constrained,
                 "probes": [p.to_dict() for p in self.probes],
                 "edges": [{"channel": c, "reachable": ok, "speed_m_s": v}
-                          for c, ok, v in self.edges],
-                "designs": self.designs, "seconds": self.seconds}
+                          for c, ok, v in self.edges]}
 
 
 # probe tasks (module level: workers import them by name) ------------------------------
@@ -417,8 +424,10 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
         (the message names the reachable tones, the spacing and what would widen them).
     """
     from planner.assign import assign
+    from planner.planning.estimate import numba_cache_state
     from planner.separation import position_grid
 
+    cold = numba_cache_state()
     t0 = time.perf_counter()
     tick = progress or (lambda stage, item=None, total=None: None)
     grid = np.asarray(settings.channel_grid_hz, dtype=float)
@@ -463,7 +472,8 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
         probes += mine
     reach = Reach(floor, tuple(float(f) for f in grid), tuple(bool(a) for a in reachable),
                   tuple(bool(a) for a in allowed), tuple(float(r) for r in need),
-                  tuple(probes), tuple(all_edges), ran[0], time.perf_counter() - t0, env)
+                  tuple(probes), tuple(all_edges), ran[0], time.perf_counter() - t0, env,
+                  cold)
     return reach, assign(settings, settings.steps, reach=reach)
 
 
