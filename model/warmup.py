@@ -15,10 +15,19 @@ With a warm cache the call only loads the kernels: about 0.3 s.
 
 from __future__ import annotations
 
+import importlib
 import time
 import warnings
 
 import numpy as np
+
+#: The kernels a plan calls from Python (``module:name``); each compiles, and caches, the
+#: kernels it calls with it.  The assigner's colouring kernels are left out: they have
+#: compiled by the time the estimate is made.
+PLAN_KERNELS = ("model.kernels.impacter:run_impacter", "model.kernels.impacter:response_grid",
+                "model.kernels.slider:run_slider",
+                "model.kernels.closed_form:tone_coefficients",
+                "model.kernels.contact:two_body_impact", "model.kernels.contact:two_body_kick")
 
 
 def compile_kernels() -> float:
@@ -49,3 +58,28 @@ def compile_kernels() -> float:
         for contact in sorted(CONTACTS):
             simulate_slider(imp, slider, drive, duration=2e-4, contact=contact)
     return time.perf_counter() - t0
+
+
+def numba_cache_state(kernels=PLAN_KERNELS):
+    """How many of ``kernels`` (``module:name`` of cached numba kernels) must compile.
+
+    A kernel is warm when numba's own cache index for it (next to its source, or in
+    ``NUMBA_CACHE_DIR``) exists, was written by this numba version for this source
+    file, and holds at least one compiled signature.
+
+    Returns
+    -------
+    (cold, total) : tuple of int
+        Kernels without a usable cache entry, and all of them (0, 0 when numba's cache
+        cannot be read).
+    """
+    cold = 0
+    try:
+        for entry in kernels:
+            module, name = entry.split(":")
+            cache_file = getattr(importlib.import_module(module), name)._cache._cache_file
+            # numba's own reader: {} when missing, stale or of another numba version
+            cold += not cache_file._load_index()
+    except Exception:   # numba internals moved: say "not known" rather than fail
+        return 0, 0
+    return cold, len(kernels)

@@ -55,9 +55,9 @@ times slower).  Reported as an estimate, never as a promise.
 
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
 
+from model.warmup import PLAN_KERNELS, numba_cache_state  # noqa: F401 (re-exported)
 from planner.manufacturability import CHIPS
 from planner.nodes import Node
 from planner.planning.designs import DESIGN_RETRIES, INFEASIBLE_TRIES
@@ -94,13 +94,6 @@ YIELD_S_PER_PAIR_CHIP = 3.7e-8
 #: cold, 17.3 s on an idle 2-core machine; a plan with workers overlaps it with the
 #: assignment, see planner.planning.pipeline._workers).
 COMPILE_S = 18.0
-#: The kernels a plan calls from Python (``module:name``); each compiles, and caches, the
-#: kernels it calls with it.  The assigner's colouring kernels are left out: they have
-#: compiled by the time the estimate is made.
-PLAN_KERNELS = ("model.kernels.impacter:run_impacter", "model.kernels.impacter:response_grid",
-                "model.kernels.slider:run_slider",
-                "model.kernels.closed_form:tone_coefficients",
-                "model.kernels.contact:two_body_impact", "model.kernels.contact:two_body_kick")
 #: Design time of a typical first round relative to every design kept at its first try:
 #: slow designs are retried (up to 8 tries) and single tries scatter.  Measured (one
 #: process, numba and BLAS on one thread, every design task of the plan timed): 1.60 on
@@ -251,31 +244,6 @@ def design_try_s(n_forbidden, n_drives):
     """Seconds of one core for one design try with ``n_forbidden`` forbidden tones and
     ``n_drives`` forbidden summed drives."""
     return DESIGN_TRY_S + DESIGN_S_PER_FORBIDDEN * n_forbidden + DESIGN_S_PER_DRIVE * n_drives
-
-
-def numba_cache_state(kernels=PLAN_KERNELS):
-    """How many of ``kernels`` (``module:name`` of cached numba kernels) must compile.
-
-    A kernel is warm when numba's own cache index for it (next to its source, or in
-    ``NUMBA_CACHE_DIR``) exists, was written by this numba version for this source
-    file, and holds at least one compiled signature.
-
-    Returns
-    -------
-    (cold, total) : tuple of int
-        Kernels without a usable cache entry, and all of them (0, 0 when numba's cache
-        cannot be read).
-    """
-    cold = 0
-    try:
-        for entry in kernels:
-            module, name = entry.split(":")
-            cache_file = getattr(importlib.import_module(module), name)._cache._cache_file
-            # numba's own reader: {} when missing, stale or of another numba version
-            cold += not cache_file._load_index()
-    except Exception:   # numba internals moved: say "not known" rather than fail
-        return 0, 0
-    return cold, len(kernels)
 
 
 def estimate(settings, steps, assignment, jobs=1, kernels=None) -> Estimate:

@@ -148,7 +148,7 @@ class Reach:
     seconds: float = 0.0
     environment: str = field(default="", compare=False)
     #: numba's cache before the probes ran: (kernels that had to compile, all of them)
-    #: (:func:`planner.planning.estimate.numba_cache_state`); the probes compile them
+    #: (:func:`model.warmup.numba_cache_state`); the probes compile them
     kernels_cold: tuple = field(default=(0, 0), compare=False)
 
     @property
@@ -424,7 +424,7 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
         (the message names the reachable tones, the spacing and what would widen them).
     """
     from planner.assign import assign
-    from planner.planning.estimate import numba_cache_state
+    from model.warmup import numba_cache_state
     from planner.separation import position_grid
 
     cold = numba_cache_state()
