@@ -42,6 +42,7 @@ from pydantic import ConfigDict, Field, TypeAdapter, ValidationError
 from planner.errors import SpecError
 from planner.nodes import DIRECTIONS, Node
 from planner.spec import ArraySpec, LoadedSpec, Step, resolve_steps
+from planner.spec.load import check_sections
 from planner.yamlio import format_loc, validate
 
 #: The plan.json format this version writes and reads (``format_version``).  Raise it
@@ -430,7 +431,9 @@ def _spec(spec_data: dict, source: str) -> ArraySpec:
             if isinstance(cfg, dict):
                 for name in DESIGNED_FIELDS:
                     cfg.pop(name, None)
-    return validate(ArraySpec, spec, source=source, prefix=("spec",))
+    out = validate(ArraySpec, spec, source=source, prefix=("spec",))
+    check_sections(out, source=source, prefix=("spec",))
+    return out
 
 
 def _dwells(raw: _PlanFile) -> dict:
