@@ -371,7 +371,7 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
     ver = pd.DataFrame(ver_rows)
     passed = bool(ver["passed"].all()) and not drive.inseparable
     motion = {"sizing": drive.sizing, "drive": drive.notes, "settle_s": settle,
-              "repairs": repairs, "design_problems": []}
+              "repairs": repairs, "design_problems": [], "gating": drive.gating}
     rounds = [{"round": 0, "span": assignment.span,
                "failures": sum(1 for r in ver_rows if not r["passed"])}]
     data, impacter_recs, device_recs, step_recs = build_record(

@@ -42,11 +42,20 @@ def _synthetic_plan(tiny_plan_dir, folder, *, edit=None, geometry=_graded, rows=
     from planner.fabrication import NodeDesign, nominal_impacter
     from planner.spec import ArraySpec
 
+    import numpy as np
+
+    from planner.spec import channel_grid
+
     data = json.loads((tiny_plan_dir / "plan.json").read_text(encoding="utf-8"))
     data["spec"]["array"] = {"rows": rows, "cols": cols, "pitch_um": pitch_um}
+    # a band holding every synthetic design's tone: each tone on its channel of the grid,
+    # as plan.json's reader checks
+    data["spec"]["drive"]["band_hz"] = [1000.0, 200000.0]
+    data["spec"]["drive"]["sample_rate_hz"] = 500000.0
     if edit is not None:
         edit(data["spec"])
     spec = ArraySpec.model_validate({k: v for k, v in data["spec"].items() if k != "trim"})
+    grid = channel_grid(spec)
     template = data["impacters"][0]
     records = []
     for k, device in enumerate(spec.array.device_ids()):
@@ -58,13 +67,20 @@ def _synthetic_plan(tiny_plan_dir, folder, *, edit=None, geometry=_graded, rows=
             imp = nominal_impacter(spec, NodeDesign(
                 nid, device, direction, g["area_m2"], g["width_m"], g["length_m"], g["gap_m"],
                 template["impact_angle_rad"], template["restitution"]))
+            channel = int(np.argmin(np.abs(grid - 1.02 * imp.natural_frequency)))
             records.append({**template, "id": nid, "device": device, "direction": direction,
                             "geometry": g, "gap_m": g["gap_m"], "mass_kg": imp.mass,
                             "stiffness_n_per_m": imp.stiffness,
                             "damping_ns_per_m": imp.damping,
                             "natural_frequency_hz": imp.natural_frequency,
-                            "frequency_hz": 1.02 * imp.natural_frequency})
+                            "channel": channel, "frequency_hz": float(grid[channel])})
     data["impacters"] = records
+    # the tiny designs' separations do not describe these (the layout reads none)
+    data.pop("manufacturability", None)
+    tone = {r["id"]: r["frequency_hz"] for r in records}
+    for st in data["steps"]:      # each step plays its impacters' tones
+        st["tones"] = [{**st["tones"][0], "frequency_hz": tone[f"{d}.{way}"]}
+                       for way in ("forward", "backward") for d in st[way]]
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "plan.json").write_text(json.dumps(data, indent=1), encoding="utf-8")
     return folder

@@ -64,7 +64,7 @@ def test_huge_tolerance_fails_chips_and_names_checks(tiny_plan_dir, tmp_path):
     spec.write_text(HUGE)
     out = tmp_path / "y"
     res = _yield([tiny_plan_dir / "plan.json", "--chips", 8, "--seed", 1, "--out", out,
-                  "--spec", spec, "--sigma-scale", "0,1"])
+                  "--spec", spec, "--sigma-scale", "0,1", "--allow-zero"])
     assert res.exit_code == 0, res.output
     d = _read(out)
     assert d["tolerance"]["natural_frequency_pct"]["device"] == 15.0
