@@ -213,7 +213,8 @@ def chip_inputs(plan_path, measured_path, out_dir, *, command: str, force: bool,
     from planner.planning.replan import read_measured
 
     plan = read_plan(plan_path)
-    measured = read_measured(measured_path, plan.impacter_ids)
+    measured = read_measured(measured_path, plan.impacter_ids,
+                             design_hz=plan.design_natural_frequency_hz)
     inputs = [plan.path, measured_path]
     check_output_folder(out_dir, command=command, inputs=inputs, force=force)
 

@@ -197,13 +197,27 @@ class DeviceRecord:
 
 
 @dataclass(frozen=True)
+class AsBuiltHalf:
+    """One half of a pair measured half by half (plan.json's ``as_built.<id>.halves``)."""
+
+    half: Text
+    natural_frequency_hz: Positive
+    stiffness_n_per_m: Positive
+    damping_ns_per_m: NonNegative
+    gap_m: Positive
+
+
+@dataclass(frozen=True)
 class AsBuilt:
-    """A re-planned impacter's as-built model (plan.json's ``as_built``)."""
+    """A re-planned impacter's as-built model (plan.json's ``as_built``); a pair
+    measured half by half also has each half's (``halves``; the fields above are then
+    the symmetric pair at their mean resonance)."""
 
     natural_frequency_hz: Positive
     stiffness_n_per_m: Positive
     damping_ns_per_m: NonNegative
     gap_m: Positive
+    halves: tuple[AsBuiltHalf, ...] | None = None
 
 
 @dataclass(frozen=True)
