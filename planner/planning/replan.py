@@ -46,8 +46,8 @@ from planner.nodes import device_key, node_key
 from planner.planning.plan_file import PlanRecord, drives
 from planner.planning.record import build_record
 from planner.planning.repair import scenes_and_motion
-from planner.planning.rescue import (REPLAN_TRAVEL_MARGIN, as_built_models, quieten, rescue,
-                                     split_weak)
+from planner.planning.rescue import (REPLAN_TRAVEL_MARGIN, as_built_models, plan_phases,
+                                     quieten, rescue, split_weak)
 from planner.planning.result import Plan
 from planner.planning.settings import plan_settings, tone_amplitudes
 from planner.planning.verify import check_step, check_steps, coupling_matrix, x0_grid
@@ -390,6 +390,9 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
     ts = time.perf_counter()
     drive = rescue(plan, measured_resonances(plan, measured), settings, models, sliders,
                    remeasure=remeasure)
+    steps_, waveforms_, gating = regate(settings, drive.steps, drive.waveforms, drive.tones,
+                                        models, sliders, plan_phases(plan))
+    drive = dataclasses.replace(drive, steps=steps_, waveforms=waveforms_, gating=gating)
     timings["drive"] = time.perf_counter() - ts
     ts = time.perf_counter()
     tick("verify", total=len(drive.steps))
@@ -446,6 +449,37 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
         scenes=pd.DataFrame(scene_rows), passed=passed, data=data, timings=timings,
         settings=settings, waveforms=drive.waveforms, designs=designs,
         assignment=assignment, failures=tuple(failures))
+
+
+def regate(settings, steps, waveforms, tones, models, sliders, phases=None):
+    """Gate every ``targets_um`` step again for the chip's models, as the plan gated it
+    for its designs (:func:`planner.planning.targets.place_targets`: one tone at a time,
+    each playing until its slider has gone its move, found by the scene simulated with
+    its state carried).  A slider's speed is the chip's: the plan's gates would put it
+    wherever the design's speed would have.
+
+    Returns
+    -------
+    (steps, waveforms, gating)
+        As :func:`~planner.planning.targets.place_targets` returns them; unchanged (and
+        ``gating`` empty) when no step asks for positions.  A slider that cannot reach
+        its target on this chip keeps the step as synthesised: its verification then
+        says by how far it misses.
+    """
+    from planner.errors import PlanningError
+    from planner.planning.drives import synthesize_steps
+    from planner.planning.targets import place_targets
+
+    targeted = tuple(st for st in steps if st.targets_m is not None)
+    if not targeted:
+        return steps, waveforms, {}
+    # the tones play one at a time: at their amplitudes as synthesised, not as lowered
+    # for the peak of their whole sum, which never plays (as the plan's)
+    raw = synthesize_steps(settings, targeted, tones, phases=phases)
+    try:
+        return place_targets(settings, steps, {**waveforms, **raw}, tones, models, sliders)
+    except PlanningError:
+        return steps, waveforms, {}
 
 
 def measured_resonances(plan: PlanRecord, measured: dict) -> dict:

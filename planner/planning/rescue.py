@@ -394,7 +394,7 @@ class RescuedDrive:
         ``(steps, tones) -> (waveforms, notes)`` under the plan's settings.
     gating : dict
         Step key -> the gate search's notes of each ``targets_um`` step, gated again
-        for the chip (:func:`planner.planning.targets.place_targets`).
+        for the chip (:func:`planner.planning.replan.regate`).
     """
 
     steps: tuple
@@ -496,42 +496,9 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict,
 
     waveforms, notes = synthesize_and_limit(tuple(base), tones)
     steps, sizing = size_bursts(settings, tuple(base), waveforms, models, sliders)
-    steps, waveforms, gating = regate(settings, steps, waveforms, tones, models, sliders,
-                                      phases)
     dwells = {st.key: plan.dwells.get(st.key, 0.0) for st in steps}
     return RescuedDrive(steps, waveforms, notes, dwells, tones, bad, {}, sizing,
-                        weakened(steps, notes, scales), synthesize_and_limit, gating)
-
-
-def regate(settings, steps, waveforms, tones, models, sliders, phases=None):
-    """Gate every ``targets_um`` step again for the chip's models, as the plan gated it
-    for its designs (:func:`planner.planning.targets.place_targets`: one tone at a time,
-    each playing until its slider has gone its move, found by the scene simulated with
-    its state carried).  A slider's speed is the chip's: the plan's gates would put it
-    wherever the design's speed would have.
-
-    Returns
-    -------
-    (steps, waveforms, gating)
-        As :func:`~planner.planning.targets.place_targets` returns them; unchanged (and
-        ``gating`` empty) when no step asks for positions.  A slider that cannot reach
-        its target on this chip keeps the step as synthesised: its verification then
-        says by how far it misses.
-    """
-    from planner.errors import PlanningError
-    from planner.planning.drives import synthesize_steps
-    from planner.planning.targets import place_targets
-
-    targeted = tuple(st for st in steps if st.targets_m is not None)
-    if not targeted:
-        return steps, waveforms, {}
-    # the tones play one at a time: at their amplitudes as synthesised, not as lowered
-    # for the peak of their whole sum, which never plays (as the plan's)
-    raw = synthesize_steps(settings, targeted, tones, phases=phases)
-    try:
-        return place_targets(settings, steps, {**waveforms, **raw}, tones, models, sliders)
-    except PlanningError:
-        return steps, waveforms, {}
+                        weakened(steps, notes, scales), synthesize_and_limit)
 
 
 def split_weak(settings, drive: RescuedDrive, rows, failures, models, sliders, check):
