@@ -120,13 +120,18 @@ def test_fuzzed_array_specs(tmp_path, case):
 @FUZZ
 @given(case=mutated(DEVICE_CONFIGS))
 def test_fuzzed_device_configs(tmp_path, case):
+    """The plot is asked for: a rejected config writes none, an accepted one writes it
+    (a PNG read back)."""
     name, text = case
     cfg = tmp_path / f"fuzz_{name}"
     cfg.write_text(text, encoding="utf-8")
     plot = tmp_path / "sim.png"
     plot.unlink(missing_ok=True)
-    result = CliRunner().invoke(main, ["simulate", str(cfg), "--freq", "6200", "--duration", "1"])
+    result = CliRunner().invoke(main, ["simulate", str(cfg), "--freq", "6200", "--duration",
+                                       "1", "--plot", str(plot), "--force"])
     _check(result, [plot])
+    if result.exit_code == 0:
+        assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", result.output
 
 
 @pytest.mark.parametrize("name", ARRAY_SPECS + DEVICE_CONFIGS)
