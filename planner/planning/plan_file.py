@@ -233,6 +233,9 @@ class SeparationRecord:
     silent_above: Positive
     responds_below: NonNegative
     responds_above: NonNegative
+    #: the larger band reach and the smaller window reach (the report's columns)
+    silent_beyond: Positive
+    responds_within: NonNegative
 
 
 @dataclass(frozen=True)
@@ -517,7 +520,10 @@ def _schema_error(exc: ValidationError, data: dict, source: str) -> PlanFileErro
 def _spec(spec_data: dict, source: str) -> ArraySpec:
     """The plan's spec, validated; the designed impacter fields left out."""
     spec = json.loads(json.dumps(spec_data))
-    sections = [spec.get("device") or {}] + list((spec.get("devices") or {}).values())
+    overrides = spec.get("devices") if isinstance(spec, dict) else None
+    # a mistyped section is left for the validation below to name
+    sections = ([spec.get("device") or {}] if isinstance(spec, dict) else []) + (
+        list(overrides.values()) if isinstance(overrides, dict) else [])
     for sec in sections:
         for key in ("impacter", "forward", "backward"):
             cfg = sec.get(key) if isinstance(sec, dict) else None
@@ -726,6 +732,14 @@ def _check_separations(record: PlanRecord, fail) -> None:
         # edge's bisection beyond it
         reach = (abs(tone - nu) + (SCAN_SPAN_REL + SCAN_STEP_REL) * top
                  + SCAN_STEP_MIN_HZ + EDGE_TOL_HZ)
+        sep = seps[n]
+        for key, want in (("silent_beyond", max(sep["silent_below"], sep["silent_above"])),
+                          ("responds_within", min(sep["responds_below"],
+                                                  sep["responds_above"]))):
+            if not _agree(float(sep[key]), float(want)):
+                fail(f"manufacturability.separation_hz.{n}.{key}",
+                     f"{sep[key]:.6g} Hz is not the {key.split('_')[0]} reach "
+                     f"{want:.6g} Hz of its own band (was the file edited?)")
         for key in ("silent_below", "silent_above", "responds_below", "responds_above"):
             value = float(seps[n][key])
             if value > reach:

@@ -437,8 +437,12 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
         settings, steps, assignment, designs, sliders, drive.waveforms, ver_rows, passed,
         rounds, scene_rows, motion,
         # the designs' separations go with the re-plan (the designs are the chip's; a
-        # trim or a re-plan of the re-plan reckons from them, as from the plan)
-        manufacturability=plan.manufacturability,
+        # trim or a re-plan of the re-plan reckons from them, as from the plan); the
+        # plan's prediction of a yield is not about this chip and stays with the plan
+        manufacturability=(None if plan.manufacturability is None else {
+            "separation_hz": plan.manufacturability["separation_hz"],
+            "note": "the designs' silent bands and tone windows, from the plan this chip "
+                    "was made by (its predicted yield is the plan's)"}),
         sections={"as_built": params,
                   "replan": _replan_record(plan, settings, params, drive, orig_passed,
                                            orig_rows)})

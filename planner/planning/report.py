@@ -241,7 +241,8 @@ def _failures_section(ver):
 def _manufacturability_section(d):
     """Design for yield: what a fabricated chip does to these designs."""
     m = d.get("manufacturability")
-    if not m:
+    if not m or d.get("as_built") is not None:
+        # a re-plan carries only its designs' separations: the prediction is the plan's
         return []
     lw = m["line_width_sensitivity_per_um"]
     seps = m["separation_hz"].values()
