@@ -55,8 +55,9 @@ from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_err
                    "trim.precision_pct, else 0.1).")
 @click.option("--allow-zero", is_flag=True,
               help="Run even when every fabrication tolerance is 0 (no fabrication: "
-                   "section in the plan's spec or --spec): every chip is then the nominal "
-                   "one and the yield 1 or 0 by construction. Refused without it.")
+                   "section in the plan's spec or --spec) or a --sigma-scale is 0: every "
+                   "chip is then the nominal one and the yield 1 or 0 by construction. "
+                   "Refused without it.")
 @click.option("--force", is_flag=True,
               help="Replace --out even if vibroplan did not write it, another command "
                    "wrote it, or it holds files `vibroplan yield` did not write (they are "

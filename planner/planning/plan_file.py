@@ -663,7 +663,6 @@ def _check(record: PlanRecord, source: str) -> None:
         keys.add(st.key)
         if not st.tones:
             fail(f"{where}.tones", "a step has at least one tone")
-        _check_step_tones(st, where, tone_of, fail)
         both = set(st.forward) & set(st.backward)
         if both:
             fail(f"{where}.backward", f"{', '.join(sorted(both))} cannot move both ways")
@@ -675,6 +674,8 @@ def _check(record: PlanRecord, source: str) -> None:
                 if f"{d}.{direction}" not in seen:
                     fail(f"{where}.{key}", f"drives {d}.{direction}, which is not among the "
                                            "plan's impacters")
+        # its tones once its impacters are known to be the plan's
+        _check_step_tones(st, where, tone_of, fail)
 
 
 def _check_channels(record: PlanRecord, fail) -> None:
