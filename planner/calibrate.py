@@ -27,6 +27,7 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares
 
+from model.devices import MIN_FREQUENCY
 from planner.lab_csv import csv_number, read_csv_rows
 from planner.units import UM
 
@@ -536,6 +537,12 @@ def read_sweep(path) -> pd.DataFrame:
             x = csv_number(text, line, column, fail)
             if column == "frequency_hz" and x <= 0:
                 raise fail(line, column, f"frequency must be > 0 Hz, {text} was given")
+            if column == "frequency_hz" and x < MIN_FREQUENCY:
+                # a sweep in kHz fits a '4.44 Hz' resonance that no impacter has; the
+                # model's own floor of a frequency in Hz (model.devices.MIN_FREQUENCY)
+                raise fail(line, column, f"{text} Hz is below {MIN_FREQUENCY:g} Hz, no "
+                                         "resonance of these devices: frequency_hz is in "
+                                         "Hz (was the sweep written in kHz?)")
             if column == "amplitude_um" and x < 0:
                 raise fail(line, column, f"amplitude must be >= 0 um, {text} was given")
             if column == "drive_amplitude_um" and x <= 0:

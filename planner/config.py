@@ -131,7 +131,10 @@ class ImpacterConfig(_Strict):
     length_um: PositiveFloat | None = None
     gap_um: PositiveFloat | None = None
     mass_thickness_um: PositiveFloat | None = None
-    natural_frequency_hz: PositiveFloat | None = None
+    #: at most 1 GHz, no MEMS resonance beyond (the lab files' bound, planner.lab_csv):
+    #: 5.2e303 Hz overflowed the trajectory's sampling instead of being refused
+    natural_frequency_hz: Annotated[float, Field(gt=0, le=1e9, allow_inf_nan=False)] | None \
+        = None
     impact_angle_deg: Annotated[float, Field(ge=0, lt=90)] | None = None
     restitution: Annotated[float, Field(ge=0, le=1)] | None = None
 

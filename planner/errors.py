@@ -58,6 +58,15 @@ class LimitError(ValueError):
     processes than cores, an input file over the size limit.  Raised before any work."""
 
 
+class NotWritableError(OSError):
+    """An output folder nothing can be written in (permissions, a read-only or special
+    file system such as /proc), found before any work; ``filename`` is the folder.
+
+    Its own class: ``OSError(errno.ENOENT, ...)`` would become a
+    :class:`FileNotFoundError`, which the CLI reads as a missing *input* (exit 2); an
+    output that cannot be written is an OS error (exit 3) in every command."""
+
+
 class SchedulerError(OSError):
     """A dask.distributed scheduler that cannot be reached, does not answer, or went away
     during the run; ``filename`` is its address (the CLI's exit 3 names it)."""

@@ -123,6 +123,10 @@ KINDS = {
                       "vibroplan simulate or vibroplan sweep"),
 }
 
+#: Keys every plan.json has (:mod:`planner.planning.plan_file`): a file with them all is a
+#: plan, not a YAML spec or config.
+PLAN_KEYS = frozenset({"spec", "impacters", "steps"})
+
 
 def check_kind(data: Any, expected: str, *, source: str | None = None) -> None:
     """Refuse a file of another kind with one line saying which command reads it.
@@ -134,6 +138,15 @@ def check_kind(data: Any, expected: str, *, source: str | None = None) -> None:
     if not isinstance(data, dict):
         return
     keys = set(data)
+    if keys >= PLAN_KEYS:
+        # a plan.json is JSON, which YAML reads: without this its spec's units would be
+        # named as wrong ones, far down the file
+        raise SpecError(f"this is a plan.json (a vibroplan plan: it has "
+                        f"{', '.join(sorted(PLAN_KEYS))}), not "
+                        f"{'an' if expected[0] in 'aeiou' else 'a'} {expected}: give a YAML "
+                        f"{expected} here (a plan.json is the PLAN argument of replan, "
+                        "trim, yield, layout and drive)",
+                        source=source)
     for kind, (markers, command) in KINDS.items():
         if kind != expected and keys & markers and not (
                 expected in KINDS and keys & KINDS[expected][0]):

@@ -29,6 +29,21 @@ def _clean_env(**extra):
     return env
 
 
+def _dependency_paths() -> list[str]:
+    """The running interpreter's site-packages folders (where vibroplan's dependencies
+    are, whether it runs in a virtual environment or system-wide)."""
+    import site
+    import sysconfig
+
+    paths = [sysconfig.get_paths()[k] for k in ("purelib", "platlib")]
+    paths += site.getsitepackages() + [site.getusersitepackages()]
+    out = []
+    for p in paths:
+        if p and Path(p).is_dir() and p not in out:
+            out.append(p)
+    return out
+
+
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory):
     """The wheel, built from a copy of the sources (a build writes build/ and *.egg-info
@@ -66,16 +81,23 @@ def test_installed_copy_caches_numba_outside_and_uninstalls_without_a_trace(whee
     site-packages/model/kernels/__pycache__, which `pip uninstall` (also the one an
     editable install runs) left behind as an empty namespace package `model`."""
     venv = tmp_path / "venv"
-    # the system's packages provide the dependencies; the wheel itself goes in the venv
-    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)],
-                   check=True, timeout=300)
+    # a venv of its own, without --system-site-packages: the dependencies need not be
+    # system-wide (the README's `pip install -e .[test]` may run in a virtual environment)
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
     py = venv / "bin" / "python"
-    # --ignore-installed: the system may hold an (editable) vibroplan of the same version
+    # --ignore-installed: the running environment may hold an (editable) vibroplan of the
+    # same version, which the paths below make visible to the venv's pip
     subprocess.run([str(py), "-m", "pip", "install", "-q", "--no-deps", "--ignore-installed",
                     str(wheel)], check=True, capture_output=True, timeout=300, env=_clean_env())
     site = Path(subprocess.run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()"
                                 "['purelib'])"], capture_output=True, text=True,
                                check=True).stdout.strip())
+    # the dependencies come from wherever the running interpreter has them (a venv or the
+    # system), as path entries after the venv's own site-packages: the wheel's copy is the
+    # one imported, and no editable install's finder of the running environment is
+    # activated (a .pth line adds a path; the .pth files inside that path are not run)
+    deps = site / "_vibroplan_test_dependencies.pth"
+    deps.write_text("\n".join(_dependency_paths()) + "\n")
     cache = tmp_path / "xdg"
     env = _clean_env(HOME=str(tmp_path), XDG_CACHE_HOME=str(cache))
     env.pop("NUMBA_CACHE_DIR", None)
@@ -89,6 +111,7 @@ def test_installed_copy_caches_numba_outside_and_uninstalls_without_a_trace(whee
     assert run.stdout.strip().startswith(str(site))  # the installed copy, not the checkout
     assert list((site / "model").rglob("*.nb[ic]")) == []
     assert list((cache / "vibroplan" / "numba").rglob("*.nbi")), "no cache written at all"
+    deps.unlink()     # the venv's pip then sees only the venv's vibroplan
     subprocess.run([str(py), "-m", "pip", "uninstall", "-y", "-q", "vibroplan"], check=True,
                    capture_output=True, timeout=300, env=_clean_env())
     left = [str(p.relative_to(site)) for top in ("model", "planner") for p in (site / top).rglob("*")]

@@ -14,7 +14,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from planner._io.marks import folder_marker, marked_ancestor, record, written_by
+from planner._io.marks import folder_marker, marked_ancestor, record_all, written_by
 from planner._io.swap import clean_stale, signals_deferred, temp_prefix
 from planner._io.targets import check_not_input, check_parent
 from planner.errors import OutputError
@@ -78,15 +78,23 @@ def check_output_file(target: str | os.PathLike, *, command: str, inputs=(),
 
 
 @contextlib.contextmanager
-def output_files(targets, *, command: str, inputs=(), force: bool = False):
-    """Yield temporary paths for ``targets``; move each into place when the block succeeds.
+def output_files(targets, *, command: str, inputs=(), force: bool = False, stale=()):
+    """Yield temporary paths for ``targets``; move them into place together when the
+    block succeeds.
 
     Each target is checked with :func:`check_output_file` (call that yourself first, to
     refuse before any work); the temporaries have the targets' own names, in a hidden
     folder beside each (so that a writer may derive one file's name from another's, as
     a drive file's JSON sidecar), and what the block wrote is moved in and recorded in
     the folder's :data:`~planner._io.marks.REGISTRY`.  A temporary the block did not
-    write is skipped.  On any exception nothing is moved.
+    write is skipped.  ``stale``: files of an earlier run of ``command`` that this run
+    does not write (a layout's ``_drc.json`` when it is not checked again), removed with
+    the swap when ``command`` wrote them (another writer's file is left).
+
+    All or nothing: the old files are set aside, the new ones moved in and recorded, and
+    the old ones dropped only then; a failure anywhere in the block or the swap (exit 3:
+    a full disk, a registry that cannot be written) puts every old file back and
+    removes the new ones.
 
     Yields
     ------
@@ -106,11 +114,49 @@ def output_files(targets, *, command: str, inputs=(), force: bool = False):
                 dirs[parent] = Path(tempfile.mkdtemp(prefix=temp_prefix(t, "new"), dir=parent))
             tmps.append(dirs[parent] / t.name)
         yield tmps
-        for t, tmp in zip(targets, tmps):
-            if tmp.exists():
-                with signals_deferred():
-                    os.replace(tmp, t)
-                record(t.absolute(), command)
+        written = [(t, tmp) for t, tmp in zip(targets, tmps) if tmp.exists()]
+        gone = [Path(p) for p in stale
+                if Path(p).is_file() and Path(p) not in targets and written_by(p) == command]
+        _swap(written, gone, dirs, command)
     finally:
         for d in dirs.values():
             shutil.rmtree(d, ignore_errors=True)
+
+
+def _swap(written, gone, dirs, command):
+    """Move the ``written`` (target, temporary) pairs in and the ``gone`` files out,
+    recording the new files; on any failure, undo every step (see
+    :func:`output_files`)."""
+    done = []          # [target, its old file set aside or None, new file placed]
+
+    def aside(t):
+        back = dirs.setdefault(t.absolute().parent, None)
+        if back is None:   # a stale file in a folder no target is written in
+            back = dirs[t.absolute().parent] = Path(
+                tempfile.mkdtemp(prefix=temp_prefix(t, "old"), dir=t.absolute().parent))
+        back = back / f".old.{t.name}"
+        os.rename(t, back)
+        return back
+
+    with signals_deferred():
+        try:
+            for t, tmp in written:
+                entry = [t, aside(t) if (t.exists() or t.is_symlink()) else None, False]
+                done.append(entry)
+                os.replace(tmp, t)
+                entry[2] = True
+            for t in gone:
+                done.append([t, aside(t), False])
+            by_folder = {}
+            for t, _ in written:
+                by_folder.setdefault(t.absolute().parent, []).append(t.absolute())
+            for paths in by_folder.values():
+                record_all(paths, command)
+        except BaseException:
+            for t, back, placed in reversed(done):
+                with contextlib.suppress(OSError):
+                    if placed:
+                        os.unlink(t)
+                    if back is not None:
+                        os.rename(back, t)
+            raise

@@ -95,7 +95,17 @@ def written_by(path: str | os.PathLike) -> str | None:
 
 def record(path: Path, command: str) -> None:
     """Note in the folder's :data:`REGISTRY` that ``command`` wrote ``path`` as it is."""
-    folder = path.parent
+    record_all([path], command)
+
+
+def record_all(paths, command: str) -> None:
+    """Note in their folder's :data:`REGISTRY`, in one write, that ``command`` wrote each
+    of ``paths`` (files of one folder) as it is; entries of files that no longer exist
+    are dropped."""
+    paths = [Path(p) for p in paths]
+    if not paths:
+        return
+    folder = paths[0].parent
     reg = folder / REGISTRY
     try:
         import fcntl
@@ -112,7 +122,8 @@ def record(path: Path, command: str) -> None:
                 data = {}
             files = data.get("files") if isinstance(data, dict) else None
             files = {k: v for k, v in (files or {}).items() if (folder / k).is_file()}
-            files[path.name] = {"command": command, "sha256": sha256(path)}
+            for path in paths:
+                files[path.name] = {"command": command, "sha256": sha256(path)}
             fh.seek(0)
             fh.truncate()
             fh.write(json.dumps({"written_by": "vibroplan", "files": dict(sorted(files.items()))},

@@ -10,7 +10,7 @@ import os
 import tempfile
 from pathlib import Path
 
-from planner.errors import OutputError
+from planner.errors import NotWritableError, OutputError
 
 #: How many offending names an error message lists.
 SHOWN = 5
@@ -39,8 +39,8 @@ def check_parent(target: str | os.PathLike) -> Path:
     ------
     OutputError
         The parent folder does not exist or is not a folder.
-    OSError
-        Nothing can be written in it (permissions, a read-only or special file
+    planner.errors.NotWritableError
+        (an OSError) Nothing can be written in it (permissions, a read-only or special file
         system), with the folder as ``filename``: found before any work, not after.
     """
     target = Path(target)
@@ -54,7 +54,8 @@ def check_parent(target: str | os.PathLike) -> Path:
         with tempfile.TemporaryFile(dir=parent):
             pass
     except OSError as exc:
-        raise OSError(exc.errno, f"cannot write here ({exc.strerror})", str(parent)) from None
+        raise NotWritableError(exc.errno, f"cannot write here ({exc.strerror})",
+                               str(parent)) from None
     return parent
 
 

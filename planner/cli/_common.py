@@ -143,6 +143,43 @@ def _fail(code: int, message: str):
     sys.exit(code)
 
 
+class _solver_warnings:
+    """Collect the solver's :class:`model.SolverWarning` of a command into one line at
+    its end (``warning: the solver stopped N simulations ...``): Python would print
+    each with the source path and line that raised it, which says nothing to a user;
+    every other warning is shown as it comes."""
+
+    def __enter__(self):
+        import warnings
+
+        from model import SolverWarning
+
+        self._catch = warnings.catch_warnings()
+        self._catch.__enter__()
+        shown = warnings.showwarning
+        self.messages = []
+
+        def show(message, category, filename, lineno, file=None, line=None):
+            if issubclass(category, SolverWarning):
+                self.messages.append(str(message))
+            else:
+                shown(message, category, filename, lineno, file, line)
+
+        warnings.showwarning = show
+        return self
+
+    def __exit__(self, *exc):
+        self._catch.__exit__(*exc)
+        if self.messages:
+            first = self.messages[0]
+            more = len(self.messages) - 1
+            click.echo(f"warning: the solver stopped early in some simulations (a run "
+                       f"ended on its event cap or a non-finite state: {first}"
+                       + (f"; and {more} more such warnings" if more else "")
+                       + "); the results are those of the runs as far as they went", err=True)
+        return False
+
+
 def handle_errors(func):
     """Run a command with the exit codes of this module and one-line messages.
 
@@ -159,7 +196,7 @@ def handle_errors(func):
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
-        with _SignalGuard() as guard:
+        with _SignalGuard() as guard, _solver_warnings():
             try:
                 return func(*args, **kwargs)
             except KeyboardInterrupt as exc:
@@ -213,7 +250,8 @@ def chip_inputs(plan_path, measured_path, out_dir, *, command: str, force: bool,
     from planner.planning.replan import read_measured
 
     plan = read_plan(plan_path)
-    measured = read_measured(measured_path, plan.impacter_ids)
+    measured = read_measured(measured_path, plan.impacter_ids,
+                             design_hz=plan.design_natural_frequency_hz)
     inputs = [plan.path, measured_path]
     check_output_folder(out_dir, command=command, inputs=inputs, force=force)
 

@@ -19,7 +19,7 @@ from planner.cli._common import handle_errors
               default=None,
               help="Wall-clock budget [s] (default: 10 s exact, 5 s heuristic). When it runs "
                    "out, the best colouring found is reported, not proven optimal.")
-@click.option("--seed", type=int, default=0, show_default=True,
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
               help="Seed of the heuristic's random choices.")
 @click.option("--colors", "show_colors", is_flag=True,
               help="Also print every vertex's colour (1-based vertex, 0-based colour).")

@@ -82,7 +82,7 @@ def _write(data, out, inputs, force):
               help="Forward drive frequency nu_f [Hz] (default: the config's design.forward_hz).")
 @click.option("--backward", "backward_hz", type=Finite(), default=None,
               help="Backward drive frequency nu_b [Hz] (default: the config's design.backward_hz).")
-@click.option("--seed", type=int, default=None, help="Seed (default: the config's design.seed).")
+@click.option("--seed", type=click.IntRange(min=0), default=None, help="Seed (default: the config's design.seed).")
 @click.option("--budget", type=click.Choice(["full", "fast"]), default=None,
               help="Search effort (default: the config's design.budget, full).")
 @click.option("--out", type=click.Path(dir_okay=False), callback=output_file, default=None,

@@ -41,7 +41,7 @@ from planner.units import UM  # noqa: E402
 @click.option("--sample-rate", type=Finite(min=0, min_open=True),
               help="Sample rate [Hz] (default: the spec's sample_rate_hz, else 192 kHz for "
                    "WAV and 200 kHz otherwise).")
-@click.option("--seed", type=int, default=0, show_default=True,
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
               help="Seed of the phase optimisation's random starts.")
 @click.option("--reoptimise", is_flag=True,
               help="Optimise the phases afresh instead of using the plan's (the plan's are the "

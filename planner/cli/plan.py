@@ -48,7 +48,7 @@ class _Bars:
               help="Replace --out even if vibroplan did not write it, another command "
                    "wrote it, or it holds files `vibroplan plan` did not write (they are "
                    "deleted).")
-@click.option("--seed", type=int, default=None, help="Seed (default: the spec's design.seed).")
+@click.option("--seed", type=click.IntRange(min=0), default=None, help="Seed (default: the spec's design.seed).")
 @click.option("--jobs", type=int, default=None,
               help="Worker processes for the designs and threads for the simulation "
                    "kernels, at most the cores (default: all cores). The plan does not "
@@ -114,14 +114,15 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
         jobs = numba.config.NUMBA_NUM_THREADS
     path = Path(spec) if spec else default_spec_path()
     loaded = load_spec(path)
-    if dry_run:
-        _dry_run(loaded, seed, jobs, cache, quiet)
-        return
     # refuse the output folder and an unusable scheduler before any work (the plan
-    # takes a minute)
+    # takes a minute); a dry run refuses what the real run would, so that its "nothing
+    # in the way" means the real run starts
     check_output_folder(out_dir, command="plan", inputs=[path], force=force)
     if scheduler:
         check_scheduler(scheduler)
+    if dry_run:
+        _dry_run(loaded, seed, jobs, cache, quiet)
+        return
     bars = _Bars(quiet)
 
     def announce(settings, steps, assignment):

@@ -27,7 +27,7 @@ from planner.cli._common import EXIT_CODES_HELP, chip_inputs, handle_errors
               help="Replace --out even if vibroplan did not write it, another command "
                    "wrote it, or it holds files `vibroplan replan` did not write (they are "
                    "deleted).")
-@click.option("--seed", type=int, default=None, help="Drive phases' seed (default: the plan's).")
+@click.option("--seed", type=click.IntRange(min=0), default=None, help="Drive phases' seed (default: the plan's).")
 @click.option("--no-figures", is_flag=True, help="Skip the PNG figures (faster).")
 @click.option("--quiet", is_flag=True, help="No progress output.")
 @handle_errors

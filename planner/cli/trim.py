@@ -20,7 +20,7 @@ from planner.cli._common import EXIT_CODES_HELP, chip_inputs, handle_errors
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default="trim_out",
               show_default=True,
               help="Output folder (the same rules as `vibroplan plan --out`).")
-@click.option("--seed", type=int, default=None,
+@click.option("--seed", type=click.IntRange(min=0), default=None,
               help="Seeds the trims' errors (trim.precision_pct) and the drive's phases "
                    "(default: the plan's).")
 @click.option("--force", is_flag=True,

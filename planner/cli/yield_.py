@@ -55,8 +55,9 @@ from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_err
                    "trim.precision_pct, else 0.1).")
 @click.option("--allow-zero", is_flag=True,
               help="Run even when every fabrication tolerance is 0 (no fabrication: "
-                   "section in the plan's spec or --spec): every chip is then the nominal "
-                   "one and the yield 1 or 0 by construction. Refused without it.")
+                   "section in the plan's spec or --spec) or a --sigma-scale is 0: every "
+                   "chip is then the nominal one and the yield 1 or 0 by construction. "
+                   "Refused without it.")
 @click.option("--force", is_flag=True,
               help="Replace --out even if vibroplan did not write it, another command "
                    "wrote it, or it holds files `vibroplan yield` did not write (they are "
@@ -99,6 +100,12 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
     from planner.yield_report import write_outputs
 
     scales = parse_scales(sigma_scale)
+    if 0.0 in scales and not allow_zero:
+        # every sigma times 0: the nominal chip, whose yield is 1 or 0 by construction
+        # (the same refusal as a tolerance model of zeros)
+        raise click.BadParameter("a scale of 0 makes every chip the nominal one (the yield "
+                                 "is 1 or 0 by construction); pass --allow-zero to check "
+                                 "the nominal chip alone", param_hint="'--sigma-scale'")
     check_jobs(jobs)
     check_chip_count(chips, len(scales))
     if measure_noise is not None and not replan:
@@ -129,16 +136,18 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
     if scheduler:
         check_scheduler(scheduler)
     total = 1 + chips * len(scales)
-    bar = tqdm(total=total, desc="  chips" + (" (re-planned)" if replan else ""),
-               unit="chip", disable=quiet, file=sys.stderr)
     timings = {}
-    try:
-        result = run_yield(payload, chips, scales=scales, jobs=jobs, scheduler=scheduler,
-                           progress=lambda: bar.update(1), timings=timings)
-    finally:
-        bar.close()
-    result = {"plan": str(plan_file), **result}
+    # the folder's lock is held for the whole run, as plan, replan and trim hold theirs:
+    # a second run writing the same folder is refused at once, not after its chips
     with output_folder(out_dir, command="yield", inputs=inputs, force=force) as tmp:
+        bar = tqdm(total=total, desc="  chips" + (" (re-planned)" if replan else ""),
+                   unit="chip", disable=quiet, file=sys.stderr)
+        try:
+            result = run_yield(payload, chips, scales=scales, jobs=jobs, scheduler=scheduler,
+                               progress=lambda: bar.update(1), timings=timings)
+        finally:
+            bar.close()
+        result = {"plan": str(plan_file), **result}
         write_outputs(result, payload.loaded.spec, tmp, str(plan_file), timings=timings)
     lo, hi = result["ci95"]
     click.echo(f"yield {result['yield']:.3f} ({result['passed']}/{result['chips']} chips, "

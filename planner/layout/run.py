@@ -1,7 +1,8 @@
 """``vibroplan layout`` as a library call: plan -> GDSII, round trip, DRC, pictures, report.
 
 Outputs, all beside the GDSII file ``STEM.gds`` and written atomically together (a
-failed run leaves every one of them as it was):
+failed run, one that fails while moving them in included, leaves every one of them as
+it was; a run without the check removes the ``STEM_drc.json`` an earlier layout wrote):
 
 - ``STEM.gds`` the layout;
 - ``STEM.png`` the chip, ``STEM_<device>.png`` one device;
@@ -131,8 +132,11 @@ def run_layout(plan_path, out, *, check: bool = False, rules_spec=None,
     inputs = [plan.path] + ([rules_spec] if rules_spec is not None else [])
     for p in paths.values():                  # every output refused before any work
         check_output_file(p, command="layout", inputs=inputs, force=force, option="--out")
+    # a layout not checked this time drops the check of the chip it replaces: an old
+    # STEM_drc.json saying clean must not stand beside a new chip (layout's own only)
+    stale = [] if check else [output_paths(out, device, True)["drc_json"]]
     with output_files(list(paths.values()), command="layout", inputs=inputs,
-                      force=force) as tmps:
+                      force=force, stale=stale) as tmps:
         tmp = dict(zip(paths, tmps))
         write_gds(chip, tmp["gds"])
         lib = read_gds(tmp["gds"])

@@ -7,6 +7,7 @@ checks the whole file, and :func:`planner.fabrication.design_from_plan`).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from dataclasses import dataclass
@@ -27,9 +28,10 @@ class LayoutPlan:
     spec : planner.spec.ArraySpec
         Its spec (process, environment, array, sliders).
     design : planner.fabrication.ChipDesign
-        Its designed impacters (geometry in SI).
+        Its designed impacters (geometry in SI; a re-planned plan's designs, not its
+        as-built models).
     frequencies : dict
-        Impacter id -> (drive tone, natural frequency) [Hz].
+        Impacter id -> (drive tone, designed natural frequency) [Hz].
     process : planner.config.ProcessConfig
         The plan's process with the layout fields of ``--spec`` if given.
     rules : LayoutRules
@@ -80,8 +82,15 @@ def read_layout_plan(plan_path, rules_spec=None) -> LayoutPlan:
 
     record = read_plan(plan_path)
     path, spec = record.path, record.spec
+    # the layout draws the designs: a re-planned (or trimmed) plan's impacters are as
+    # built (its stiffness from a measured resonance), its geometry the design's, whose
+    # natural frequency is what the drawn polygons must reproduce
     design = design_from_plan(record)
-    frequencies = {r.id: (r.frequency_hz, r.natural_frequency_hz) for r in record.impacters}
+    design = dataclasses.replace(design, nodes=tuple(
+        dataclasses.replace(n, stiffness_scale=1.0, damping_scale=1.0, damping_shift=0.0,
+                            gap_shift=0.0) for n in design.nodes))
+    frequencies = {r.id: (r.frequency_hz, record.design_natural_frequency_hz[r.id])
+                   for r in record.impacters}
     trim = trim_from_spec(json.loads(spec.model_dump_json()))
     process, source = spec.process, f"the plan's spec ({path})"
     if rules_spec is not None:

@@ -99,7 +99,9 @@ def program_of(waveform, duration):
     """
     from planner.gating import Burst
 
-    if isinstance(waveform, Burst):
+    # a gated drive read back from plan.json (planner.planning.plan_file.RecordedDrive)
+    # plays its gates as the Burst it was
+    if isinstance(waveform, Burst) or getattr(waveform, "gates_s", None) is not None:
         return waveform.program()
     return ((float(duration), drive_of(waveform)),)
 

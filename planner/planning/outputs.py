@@ -100,6 +100,7 @@ def _figures(result, out_dir):
         rp.slider_positions(result.data["scenes"], figs / "slider_positions.png")
     for scene, rows in target_scenes(result.data["scenes"]).items():
         rp.target_map(settings, scene, rows, figs / pattern_figure_name(scene))
-    if result.data.get("manufacturability"):
+    # a re-plan carries its designs' separations only: the figure is the plan's
+    if result.data.get("manufacturability") and result.data.get("as_built") is None:
         rp.manufacturability(result.data["impacters"], result.data["manufacturability"],
                              figs / "manufacturability.png")

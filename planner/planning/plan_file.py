@@ -42,6 +42,7 @@ from pydantic import ConfigDict, Field, TypeAdapter, ValidationError
 from planner.errors import SpecError
 from planner.nodes import DIRECTIONS, Node
 from planner.spec import ArraySpec, LoadedSpec, Step, resolve_steps
+from planner.spec.load import check_sections
 from planner.yamlio import format_loc, validate
 
 #: The plan.json format this version writes and reads (``format_version``).  Raise it
@@ -104,6 +105,12 @@ class StepRecord:
     playback: str = "loop"
     #: A gated step's gating (``ramp_s`` and more, plan.json's ``gating``).
     gating: dict | None = None
+    #: A ``targets_um`` step's targets (device -> position [m], relative to
+    #: ``relative_to``) and the moves its burst was gated for (device -> [m]); None for
+    #: any other step.
+    targets_m: dict[str, Number] | None = None
+    relative_to: str | None = None
+    moves_m: dict[str, Number] | None = None
 
     @property
     def key(self) -> str:
@@ -112,9 +119,27 @@ class StepRecord:
 
     @property
     def step(self) -> Step:
-        """The step as the planner's stages take it."""
+        """The step as the planner's stages take it (a ``targets_um`` step with its
+        targets and moves, so that its checks are the position checks)."""
+        if self.targets_m is None:
+            return Step(self.scene, self.name, self.index, self.duration_s, self.forward,
+                        self.backward)
+        from planner.nodes import device_key
+
+        def ordered(d):
+            return tuple(sorted(((k, float(v)) for k, v in (d or {}).items()),
+                                key=lambda kv: device_key(kv[0])))
+
         return Step(self.scene, self.name, self.index, self.duration_s, self.forward,
-                    self.backward)
+                    self.backward, targets_m=ordered(self.targets_m),
+                    relative_to=self.relative_to or "scene_start",
+                    moves_m=ordered(self.moves_m if self.moves_m is not None
+                                    else self.targets_m))
+
+    @property
+    def gated(self) -> bool:
+        """A burst played once (``playback: once``), its tones gated."""
+        return self.playback == "once"
 
 
 @dataclass(frozen=True)
@@ -172,9 +197,10 @@ class DeviceRecord:
 
 
 @dataclass(frozen=True)
-class AsBuilt:
-    """A re-planned impacter's as-built model (plan.json's ``as_built``)."""
+class AsBuiltHalf:
+    """One half of a pair measured half by half (plan.json's ``as_built.<id>.halves``)."""
 
+    half: Text
     natural_frequency_hz: Positive
     stiffness_n_per_m: Positive
     damping_ns_per_m: NonNegative
@@ -182,9 +208,51 @@ class AsBuilt:
 
 
 @dataclass(frozen=True)
+class AsBuilt:
+    """A re-planned impacter's as-built model (plan.json's ``as_built``); a pair
+    measured half by half also has each half's (``halves``; the fields above are then
+    the symmetric pair at their mean resonance)."""
+
+    natural_frequency_hz: Positive
+    stiffness_n_per_m: Positive
+    damping_ns_per_m: NonNegative
+    gap_m: Positive
+    halves: tuple[AsBuiltHalf, ...] | None = None
+
+
+@dataclass(frozen=True)
+class SeparationRecord:
+    """One design's silent band and tone window (plan.json's
+    ``manufacturability.separation_hz.<id>``, :class:`planner.manufacturability.
+    Separation`) [Hz]: the band reaches of a design that answers its own tone are > 0,
+    a tone window's reaches >= 0 (0: its tone may not move that way)."""
+
+    __pydantic_config__ = ConfigDict(extra="ignore")
+
+    silent_below: Positive
+    silent_above: Positive
+    responds_below: NonNegative
+    responds_above: NonNegative
+    #: the larger band reach and the smaller window reach (the report's columns)
+    silent_beyond: Positive
+    responds_within: NonNegative
+
+
+@dataclass(frozen=True)
+class _Manufacturability:
+    __pydantic_config__ = ConfigDict(extra="ignore")
+
+    separation_hz: dict[str, SeparationRecord]
+
+
+@dataclass(frozen=True)
 class _Moved:
     id: Text
     design_natural_frequency_hz: Positive
+    #: The designed tone [Hz] (absent in re-plans from before it was recorded: then
+    #: ``original_frequency_hz``, the tone of the plan it was re-planned from).
+    design_frequency_hz: Positive | None = None
+    original_frequency_hz: Positive | None = None
 
 
 @dataclass(frozen=True)
@@ -220,7 +288,7 @@ class _PlanFile:
     assignment: _Assignment = _Assignment()
     as_built: dict[str, AsBuilt] | None = None
     replan: _Replan | None = None
-    manufacturability: dict | None = None
+    manufacturability: _Manufacturability | None = None
 
 
 _SCHEMA = TypeAdapter(_PlanFile)
@@ -267,7 +335,13 @@ class PlanRecord:
     manufacturability : dict or None
         plan.json's ``manufacturability`` block as written (sensitivities, separations,
         the predicted yield; :func:`planner.planning.manufacture.assess`), None in plans
-        from before it.
+        from before it.  Its ``separation_hz`` is checked: one entry per impacter, each
+        reach a finite number within what its measurement can give.  A re-planned plan
+        carries its design's block (the separations are the designs').
+    design_frequency_hz : dict
+        Impacter id -> its designed tone [Hz] (a plan's tone; a re-plan's impacters
+        play as-built tones, and their separations and trims are reckoned from the
+        design's).
     """
 
     path: Path | None
@@ -285,6 +359,7 @@ class PlanRecord:
     as_built: dict | None
     design_natural_frequency_hz: dict
     manufacturability: dict | None = None
+    design_frequency_hz: dict | None = None
 
     @property
     def replanned(self) -> bool:
@@ -312,19 +387,40 @@ class PlanRecord:
 @dataclass(frozen=True)
 class RecordedDrive:
     """A step's drive as plan.json records it: what the verification reads of a
-    :class:`planner.synthesis.Waveform` (its tones), in SI."""
+    :class:`planner.synthesis.Waveform` (its tones), in SI; a gated step's
+    (``playback: once``) also each tone's start and gate and the ramp [s], which the
+    verification plays as :class:`planner.gating.Burst` plays them."""
 
     frequencies: np.ndarray
     amplitudes: np.ndarray
     phases: np.ndarray
+    starts_s: np.ndarray | None = None
+    gates_s: np.ndarray | None = None
+    ramp_s: float = 0.0
+
+    def program(self):
+        """A gated drive as stretches of constant tones (:meth:`planner.gating.Burst.
+        program`): ((duration [s], model.Drive), ...)."""
+        from planner.gating import stretches
+
+        if self.gates_s is None:
+            raise ValueError("a loop's drive has no program of its own: it plays for its "
+                             "step's duration (planner.planning.drives.program_of)")
+        return stretches(self.frequencies, self.amplitudes, self.phases, self.starts_s,
+                         self.gates_s, self.ramp_s)
 
 
 def step_drive(step: StepRecord) -> RecordedDrive:
     """The drive of a recorded step: its tones' frequencies [Hz], amplitudes [m] and
-    phases [rad], shape (n_tones,) each."""
+    phases [rad], shape (n_tones,) each, and a gated step's starts, gates and ramp."""
+    gated = {}
+    if step.gated:
+        gated = {"starts_s": np.array([t.start_s for t in step.tones], dtype=float),
+                 "gates_s": np.array([t.gate_s for t in step.tones], dtype=float),
+                 "ramp_s": float(step.gating["ramp_s"])}
     return RecordedDrive(np.array([t.frequency_hz for t in step.tones], dtype=float),
                          np.array([t.amplitude_m for t in step.tones], dtype=float),
-                         np.array([t.phase_rad for t in step.tones], dtype=float))
+                         np.array([t.phase_rad for t in step.tones], dtype=float), **gated)
 
 
 def drives(record: PlanRecord) -> dict:
@@ -393,7 +489,8 @@ def plan_record(data, *, source: str = "plan.json", path: Path | None = None) ->
         verified=raw.verification.passed, dwells=_dwells(raw),
         as_built=dict(raw.as_built) if raw.as_built is not None else None,
         design_natural_frequency_hz=_design_frequencies(raw, source),
-        manufacturability=raw.manufacturability)
+        manufacturability=data.get("manufacturability"),
+        design_frequency_hz=_design_tones(raw))
     _check(record, source)
     return record
 
@@ -423,14 +520,19 @@ def _schema_error(exc: ValidationError, data: dict, source: str) -> PlanFileErro
 def _spec(spec_data: dict, source: str) -> ArraySpec:
     """The plan's spec, validated; the designed impacter fields left out."""
     spec = json.loads(json.dumps(spec_data))
-    sections = [spec.get("device") or {}] + list((spec.get("devices") or {}).values())
+    overrides = spec.get("devices") if isinstance(spec, dict) else None
+    # a mistyped section is left for the validation below to name
+    sections = ([spec.get("device") or {}] if isinstance(spec, dict) else []) + (
+        list(overrides.values()) if isinstance(overrides, dict) else [])
     for sec in sections:
         for key in ("impacter", "forward", "backward"):
             cfg = sec.get(key) if isinstance(sec, dict) else None
             if isinstance(cfg, dict):
                 for name in DESIGNED_FIELDS:
                     cfg.pop(name, None)
-    return validate(ArraySpec, spec, source=source, prefix=("spec",))
+    out = validate(ArraySpec, spec, source=source, prefix=("spec",))
+    check_sections(out, source=source, prefix=("spec",))
+    return out
 
 
 def _dwells(raw: _PlanFile) -> dict:
@@ -458,7 +560,21 @@ def _design_frequencies(raw: _PlanFile, source: str) -> dict:
     return {m.id: m.design_natural_frequency_hz for m in raw.replan.moved}
 
 
+def _design_tones(raw: _PlanFile) -> dict:
+    if raw.replan is None:
+        return {r.id: r.frequency_hz for r in raw.impacters}
+    tones = {r.id: r.frequency_hz for r in raw.impacters}
+    for m in raw.replan.moved:
+        tones[m.id] = m.design_frequency_hz or m.original_frequency_hz or tones.get(m.id)
+    return tones
+
+
 # ----------------------------------------------------------------------------- checks
+
+#: How far a step's recorded tone may sit from its impacter's planned tone [-]: the
+#: synthesis snaps a loop's tones to its length by at most 0.1 % (and a single tone by
+#: far less); further is an edited file.
+TONE_RTOL = 2e-3
 
 
 def _agree(got: float, want: float) -> bool:
@@ -536,6 +652,9 @@ def _check(record: PlanRecord, source: str) -> None:
                      f"equations on the spec's process ({want:.6g}): the numbers contradict "
                      "each other (was the file edited, or the plan made with another "
                      "process section?)")
+    _check_channels(record, fail)
+    _check_separations(record, fail)
+    tone_of = {rec.id: rec.frequency_hz for rec in record.impacters}
     keys = set()
     for j, st in enumerate(record.steps):
         where = f"steps[{j}] ({st.key})"
@@ -555,3 +674,114 @@ def _check(record: PlanRecord, source: str) -> None:
                 if f"{d}.{direction}" not in seen:
                     fail(f"{where}.{key}", f"drives {d}.{direction}, which is not among the "
                                            "plan's impacters")
+        # its tones once its impacters are known to be the plan's
+        _check_step_tones(st, where, tone_of, fail)
+
+
+def _check_channels(record: PlanRecord, fail) -> None:
+    """Each impacter's tone on its channel of the spec's grid (a plan's assignment put
+    it there; a re-plan's channel is the grid's nearest to its as-built tone)."""
+    from planner.spec import channel_grid
+
+    grid = np.asarray(channel_grid(record.spec), dtype=float)
+    for i, rec in enumerate(record.impacters):
+        where = f"impacters[{i}] ({rec.id})"
+        if not 0 <= rec.channel < grid.size:
+            fail(f"{where}.channel", f"{rec.channel} is not a channel of the spec's grid "
+                                     f"(0-{grid.size - 1})")
+        if record.as_built is None:
+            if not _agree(rec.frequency_hz, float(grid[rec.channel])):
+                fail(f"{where}.frequency_hz",
+                     f"{rec.frequency_hz:.6g} Hz is not its channel {rec.channel}'s "
+                     f"{grid[rec.channel]:.6g} Hz on the spec's channel grid: the numbers "
+                     "contradict each other (was the file edited?)")
+        elif int(np.argmin(np.abs(grid - rec.frequency_hz))) != rec.channel:
+            fail(f"{where}.channel",
+                 f"{rec.channel} is not the channel nearest its tone {rec.frequency_hz:.6g} "
+                 "Hz on the spec's channel grid (was the file edited?)")
+
+
+def _check_separations(record: PlanRecord, fail) -> None:
+    """``manufacturability.separation_hz``: one entry per impacter, each reach no
+    further than :func:`planner.manufacturability.measure_separation` scans (a few
+    per cent of the resonance beyond the tone's offset): a reach beyond it is no
+    measurement (a typo or another unit) and would move every re-planned tone."""
+    from planner.manufacturability.separation import (
+        EDGE_TOL_HZ,
+        SCAN_SPAN_REL,
+        SCAN_STEP_MIN_HZ,
+        SCAN_STEP_REL,
+    )
+
+    block = record.manufacturability
+    if block is None:
+        return
+    seps = block["separation_hz"]
+    ids = record.impacter_ids
+    for n in ids:
+        if n not in seps:
+            fail(f"manufacturability.separation_hz.{n}",
+                 "missing: every impacter has its silent band and tone window")
+    for n in seps:
+        if n not in ids:
+            fail(f"manufacturability.separation_hz.{n}", "not an impacter of the plan")
+    for n in ids:
+        nu = record.design_natural_frequency_hz[n]
+        tone = record.design_frequency_hz[n]
+        top = max(nu, tone)
+        # the scan's reach from its start (the resonance or the tone), one step and the
+        # edge's bisection beyond it
+        reach = (abs(tone - nu) + (SCAN_SPAN_REL + SCAN_STEP_REL) * top
+                 + SCAN_STEP_MIN_HZ + EDGE_TOL_HZ)
+        sep = seps[n]
+        for key, want in (("silent_beyond", max(sep["silent_below"], sep["silent_above"])),
+                          ("responds_within", min(sep["responds_below"],
+                                                  sep["responds_above"]))):
+            if not _agree(float(sep[key]), float(want)):
+                fail(f"manufacturability.separation_hz.{n}.{key}",
+                     f"{sep[key]:.6g} Hz is not the {key.split('_')[0]} reach "
+                     f"{want:.6g} Hz of its own band (was the file edited?)")
+        for key in ("silent_below", "silent_above", "responds_below", "responds_above"):
+            value = float(seps[n][key])
+            if value > reach:
+                fail(f"manufacturability.separation_hz.{n}.{key}",
+                     f"{value:.6g} Hz reaches further than its measurement can ({reach:.6g} "
+                     f"Hz from a {nu:.6g} Hz resonance): was the file edited?")
+
+
+def _check_step_tones(st: StepRecord, where: str, tone_of: dict, fail) -> None:
+    """A step's tones are its impacters' planned tones (within the synthesis' snapping,
+    :data:`TONE_RTOL`), each one of them, and a gated step's tones carry their gates."""
+    wanted = []
+    for devs, direction in ((st.forward, "forward"), (st.backward, "backward")):
+        wanted += [tone_of[f"{d}.{direction}"] for d in devs if f"{d}.{direction}" in tone_of]
+    for k, tone in enumerate(st.tones):
+        near = min(wanted, key=lambda f: abs(f - tone.frequency_hz), default=None)
+        if near is None or abs(tone.frequency_hz - near) > TONE_RTOL * near:
+            fail(f"{where}.tones[{k}].frequency_hz",
+                 f"{tone.frequency_hz:.6g} Hz is not the planned tone of an impacter the "
+                 "step drives (" + ", ".join(f"{f:.6g}" for f in sorted(set(wanted)))
+                 + " Hz): the numbers contradict each other (was the file edited?)")
+    for f in wanted:
+        if not any(abs(t.frequency_hz - f) <= TONE_RTOL * f for t in st.tones):
+            fail(f"{where}.tones", f"no tone plays {f:.6g} Hz, the planned tone of an "
+                                   "impacter the step drives")
+    if st.playback not in ("loop", "once"):
+        fail(f"{where}.playback", f"must be loop or once, {st.playback!r} was given")
+    if st.gated:
+        ramp = (st.gating or {}).get("ramp_s")
+        if isinstance(ramp, bool) or not isinstance(ramp, (int, float)) or not (
+                math.isfinite(ramp) and ramp > 0):
+            fail(f"{where}.gating.ramp_s", "a gated step (playback: once) needs its ramp "
+                                           f"[s] > 0, {json.dumps(ramp)} was given")
+        for k, tone in enumerate(st.tones):
+            if tone.start_s is None or tone.gate_s is None:
+                fail(f"{where}.tones[{k}]", "a gated step's tone needs its start_s and "
+                                            "gate_s")
+            if tone.gate_s and tone.gate_s < tone.start_s + ramp * (1 - 1e-9):
+                fail(f"{where}.tones[{k}].gate_s",
+                     f"{tone.gate_s:.6g} s is before its start_s + ramp ("
+                     f"{tone.start_s + ramp:.6g} s)")
+        if st.targets_m is None:
+            fail(f"{where}.targets_m", "a gated step (playback: once) is a targets_um "
+                                       "step: its targets are missing")

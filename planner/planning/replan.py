@@ -46,8 +46,8 @@ from planner.nodes import device_key, node_key
 from planner.planning.plan_file import PlanRecord, drives
 from planner.planning.record import build_record
 from planner.planning.repair import scenes_and_motion
-from planner.planning.rescue import (REPLAN_TRAVEL_MARGIN, as_built_models, quieten, rescue,
-                                     split_weak)
+from planner.planning.rescue import (REPLAN_TRAVEL_MARGIN, as_built_models, plan_phases,
+                                     quieten, rescue, split_weak)
 from planner.planning.result import Plan
 from planner.planning.settings import plan_settings, tone_amplitudes
 from planner.planning.verify import check_step, check_steps, coupling_matrix, x0_grid
@@ -62,7 +62,17 @@ HALVES = ("a", "b")
 
 # --------------------------------------------------------------------------- inputs
 
-def read_measured(path, impacter_ids) -> dict:
+#: How far a measured resonance may lie from its design's, as a factor [-]: a fabricated
+#: chip's resonances move by a few per cent (1.2 % per line-width sigma on the default);
+#: one 4 x off is no measurement of this design (a typo, kHz for Hz, another chip),
+#: while a chip as far off as a study asks (a neighbour's resonance, 0.38 x) is read.
+MAX_MEASURED_FACTOR = 4.0
+#: The smallest gap a measurement may give [um]: the process's gaps are microns; a
+#: smaller number is a gap typed in metres (3e-6) or nm.
+MIN_GAP_UM = 0.05
+
+
+def read_measured(path, impacter_ids, design_hz=None) -> dict:
     """Read and check a lab's measured.csv.
 
     Parameters
@@ -74,14 +84,19 @@ def read_measured(path, impacter_ids) -> dict:
         ignored.  Blank lines and lines starting with ``#`` are skipped.
     impacter_ids : iterable of str
         The plan's impacters; any other name is an error.
+    design_hz : dict, optional
+        Impacter id -> its designed natural frequency [Hz]: a measured one further than
+        a factor :data:`MAX_MEASURED_FACTOR` from it is refused (another unit, a typo).
 
     Returns
     -------
     dict
         Impacter id -> ``{"natural_frequency_hz": [Hz], "quality_factor": [-] or None,
         "gap_m": [m] or None}``; a pair measured half by half (``half`` column, a and b)
-        also has ``halves_hz`` (a, b) [Hz] and ``halves_quality`` (a, b) or None, and its
-        ``natural_frequency_hz`` is their mean.
+        also has ``halves_hz`` (a, b) [Hz], ``halves_quality`` (a, b) [-] and
+        ``halves_gap_m`` (a, b) [m] (an entry None where that half's cell is blank; the
+        whole None where no half gives one), its ``natural_frequency_hz`` the halves'
+        mean and its ``gap_m`` the wider half's gap.
 
     Raises
     ------
@@ -134,6 +149,18 @@ def read_measured(path, impacter_ids) -> dict:
             x = csv_number(text, line, column, fail)
             if x <= 0:
                 raise fail(line, column, f"must be > 0, {text} was given")
+            if column == "gap_um" and x < MIN_GAP_UM:
+                raise fail(line, column, f"{text} um is no gap of this process (at least "
+                                         f"{MIN_GAP_UM:g} um): a gap in metres? gap_um is "
+                                         "in um (3e-6 m is 3)")
+            nu0 = (design_hz or {}).get(name)
+            if column == "natural_frequency_hz" and nu0 and not (
+                    1 / MAX_MEASURED_FACTOR <= x / nu0 <= MAX_MEASURED_FACTOR):
+                raise fail(line, column, f"{text} Hz is {x / nu0:.3g} x the design's "
+                                         f"{nu0:.6g} Hz: a fabricated chip's resonance "
+                                         f"lies within a factor {MAX_MEASURED_FACTOR:g} of "
+                                         "its design's (a typo, another unit such as kHz, "
+                                         "or another chip?)")
             if column == "natural_frequency_hz":
                 rec["natural_frequency_hz"] = x
             elif column == "quality_factor":
@@ -151,13 +178,16 @@ def read_measured(path, impacter_ids) -> dict:
             raise fail(line, "half", f"only half {only} of {name} measured: give both "
                                      "halves, or the pair as a whole")
         (_, a), (_, b) = got["a"], got["b"]
-        gaps = [h["gap_m"] for h in (a, b) if h["gap_m"] is not None]
+        gaps = (a["gap_m"], b["gap_m"])
         qs = (a["quality_factor"], b["quality_factor"])
+        # a value given for one half only is that half's (the other keeps its design's)
         out[name] = {"natural_frequency_hz": 0.5 * (a["natural_frequency_hz"]
                                                     + b["natural_frequency_hz"]),
                      "halves_hz": (a["natural_frequency_hz"], b["natural_frequency_hz"]),
-                     "halves_quality": qs if all(qs) else None,
-                     "quality_factor": None, "gap_m": max(gaps) if gaps else None}
+                     "halves_quality": qs if any(qs) else None,
+                     "halves_gap_m": gaps if any(gaps) else None,
+                     "quality_factor": None,
+                     "gap_m": max(g for g in gaps if g) if any(gaps) else None}
     if not out:
         raise fail(header_line + 1, "impacter", "no impacters after the header")
     return out
@@ -187,7 +217,34 @@ def as_built_parameters(plan: PlanRecord, measured) -> dict:
         gap = meas.get("gap_m") or rec.gap_m
         out[n] = {"natural_frequency_hz": float(nu), "stiffness_n_per_m": m * w * w,
                   "damping_ns_per_m": b, "gap_m": float(gap)}
+        if meas.get("halves_hz"):
+            # each half as measured, what the chip's models are (measured_models), kept
+            # in plan.json's as_built; the pair's own record is their symmetric stand-in
+            model_ = _halves_model(plan, n, meas)
+            sym = symmetric(model_)
+            out[n].update(natural_frequency_hz=float(sym.natural_frequency),
+                          stiffness_n_per_m=float(sym.stiffness),
+                          damping_ns_per_m=float(sym.damping), gap_m=float(sym.gap))
+            out[n]["halves"] = [
+                {"half": h, "natural_frequency_hz": float(imp.natural_frequency),
+                 "stiffness_n_per_m": float(imp.stiffness),
+                 "damping_ns_per_m": float(imp.damping), "gap_m": float(imp.gap)}
+                for h, (imp, _) in zip(HALVES, model.halves(model_))]
     return out
+
+
+def symmetric(imp):
+    """The symmetric pair standing for a pair of unequal halves (plan.json's impacter
+    record and ``as_built`` of a pair measured half by half): their mean resonance,
+    mean damping and the wider gap (:attr:`model.PairHalves.gap`); a symmetric pair is
+    itself."""
+    if not isinstance(imp, model.PairHalves):
+        return imp
+    parts = [h for h, _ in model.halves(imp)]
+    w = 2.0 * math.pi * float(imp.natural_frequency)
+    m = float(imp.mass)
+    return model.Impacter(m, m * w * w, float(np.mean([h.damping for h in parts])),
+                          float(imp.gap), imp.a.impact_angle, imp.a.restitution)
 
 
 def _impacter(rec, params=None):
@@ -223,8 +280,9 @@ def verify_drive(plan: PlanRecord, as_built: dict, settings=None):
     """
     if settings is None:
         settings = plan_settings(plan)
-    params = as_built_parameters(plan, as_built)
-    models = {r.node: _impacter(r, params[r.id]) for r in plan.impacters}
+    # the chip as measured: a pair measured half by half is its two halves
+    built = measured_models(plan, as_built)
+    models = {r.node: built[r.id] for r in plan.impacters}
     devices = sorted({r.device for r in plan.impacters}, key=device_key)
     sliders = {d: settings.sliders[d] for d in devices}
     waves = drives(plan)
@@ -242,8 +300,7 @@ def _design_like(rec, imp, tone, settings):
     pair at their mean resonance."""
     from planner.designer.result import DesignResult
 
-    if isinstance(imp, model.PairHalves):
-        imp = imp.a.with_natural_frequency(imp.natural_frequency)
+    imp = symmetric(imp)
     g = rec.geometry
     geometry = model.Geometry(g.area_m2, g.width_m, g.length_m, imp.gap)
     imp = model.Impacter(imp.mass, imp.stiffness, imp.damping, imp.gap, imp.impact_angle,
@@ -334,6 +391,9 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
     ts = time.perf_counter()
     drive = rescue(plan, measured_resonances(plan, measured), settings, models, sliders,
                    remeasure=remeasure)
+    steps_, waveforms_, gating = regate(settings, drive.steps, drive.waveforms, drive.tones,
+                                        models, sliders, plan_phases(plan))
+    drive = dataclasses.replace(drive, steps=steps_, waveforms=waveforms_, gating=gating)
     timings["drive"] = time.perf_counter() - ts
     ts = time.perf_counter()
     tick("verify", total=len(drive.steps))
@@ -371,12 +431,19 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
     ver = pd.DataFrame(ver_rows)
     passed = bool(ver["passed"].all()) and not drive.inseparable
     motion = {"sizing": drive.sizing, "drive": drive.notes, "settle_s": settle,
-              "repairs": repairs, "design_problems": []}
+              "repairs": repairs, "design_problems": [], "gating": drive.gating}
     rounds = [{"round": 0, "span": assignment.span,
                "failures": sum(1 for r in ver_rows if not r["passed"])}]
     data, impacter_recs, device_recs, step_recs = build_record(
         settings, steps, assignment, designs, sliders, drive.waveforms, ver_rows, passed,
         rounds, scene_rows, motion,
+        # the designs' separations go with the re-plan (the designs are the chip's; a
+        # trim or a re-plan of the re-plan reckons from them, as from the plan); the
+        # plan's prediction of a yield is not about this chip and stays with the plan
+        manufacturability=(None if plan.manufacturability is None else {
+            "separation_hz": plan.manufacturability["separation_hz"],
+            "note": "the designs' silent bands and tone windows, from the plan this chip "
+                    "was made by (its predicted yield is the plan's)"}),
         sections={"as_built": params,
                   "replan": _replan_record(plan, settings, params, drive, orig_passed,
                                            orig_rows)})
@@ -387,6 +454,37 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
         scenes=pd.DataFrame(scene_rows), passed=passed, data=data, timings=timings,
         settings=settings, waveforms=drive.waveforms, designs=designs,
         assignment=assignment, failures=tuple(failures))
+
+
+def regate(settings, steps, waveforms, tones, models, sliders, phases=None):
+    """Gate every ``targets_um`` step again for the chip's models, as the plan gated it
+    for its designs (:func:`planner.planning.targets.place_targets`: one tone at a time,
+    each playing until its slider has gone its move, found by the scene simulated with
+    its state carried).  A slider's speed is the chip's: the plan's gates would put it
+    wherever the design's speed would have.
+
+    Returns
+    -------
+    (steps, waveforms, gating)
+        As :func:`~planner.planning.targets.place_targets` returns them; unchanged (and
+        ``gating`` empty) when no step asks for positions.  A slider that cannot reach
+        its target on this chip keeps the step as synthesised: its verification then
+        says by how far it misses.
+    """
+    from planner.errors import PlanningError
+    from planner.planning.drives import synthesize_steps
+    from planner.planning.targets import place_targets
+
+    targeted = tuple(st for st in steps if st.targets_m is not None)
+    if not targeted:
+        return steps, waveforms, {}
+    # the tones play one at a time: at their amplitudes as synthesised, not as lowered
+    # for the peak of their whole sum, which never plays (as the plan's)
+    raw = synthesize_steps(settings, targeted, tones, phases=phases)
+    try:
+        return place_targets(settings, steps, {**waveforms, **raw}, tones, models, sliders)
+    except PlanningError:
+        return steps, waveforms, {}
 
 
 def measured_resonances(plan: PlanRecord, measured: dict) -> dict:
@@ -402,6 +500,18 @@ def measured_resonances(plan: PlanRecord, measured: dict) -> dict:
     return out
 
 
+def _halves_model(plan: PlanRecord, node_id: str, meas: dict):
+    """The :class:`model.PairHalves` of a pair measured half by half: each half's
+    resonance, and its quality factor and gap where given (else the design's)."""
+    qs = meas.get("halves_quality")
+    gaps = meas.get("halves_gap_m")
+    if gaps is None and meas.get("gap_m"):
+        gaps = (meas["gap_m"],) * 2
+    return as_built_models(plan, {node_id: tuple(meas["halves_hz"])},
+                           quality={node_id: qs} if qs else None,
+                           gaps={node_id: gaps} if gaps else None)[node_id]
+
+
 def measured_models(plan: PlanRecord, measured: dict, params=None) -> dict:
     """Impacter id -> the as-built model of each impacter (:func:`as_built_parameters`;
     a :class:`model.PairHalves` where each half was measured)."""
@@ -410,13 +520,7 @@ def measured_models(plan: PlanRecord, measured: dict, params=None) -> dict:
     for rec in plan.impacters:
         meas = measured.get(rec.id) or {}
         if meas.get("halves_hz"):
-            qs = meas.get("halves_quality")
-            out[rec.id] = as_built_models(plan, {rec.id: tuple(meas["halves_hz"])},
-                                          quality={rec.id: qs} if qs else None)[rec.id]
-            if meas.get("gap_m"):
-                out[rec.id] = model.pair_of(*(model.Impacter(
-                    h.mass, h.stiffness, h.damping, float(meas["gap_m"]), h.impact_angle,
-                    h.restitution) for h, _ in model.halves(out[rec.id])))
+            out[rec.id] = _halves_model(plan, rec.id, meas)
         else:
             out[rec.id] = _impacter(rec, params[rec.id])
     return out
@@ -449,6 +553,7 @@ def _replan_record(plan, settings, params, drive, orig_passed, orig_rows):
         nu0, nu1 = plan.design_natural_frequency_hz[n], params[n]["natural_frequency_hz"]
         f0, f1 = rec.frequency_hz, drive.tones[rec.node]
         moved.append({"id": n, "design_natural_frequency_hz": nu0,
+                      "design_frequency_hz": plan.design_frequency_hz[n],
                       "natural_frequency_hz": nu1, "natural_frequency_shift": nu1 / nu0 - 1,
                       "original_frequency_hz": f0, "frequency_hz": f1,
                       "tone_shift": f1 / f0 - 1})

@@ -136,6 +136,10 @@ def _assignment_section(a):
     return lines
 
 
+def _times(value, factor):
+    """``value * factor``, NaN for a value plan.json leaves out (None)."""
+    return math.nan if value is None else value * factor
+
 def _designs_section(impacters):
     """One row per designed impacter (plan.json's ``impacters``)."""
     lines = ["## Designs", "",
@@ -149,9 +153,10 @@ def _designs_section(impacters):
                      fmt(g["area_m2"] / UM**2, ".0f"), fmt(g["width_m"] / UM, ".2f"),
                      fmt(g["length_m"] / UM, ".0f"), fmt(r["gap_m"] / UM, ".2f"),
                      fmt(r["mass_kg"] * 1e12, ".3f"),
-                     fmt(r.get("r_min_n", math.nan) * 1e9, ".1f"),
+                     fmt(_times(r.get("r_min_n"), 1e9), ".1f"),
                      fmt(r.get("mass_ratio"), ".3f"),
-                     fmt(r.get("predicted_slider_speed_m_s", math.nan) * 1e3, ".2f"),
+                     # a plan.json without a prediction (None, or absent) reads as no value
+                     fmt(_times(r.get("predicted_slider_speed_m_s"), 1e3), ".2f"),
                      "yes" if r.get("feasible", True) else "**no**"])
     lines += md_table(["impacter", "channel", "tone [kHz]", "nu_n [kHz]", "A [um^2]", "w [um]",
                        "l [um]", "gap [um]", "mass [ng]", "r_min [nN]", "m/M",
@@ -237,7 +242,8 @@ def _failures_section(ver):
 def _manufacturability_section(d):
     """Design for yield: what a fabricated chip does to these designs."""
     m = d.get("manufacturability")
-    if not m:
+    if not m or d.get("as_built") is not None:
+        # a re-plan carries only its designs' separations: the prediction is the plan's
         return []
     lw = m["line_width_sensitivity_per_um"]
     seps = m["separation_hz"].values()

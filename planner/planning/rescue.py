@@ -91,11 +91,17 @@ def rescaled_tones(plan, measured: dict, seps: Separations | None = None) -> dic
     centre = {}
     if seps is not None:
         centre = {n: 0.5 * (seps.hi[k] - seps.lo[k]) for k, n in enumerate(seps.ids)}
+    # from the design's tone and resonance (a re-planned plan's are as built: its tones
+    # moved already, and would move again)
+    tone = plan.design_frequency_hz or {r.id: r.frequency_hz for r in plan.impacters}
+    nu = plan.design_natural_frequency_hz
     out = {}
     for rec in plan.impacters:
-        ratio = (measured_frequency(measured[rec.id]) / rec.natural_frequency_hz
-                 if rec.id in measured else 1.0)
-        out[rec.id] = (rec.frequency_hz + centre.get(rec.id, 0.0)) * ratio
+        n = rec.id
+        if n not in measured:
+            out[n] = rec.frequency_hz + centre.get(n, 0.0)
+            continue
+        out[n] = (tone[n] + centre.get(n, 0.0)) * measured_frequency(measured[n]) / nu[n]
     return out
 
 
@@ -233,15 +239,20 @@ def weakened(steps, notes, plan_scales):
     return out
 
 
-def as_built_models(plan, measured: dict, *, quality=None):
+def as_built_models(plan, measured: dict, *, quality=None, gaps=None):
     """Node id -> the as-built model of a measured chip: the design's mass, damping and
     gap, its stiffness from the measured resonance (k = m (2 pi nu)^2); a pair measured
     half by half is a :class:`model.PairHalves` of two such models.
 
     ``quality`` (node -> Q or (Q_a, Q_b)), optional: the damping from a measured
-    quality factor instead of the design's (b = m 2 pi nu / Q).
+    quality factor instead of the design's (b = m 2 pi nu / Q); ``gaps`` (node -> gap or
+    (gap_a, gap_b) [m]), optional: the measured gap instead of the design's.  A half
+    whose entry is None keeps its design's.
     """
     import model
+
+    def per_part(value, count):
+        return value if isinstance(value, (tuple, list)) else (value,) * count
 
     out = {}
     for rec in plan.impacters:
@@ -249,14 +260,14 @@ def as_built_models(plan, measured: dict, *, quality=None):
         m = rec.mass_kg
         value = measured.get(n, rec.natural_frequency_hz)
         freqs = value if isinstance(value, (tuple, list)) else (value,)
-        qs = (quality or {}).get(n)
-        qs = qs if isinstance(qs, (tuple, list)) else (qs,) * len(freqs)
+        qs = per_part((quality or {}).get(n), len(freqs))
+        cs = per_part((gaps or {}).get(n), len(freqs))
         parts = []
-        for nu, q in zip(freqs, qs):
+        for nu, q, c in zip(freqs, qs, cs):
             w = 2.0 * math.pi * float(nu)
             b = m * w / float(q) if q else rec.damping_ns_per_m
-            parts.append(model.Impacter(m, m * w * w, b, rec.gap_m, rec.impact_angle_rad,
-                                        rec.restitution))
+            parts.append(model.Impacter(m, m * w * w, b, float(c) if c else rec.gap_m,
+                                        rec.impact_angle_rad, rec.restitution))
         out[n] = parts[0] if len(parts) == 1 else model.pair_of(*parts)
     return out
 
@@ -273,23 +284,58 @@ def natural_frequencies(impacters: dict) -> dict:
 
 
 def separations_of(plan, settings) -> Separations:
-    """The plan's :class:`planner.trim.Separations`: from its ``manufacturability`` block,
-    or, for a plan from before it, measured now on its designs (a few seconds)."""
+    """The plan's :class:`planner.trim.Separations`: its designs' silent bands and tone
+    windows, from its ``manufacturability`` block, or, for a plan without one (made
+    before it, or a re-plan from before re-plans carried it), measured now on its
+    designs (a few seconds).
+
+    Always the *designs'*: a chip is one chip whether its plan.json is the plan it was
+    made by or a re-plan of it (whose impacters are as built and whose tones moved), so
+    the separations, their tone ratios rho (designed tone / designed nu) and hence a
+    re-plan's tones and a trim's targets are the same for both.  Measured now, each
+    design is simulated at its designed tone, at the largest amplitude its tone plays in
+    the plan's steps, as :func:`planner.planning.manufacture.assess` measured it.
+    """
+    from planner.fabrication import NodeDesign, nominal_impacter
     from planner.manufacturability import measure_separation
 
     ids = tuple(sorted(r.id for r in plan.impacters))
     recs = {r.id: r for r in plan.impacters}
+    tone = plan.design_frequency_hz or {r.id: r.frequency_hz for r in plan.impacters}
     block = (plan.manufacturability or {}).get("separation_hz")
     if block and set(block) >= set(ids):
         seps = [block[n] for n in ids]
     else:
-        seps = [measure_separation(recs[n].impacter(), recs[n].frequency_hz,
-                                   **settings.separation_kwargs()).to_dict()
-                for n in ids]
-    rho = np.array([recs[n].frequency_hz / plan.design_natural_frequency_hz[n]
-                    if not plan.replanned else recs[n].frequency_hz
-                    / recs[n].natural_frequency_hz for n in ids])
+        amps = _tone_amplitudes(plan)
+        seps = []
+        for n in ids:
+            rec, g = recs[n], recs[n].geometry
+            design = nominal_impacter(plan.spec, NodeDesign(
+                n, rec.device, rec.direction, g.area_m2, g.width_m, g.length_m, g.gap_m,
+                rec.impact_angle_rad, rec.restitution))
+            seps.append(measure_separation(design, tone[n], tone_amplitude=amps.get(n),
+                                           **settings.separation_kwargs()).to_dict())
+    rho = np.array([tone[n] / plan.design_natural_frequency_hz[n] for n in ids])
     return Separations.of(ids, rho, seps)
+
+
+def _tone_amplitudes(plan) -> dict:
+    """Impacter id -> the largest amplitude [m] its tone plays at in the plan's steps
+    (the steps that drive it; its tone the recorded one nearest its planned tone)."""
+    out = {}
+    for st in plan.steps:
+        if not st.tones:
+            continue
+        freqs = np.array([t.frequency_hz for t in st.tones])
+        for d, r in st.step.active_nodes():
+            n = Node(d, r).text
+            try:
+                f = plan.impacter(n).frequency_hz
+            except KeyError:
+                continue
+            k = int(np.argmin(np.abs(freqs - f)))
+            out[n] = max(out.get(n, 0.0), float(st.tones[k].amplitude_m))
+    return out
 
 
 def plan_phases(plan) -> dict:
@@ -346,6 +392,9 @@ class RescuedDrive:
         Step key -> the acceleration scale a split must keep (:func:`weakened`).
     synthesize_and_limit : callable
         ``(steps, tones) -> (waveforms, notes)`` under the plan's settings.
+    gating : dict
+        Step key -> the gate search's notes of each ``targets_um`` step, gated again
+        for the chip (:func:`planner.planning.replan.regate`).
     """
 
     steps: tuple
@@ -358,6 +407,7 @@ class RescuedDrive:
     sizing: dict
     weak: dict = dataclasses.field(default_factory=dict)
     synthesize_and_limit: Callable | None = None
+    gating: dict = dataclasses.field(default_factory=dict)
 
 
 def remeasured(seps: Separations, ids, models: dict, tones: dict, settings) -> Separations:

@@ -72,7 +72,8 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
     plan : PlanRecord
         The plan the chip was made by.
     measured : dict
-        :func:`planner.planning.replan.read_measured`'s dict.
+        :func:`planner.planning.replan.read_measured`'s dict: every impacter of the plan
+        (a :class:`~planner.errors.SpecError` names those without a measurement).
     seed : int, optional
         Seeds the trims' errors and the drive's phases (default: the plan's).
     spec : TrimSpec, optional
@@ -85,6 +86,15 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
     from planner.yield_ import check_drive
     from planner.yield_.inputs import _drive_of
 
+    missing = [r.id for r in plan.impacters if not measured.get(r.id)]
+    if missing:
+        # a design value is no measurement of this chip: trim.csv would state it as
+        # measured_hz and the trims would be chosen against a resonance nobody measured
+        from planner.errors import SpecError
+
+        raise SpecError(f"no measured resonance for {', '.join(missing)}: a trim is chosen "
+                        "from every impacter's measured resonance; measure them (vibroplan "
+                        "calibrate) and give each a row", path="measured.csv")
     seed = plan.seed if seed is None else int(seed)
     settings = plan_settings(plan, seed)
     spec = spec or settings.trim

@@ -75,7 +75,29 @@ def load_spec(path_or_text: str | Path, *, source: str | None = None) -> LoadedS
     check_kind(data, "array spec", source=src)
     _check_units(data, lines, src)
     spec = validate(ArraySpec, data, lines, source=src)
+    check_sections(spec, lines, src)
     return LoadedSpec(spec, resolve_steps(spec, lines, src), src, lines)
+
+
+def check_sections(spec: ArraySpec, lines=None, source: str | None = None,
+                   prefix: tuple = ()) -> None:
+    """What one section of a valid spec needs of another, with the field and its line.
+
+    ``drive.channels.spacing: tolerance`` spaces the channels by the fabrication scatter
+    of ``fabrication:``; without a non-zero tolerance there it would silently be a fixed
+    grid of ``separation_hz``.
+
+    Raises
+    ------
+    SpecError
+    """
+    if spec.drive.channels.spacing == "tolerance" and spec.fabrication.zero:
+        loc = ("drive", "channels", "spacing")
+        raise SpecError("tolerance spaces the channels by the fabrication scatter, and the "
+                        "spec has no fabrication: section (or only zero sigmas): give the "
+                        "fabrication tolerances, or spacing: log or linear with a count",
+                        path=format_loc(prefix + loc), line=line_of(lines or {}, loc),
+                        source=source)
 
 
 def default_spec_path() -> Path:

@@ -293,7 +293,18 @@ class TrimSpec(Strict):
 
     range_pct: Annotated[float, Field(gt=0, le=20, allow_inf_nan=False)] = 1.0
     direction: Literal["up", "down"] = "up"
-    precision_pct: Annotated[float, Field(ge=0, le=5, allow_inf_nan=False)] = 0.1
+    #: > 0: a cut has an error (a lab's laser or FIB is not exact), and the layout's trim
+    #: tabs are steps of this size (0 would need infinitely many); the yield's
+    #: ``--trim-precision 0`` can still study an ideal trim
+    precision_pct: Annotated[float, Field(gt=0, le=5, allow_inf_nan=False)] = 0.1
+
+    @model_validator(mode="after")
+    def _precision_within_range(self):
+        if self.precision_pct > self.range_pct:
+            raise ValueError(f"precision_pct ({self.precision_pct:g}) must not exceed "
+                             f"range_pct ({self.range_pct:g}): one cut's step or error "
+                             "cannot be larger than the whole trim")
+        return self
 
 
 class StepSpec(Strict):

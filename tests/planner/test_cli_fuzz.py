@@ -120,13 +120,18 @@ def test_fuzzed_array_specs(tmp_path, case):
 @FUZZ
 @given(case=mutated(DEVICE_CONFIGS))
 def test_fuzzed_device_configs(tmp_path, case):
+    """The plot is asked for: a rejected config writes none, an accepted one writes it
+    (a PNG read back)."""
     name, text = case
     cfg = tmp_path / f"fuzz_{name}"
     cfg.write_text(text, encoding="utf-8")
     plot = tmp_path / "sim.png"
     plot.unlink(missing_ok=True)
-    result = CliRunner().invoke(main, ["simulate", str(cfg), "--freq", "6200", "--duration", "1"])
+    result = CliRunner().invoke(main, ["simulate", str(cfg), "--freq", "6200", "--duration",
+                                       "1", "--plot", str(plot), "--force"])
     _check(result, [plot])
+    if result.exit_code == 0:
+        assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", result.output
 
 
 @pytest.mark.parametrize("name", ARRAY_SPECS + DEVICE_CONFIGS)
@@ -256,3 +261,73 @@ def test_fuzzed_plan_json(tiny_plan_dir, tmp_path, data):
         p.unlink(missing_ok=True)
     _check(CliRunner().invoke(main, ["drive", str(plan), "--step", "pull", "--out", str(out)]),
            [out])
+
+
+# --------------------------------------------------------------------------- plan.json blocks
+
+#: Every block of plan.json a command reads (the reader's, and a re-plan's own).
+PLAN_BLOCKS = ("assignment", "impacters", "devices", "steps", "manufacturability", "spec",
+               "verification", "as_built", "replan", "seed", "format_version")
+
+
+@pytest.fixture(scope="module")
+def replanned_tiny(tiny_plan_dir, tmp_path_factory):
+    """The tiny plan re-planned for a chip 1 % off its design (a plan with as_built and
+    replan blocks), by the CLI."""
+    plan = json.loads((tiny_plan_dir / "plan.json").read_text())
+    root = tmp_path_factory.mktemp("replanned")
+    csv = root / "measured.csv"
+    csv.write_text("impacter,natural_frequency_hz\n" + "".join(
+        f"{r['id']},{1.01 * r['natural_frequency_hz']!r}\n" for r in plan["impacters"]))
+    res = CliRunner().invoke(main, ["replan", str(tiny_plan_dir), "--measured", str(csv),
+                                    "--out", str(root / "r"), "--quiet", "--no-figures"])
+    assert res.exit_code in (0, 1), res.output
+    return root / "r"
+
+
+@st.composite
+def mutated_block(draw, data):
+    """plan.json with one value of one block dropped, retyped, renamed or scaled."""
+    data = json.loads(json.dumps(data))
+    kind = draw(st.sampled_from(["drop", "retype", "retype", "rename", "scale"]))
+    blocks = [b for b in PLAN_BLOCKS if b in data]
+    block = draw(st.sampled_from(blocks))
+    paths = [p for p in _paths(data) if p[0] == block and len(p) <= 5]
+    _mutate(draw, data, draw(st.sampled_from(paths)), kind, [-1, 0, 1.003, 1e3, 1e300])
+    return json.dumps(data, allow_nan=True)
+
+
+@settings(max_examples=24, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(data=st.data())
+def test_fuzzed_plan_json_blocks(tiny_plan_dir, replanned_tiny, tmp_path, data):
+    """Every block of plan.json that any command reads, mutated, through the command that
+    reads it (drive, layout, replan, trim, yield): exit 0, 1 or 2, never a traceback,
+    nothing written on a refusal."""
+    import shutil
+
+    base = data.draw(st.sampled_from([tiny_plan_dir, replanned_tiny]), label="plan")
+    original = json.loads((base / "plan.json").read_text())
+    folder = tmp_path / "plan"
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir()
+    (folder / "plan.json").write_text(data.draw(mutated_block(original)), encoding="utf-8")
+    measured = tmp_path / "measured.csv"
+    measured.write_text("impacter,natural_frequency_hz\n" + "".join(
+        f"{r['id']},{r['natural_frequency_hz']!r}\n" for r in original["impacters"]))
+    out = tmp_path / "out"
+    shutil.rmtree(out, ignore_errors=True)
+    for p in tmp_path.glob("chip*"):
+        p.unlink()
+    command = data.draw(st.sampled_from(["drive", "layout", "replan", "trim", "yield"]),
+                        label="command")
+    args = {"drive": ["drive", folder, "--step", "pull", "--out", tmp_path / "chip.wav"],
+            "layout": ["layout", folder, "--out", tmp_path / "chip.gds"],
+            "replan": ["replan", folder, "--measured", measured, "--out", out,
+                       "--no-figures", "--quiet"],
+            "trim": ["trim", folder, "--measured", measured, "--out", out, "--no-figures",
+                     "--quiet"],
+            "yield": ["yield", folder, "--out", out, "--chips", "1", "--allow-zero",
+                      "--quiet"]}[command]
+    result = CliRunner().invoke(main, [str(a) for a in args])
+    _check(result, [out, tmp_path / "chip.wav", tmp_path / "chip.gds"])

@@ -210,14 +210,26 @@ def test_measure_tones_separates_tones_over_part_of_a_loop():
 
 
 def write_plan(tmp_path, plan_dir, *, extra_step=False):
-    """The tiny plan's plan.json with one step of four known tones (on a 1 ms grid at
-    FS), written to ``tmp_path``: a real plan, read by the one plan.json reader."""
+    """The tiny plan's plan.json made a 1 x 4 array with one step of four known tones
+    (on a 1 ms grid at FS), one per device, written to ``tmp_path``: a real plan, read by
+    the one plan.json reader (each tone its impacter's, on its channel of a linear grid
+    3100-9300 Hz, 516.7 Hz apart; every impacter the tiny plan's A1.forward design)."""
     f = [3100.0, 4650.0, 6200.0, 9300.0]
+    channels = [0, 3, 6, 12]
     z = tones_from_power(f)
     ph = [0.3, -1.1, 2.0, -2.9]
     data = json.loads((plan_dir / "plan.json").read_text())
+    devices = ["A1", "A2", "A3", "A4"]
+    data["spec"]["array"].update(rows=1, cols=4)
+    data["spec"]["drive"].update(band_hz=[3100.0, 9300.0],
+                                 channels={"spacing": "linear", "count": 13})
+    design = next(r for r in data["impacters"] if r["id"] == "A1.forward")
+    data["impacters"] = [{**design, "id": f"{d}.forward", "device": d, "channel": ch,
+                          "frequency_hz": fi} for d, ch, fi in zip(devices, channels, f)]
+    data["devices"] = [{**data["devices"][0], "id": d} for d in devices]
+    data.pop("manufacturability", None)   # the tiny designs' separations, not these tones'
     step = {**data["steps"][0], "scene": "demo", "name": "forward", "index": 0,
-            "forward": ["A1"], "backward": [],
+            "forward": devices, "backward": [],
             "tones": [{"frequency_hz": fi, "amplitude_m": float(zi), "phase_rad": pi}
                       for fi, zi, pi in zip(f, z, ph)]}
     data["steps"] = [step] + ([{**step, "scene": "other", "index": 1}] if extra_step else [])

@@ -42,11 +42,20 @@ def _synthetic_plan(tiny_plan_dir, folder, *, edit=None, geometry=_graded, rows=
     from planner.fabrication import NodeDesign, nominal_impacter
     from planner.spec import ArraySpec
 
+    import numpy as np
+
+    from planner.spec import channel_grid
+
     data = json.loads((tiny_plan_dir / "plan.json").read_text(encoding="utf-8"))
     data["spec"]["array"] = {"rows": rows, "cols": cols, "pitch_um": pitch_um}
+    # a band holding every synthetic design's tone: each tone on its channel of the grid,
+    # as plan.json's reader checks
+    data["spec"]["drive"]["band_hz"] = [1000.0, 200000.0]
+    data["spec"]["drive"]["sample_rate_hz"] = 500000.0
     if edit is not None:
         edit(data["spec"])
     spec = ArraySpec.model_validate({k: v for k, v in data["spec"].items() if k != "trim"})
+    grid = channel_grid(spec)
     template = data["impacters"][0]
     records = []
     for k, device in enumerate(spec.array.device_ids()):
@@ -58,13 +67,20 @@ def _synthetic_plan(tiny_plan_dir, folder, *, edit=None, geometry=_graded, rows=
             imp = nominal_impacter(spec, NodeDesign(
                 nid, device, direction, g["area_m2"], g["width_m"], g["length_m"], g["gap_m"],
                 template["impact_angle_rad"], template["restitution"]))
+            channel = int(np.argmin(np.abs(grid - 1.02 * imp.natural_frequency)))
             records.append({**template, "id": nid, "device": device, "direction": direction,
                             "geometry": g, "gap_m": g["gap_m"], "mass_kg": imp.mass,
                             "stiffness_n_per_m": imp.stiffness,
                             "damping_ns_per_m": imp.damping,
                             "natural_frequency_hz": imp.natural_frequency,
-                            "frequency_hz": 1.02 * imp.natural_frequency})
+                            "channel": channel, "frequency_hz": float(grid[channel])})
     data["impacters"] = records
+    # the tiny designs' separations do not describe these (the layout reads none)
+    data.pop("manufacturability", None)
+    tone = {r["id"]: r["frequency_hz"] for r in records}
+    for st in data["steps"]:      # each step plays its impacters' tones
+        st["tones"] = [{**st["tones"][0], "frequency_hz": tone[f"{d}.{way}"]}
+                       for way in ("forward", "backward") for d in st[way]]
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "plan.json").write_text(json.dumps(data, indent=1), encoding="utf-8")
     return folder
@@ -262,23 +278,40 @@ def test_trim_tabs_raise_the_frequency_by_the_range(tiny_plan_dir, tmp_path):
 
 
 def test_the_planned_tiny_array_round_trips(tiny_plan_dir, tmp_path):
-    """The real planner's output: its two impacters reproduce plan.json; whatever the
-    check finds, a device is reported out of its pitch exactly when the report's
-    footprint table says it does not fit."""
+    """The real planner's output: its two impacters reproduce plan.json (exit 0); checked
+    on the plan's 1000 um pitch its two devices (1.1 x 1.8 and 0.8 x 1.2 mm footprints)
+    do not fit: the check names both (exit 1), exactly the devices the report's
+    footprint table says do not fit; on a 2500 um pitch both fit and no pitch
+    violation is left."""
     plan = tmp_path / "plan"
     shutil.copytree(tiny_plan_dir, plan)
     result = _layout(plan, "--out", tmp_path / "tiny.gds")
     assert result.exit_code == 0, result.output
     assert "(passed)" in result.output
-    result = _layout(plan, "--out", tmp_path / "tiny.gds", "--check")
-    drc = json.loads((tmp_path / "tiny_drc.json").read_text(encoding="utf-8"))
-    assert result.exit_code == (0 if drc["clean"] else 1)
-    out_of_pitch = {d for v in drc["violations"] if v["rule"] == "device.pitch"
-                    for d in v["devices"]}
-    report = (tmp_path / "tiny.md").read_text(encoding="utf-8")
-    rows = [line.split("|") for line in report.splitlines()
-            if line.startswith("| A") and "fits" not in line and len(line.split("|")) == 6]
-    assert {r[1].strip() for r in rows if "no" in r[4]} == out_of_pitch
+
+    def checked(folder, name):
+        res = _layout(folder, "--out", tmp_path / f"{name}.gds", "--check")
+        drc = json.loads((tmp_path / f"{name}_drc.json").read_text(encoding="utf-8"))
+        out_of_pitch = {d for v in drc["violations"] if v["rule"] == "device.pitch"
+                        for d in v["devices"]}
+        report = (tmp_path / f"{name}.md").read_text(encoding="utf-8")
+        rows = [line.split("|") for line in report.splitlines()
+                if line.startswith("| A") and "fits" not in line and len(line.split("|")) == 6]
+        not_fitting = {r[1].strip() for r in rows if "no" in r[4]}
+        return res, drc, out_of_pitch, not_fitting, {r[1].strip() for r in rows}
+
+    res, drc, out_of_pitch, not_fitting, listed = checked(plan, "tiny")
+    assert res.exit_code == 1 and not drc["clean"], res.output
+    assert out_of_pitch == not_fitting == listed == {"A1", "A2"}
+    assert "devices in a violation: A1, A2" in res.output
+    data = json.loads((plan / "plan.json").read_text(encoding="utf-8"))
+    data["spec"]["array"]["pitch_um"] = 2500.0
+    wide = tmp_path / "wide"
+    wide.mkdir()
+    (wide / "plan.json").write_text(json.dumps(data), encoding="utf-8")
+    res, drc, out_of_pitch, not_fitting, listed = checked(wide, "wide")
+    assert out_of_pitch == not_fitting == set() and listed == {"A1", "A2"}, res.output
+    assert res.exit_code == (0 if drc["clean"] else 1)
 
 
 def test_same_plan_same_bytes(chip, tmp_path):

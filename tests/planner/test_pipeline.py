@@ -50,11 +50,37 @@ def test_only_used_impacters_are_designed(tiny_plan):
 
 
 def test_verification_is_real_simulation(tiny_plan):
-    ver = tiny_plan.verification
-    push = ver[(ver.step == "push") & (ver.device == "A1")].iloc[0]
-    assert push.expected == "forward"
-    # the step's own device is simulated with its summed drive: it moves forward
-    assert push.predicted_displacement_m > 0
+    """Every step x device row is a simulation of the step's drive on the designs: the
+    movers go their way at the speed floor or faster, the idle slider stays put, the
+    check run again reproduces the row, and the same check on a chip whose A1.forward
+    resonance is 25 % off its tone fails (the simulation decides, not the plan's own
+    prediction)."""
+    from planner.nodes import Node
+    from planner.planning.verify import check_step
+
+    settings = tiny_plan.settings
+    rows = {(r["step"], r["device"]): r for r in tiny_plan.verification.to_dict("records")}
+    push, pull = rows[("push", "A1")], rows[("pull", "A2")]
+    assert (push["expected"], pull["expected"]) == ("forward", "backward")
+    assert push["predicted_displacement_m"] > 0 > pull["predicted_displacement_m"]
+    assert min(push["min_speed_m_s"], pull["min_speed_m_s"]) >= settings.min_speed_m_s
+    for idle in (rows[("push", "A2")], rows[("pull", "A1")]):
+        assert idle["expected"] == "idle" and idle["passed"]
+        assert abs(idle["travel_m"]) <= settings.idle_tolerance_m
+    step = next(st for st in settings.steps if st.name == "push")
+    models = {n: d.impacter for n, d in tiny_plan.designs.items()}
+    sliders = {d: settings.sliders[d] for d in ("A1", "A2")}
+    again, _ = check_step(settings, step, tiny_plan.waveforms[step.key], models, sliders)
+    got = {r["device"]: r for r in again}["A1"]
+    assert got["predicted_displacement_m"] == pytest.approx(push["predicted_displacement_m"])
+    assert got["min_speed_m_s"] == pytest.approx(push["min_speed_m_s"])
+    a1 = Node("A1", "forward")
+    detuned = {**models, a1: models[a1].with_natural_frequency(
+        1.25 * models[a1].natural_frequency)}
+    bad, fails = check_step(settings, step, tiny_plan.waveforms[step.key], detuned, sliders)
+    bad = {r["device"]: r for r in bad}["A1"]
+    assert not bad["passed"] and "too slow" in bad["cause"], bad
+    assert bad["min_speed_m_s"] < settings.min_speed_m_s
 
 
 def test_same_seed_same_plan_json():

@@ -37,6 +37,27 @@ def _settings(*changes):
     return resolve_settings(load_spec(yaml.safe_dump(data, sort_keys=False) + "\n"))
 
 
+def _sampled(s):
+    """What the yield's Monte Carlo makes of one fixed design under the settings'
+    tolerances (:func:`planner.fabrication.sample_chip`, a fixed seed): every half's
+    mass, stiffness, damping and gap, and every slider's mass."""
+    import numpy as np
+
+    import model
+    from planner.fabrication import ChipDesign, NodeDesign, sample_chip
+
+    node = NodeDesign("A1.forward", "A1", "forward", 1.5e-8, 4e-6, 1.2e-3, 3e-6,
+                      math.radians(45.0), 0.5)
+    # the design's process from the base spec (these rows change only the tolerances;
+    # reading s.chip_spec would count as reading every field)
+    spec = _settings().chip_spec
+    chip = sample_chip(ChipDesign(spec, (node,), ("A1",)), s.fabrication,
+                       np.random.default_rng(0))
+    return ([(h.mass, h.stiffness, h.damping, h.gap) for imp in chip.impacters.values()
+             for h, _ in model.halves(imp)]
+            + [sl.mass for sl in chip.sliders.values()])
+
+
 def _imp(node, attr):
     return lambda s: getattr(s.impacters[node], attr)
 
@@ -86,7 +107,8 @@ CASES = [
     ("drive.channels.count", 100, lambda s: s.channel_grid_hz),
     ("drive.channels.separation_hz", 600.0,
      lambda s: (s.resonance_separation_hz, s.channel_grid_hz),
-     [("drive.channels.spacing", "tolerance")]),
+     [("drive.channels.spacing", "tolerance"),
+      ("fabrication.line_width_um", {"die": 0.05, "device": 0.02})]),
     ("trim.range_pct", 5.0, lambda s: s.trim),
     ("trim.direction", "down", lambda s: s.trim),
     ("trim.precision_pct", 0.5, lambda s: s.trim),
@@ -99,8 +121,11 @@ CASES = [
     ("design.sensitivity_tolerance", 0.1, lambda s: s.sensitivity_band),
     ("design.sensitivity_per_um", 0.2, lambda s: s.sensitivity_band),
     ("design.beam_width_um", 6.0, lambda s: (s.bounds, s.sensitivity_band)),
-    ("fabrication.target_yield", 0.9, lambda s: s.fabrication.target_yield),
-    ("fabrication.line_width_um", {"die": 0.05}, lambda s: s.fabrication.line_width_um),
+    # the target sets the tolerance grid's z (and what the prediction is held to)
+    ("fabrication.target_yield", 0.9, lambda s: s.channel_grid_hz,
+     [("drive.channels.spacing", "tolerance"),
+      ("fabrication.line_width_um", {"die": 0.05, "device": 0.02})]),
+    ("fabrication.line_width_um", {"die": 0.05}, lambda s: _sampled(s)),
     ("verification.x0_points", 5, lambda s: s.x0_points),
     ("verification.min_speed_mm_s", 1.0, lambda s: s.min_speed_m_s),
     ("verification.idle_tolerance_um", 0.1, lambda s: s.idle_tolerance_m),
@@ -120,7 +145,9 @@ CASES = [
     ("design.max_mass_ratio", 0.3, lambda s: s.max_mass_ratio),
     ("verification.max_travel_um", 50.0, lambda s: s.max_travel_m),
     ("verification.position_tolerance_um", 1.0, lambda s: s.position_tolerance_m),
-    *[(f"fabrication.{p}.{level}", 0.01, lambda s, p=p: getattr(s.fabrication, p))
+    # every sigma must reach a chip the yield's Monte Carlo draws (not only the spec
+    # object it was read into: a row reading s.fabrication back would be circular)
+    *[(f"fabrication.{p}.{level}", 0.01, _sampled)
       for p in ("line_width_um", "thickness_um", "gap_um", "youngs_modulus_pct",
                 "natural_frequency_pct") for level in ("die", "device", "pair")],
     ("independent", True, lambda s: len(s.steps)),

@@ -264,3 +264,60 @@ def test_vibroplan_drive_writes_the_plans_burst(two_plan, tmp_path):
     # plan.json keeps 12 significant digits of each tone
     np.testing.assert_allclose(mine, theirs, rtol=0, atol=1e-17)
     assert read_sidecar(out)["playback"] == "once"
+
+
+# --------------------------------------------------------------------------- after fabrication
+
+
+def _cli(*args):
+    from click.testing import CliRunner
+
+    from planner.cli import main
+
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def test_yield_checks_the_positions_of_a_targets_plan(two_plan, tmp_path):
+    """Issue 38: yield on a targets_um plan reported 1.000 without checking positions
+    (its steps were read back without their targets and played without their gates).
+    The nominal chip passes as the plan did; the same plan whose write step asks A1 for
+    30 um instead of the 12 um its burst was gated for fails off target (exit 1)."""
+    res = _cli("yield", two_plan.out_dir, "--out", tmp_path / "y", "--allow-zero",
+               "--chips", "1", "--quiet")
+    assert res.exit_code == 0, res.output
+    d = json.loads((tmp_path / "y" / "yield.json").read_text())
+    assert d["nominal"]["passed"] and d["yield"] == 1.0
+    data = json.loads((two_plan.out_dir / "plan.json").read_text())
+    write = next(s for s in data["steps"] if s["name"] == "write")
+    write["moves_m"]["A1"] = write["targets_m"]["A1"] = 30e-6
+    plan = tmp_path / "plan.json"
+    plan.write_text(json.dumps(data))
+    res = _cli("yield", plan, "--out", tmp_path / "y2", "--allow-zero", "--chips", "1",
+               "--quiet")
+    assert res.exit_code == 1, res.output
+    d = json.loads((tmp_path / "y2" / "yield.json").read_text())
+    assert "off target" in d["nominal"]["failures"]
+
+
+def test_replan_of_a_perfectly_measured_chip_of_a_targets_plan_verifies(two_plan, tmp_path):
+    """Issue 38: the re-plan of a chip measured exactly as designed failed off target
+    (its targets steps played as loops for their whole length); it gates them again
+    for the chip, and every position check passes; the re-planned plan.json is a plan
+    (read back) whose gated steps keep their targets."""
+    from planner.planning.plan_file import read_plan
+
+    data = json.loads((two_plan.out_dir / "plan.json").read_text())
+    csv = tmp_path / "measured.csv"
+    csv.write_text("impacter,natural_frequency_hz\n" + "".join(
+        f"{r['id']},{r['natural_frequency_hz']!r}\n" for r in data["impacters"]))
+    out = tmp_path / "r"
+    res = _cli("replan", two_plan.out_dir, "--measured", csv, "--out", out, "--quiet",
+               "--no-figures")
+    assert res.exit_code == 0, res.output
+    again = read_plan(out)
+    assert again.verified
+    write = again.step("s/write")
+    assert write.gated and write.targets_m == {"A1": 12e-6, "A2": 5e-6}
+    rows = json.loads((out / "plan.json").read_text())["verification"]["steps"]["s/write"]
+    for dev in ("A1", "A2"):
+        assert abs(rows[dev]["worst_position_error_m"]) <= 2e-6

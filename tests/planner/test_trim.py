@@ -192,7 +192,29 @@ def test_trim_cli_names_a_chip_no_trim_in_range_can_fix(close_plan_dir, tmp_path
                                     "--out", str(out), "--quiet"])
     assert res.exit_code == 1, res.output
     assert "cannot be trimmed" in res.output and "trim.range_pct 1" in res.output
-    assert (out / "trim.csv").exists() and not (out / "plan.json").exists()
+    assert not (out / "plan.json").exists()
+    # trim.csv read back: one row per impacter in the plan's order, the chip as measured
+    # (not the design's values), nothing cut, since no trim in range helps
+    import csv as csvmod
+    import re
+
+    from planner.trim import TRIM_COLUMNS
+
+    with (out / "trim.csv").open() as fh:
+        reader = csvmod.DictReader(fh)
+        assert tuple(reader.fieldnames) == TRIM_COLUMNS
+        rows = list(reader)
+    assert [r["impacter"] for r in rows] == plan.impacter_ids
+    for r in rows:
+        # trim.csv keeps 9 significant digits
+        assert float(r["measured_hz"]) == pytest.approx(freqs[r["impacter"]], rel=1e-8)
+        assert float(r["target_hz"]) == pytest.approx(float(r["measured_hz"]))
+        assert float(r["change_pct"]) == 0.0 and float(r["cut_area_um2"]) == 0.0
+    # the failure names the impacter and a move beyond the 1 % range
+    line = next(x for x in res.output.splitlines() if "cannot be trimmed" in x)
+    assert hi.id in line or lo.id in line
+    needed = float(re.search(r"needs a ([+-][0-9.]+) % move", line).group(1))
+    assert abs(needed) > 1.0
     assert "cannot be trimmed" in (out / "report.md").read_text()
 
 

@@ -64,7 +64,7 @@ def test_huge_tolerance_fails_chips_and_names_checks(tiny_plan_dir, tmp_path):
     spec.write_text(HUGE)
     out = tmp_path / "y"
     res = _yield([tiny_plan_dir / "plan.json", "--chips", 8, "--seed", 1, "--out", out,
-                  "--spec", spec, "--sigma-scale", "0,1"])
+                  "--spec", spec, "--sigma-scale", "0,1", "--allow-zero"])
     assert res.exit_code == 0, res.output
     d = _read(out)
     assert d["tolerance"]["natural_frequency_pct"]["device"] == 15.0
@@ -87,11 +87,30 @@ def test_chip_results_depend_on_seed_and_index_only(tiny_plan_dir):
     from planner.spec import load_spec
     from planner.yield_ import make_payload, verify_chip
 
+    import dataclasses
+
+    from planner.fabrication import sample_chip
+    from planner._random import chip_seed
+
     fab = load_spec(HUGE).spec.fabrication
-    payload = make_payload(read_plan(tiny_plan_dir), 5, fab)
+    record = read_plan(tiny_plan_dir)
+    payload = make_payload(record, 5, fab)
     forward = [verify_chip(payload, 0, i, 1.0) for i in range(4)]
     backward = [verify_chip(payload, 0, i, 1.0) for i in reversed(range(4))][::-1]
     assert forward == backward
+    # ... and of them all: another seed, another index or another scale draws another
+    # chip (a chip that ignored any of them would pass the order check above)
+    def drawn(seed, index, scale=1.0):
+        chip = sample_chip(payload.design, fab,
+                           np.random.default_rng(chip_seed(seed, scale, index)), scale)
+        return [(imp.natural_frequency, imp.gap) for imp in chip.impacters.values()]
+
+    assert drawn(5, 0) == drawn(5, 0)
+    assert drawn(6, 0) != drawn(5, 0) and drawn(5, 1) != drawn(5, 0)
+    assert drawn(5, 0, 0.5) != drawn(5, 0)
+    # the verified outcome follows the chip: another seed's four chips differ from these
+    other = [verify_chip(dataclasses.replace(payload, seed=6), 0, i, 1.0) for i in range(4)]
+    assert other != forward
 
 
 def test_failure_rates_count_the_impacters_each_chip_implicates(tiny_plan_dir):

@@ -40,7 +40,7 @@ def _read(out):
 def test_replan_rescues_chips_the_nominal_drive_fails(tiny_plan_dir, shift_spec, tmp_path):
     out = tmp_path / "y"
     res = _yield(tiny_plan_dir, "--chips", 6, "--seed", 0, "--out", out, "--spec", shift_spec,
-                 "--replan", "--sigma-scale", "0,1")
+                 "--replan", "--sigma-scale", "0,1", "--allow-zero")
     assert res.exit_code == 0, res.output
     d = _read(out)
     # the existing keys are all still there, the nominal numbers unchanged in meaning
