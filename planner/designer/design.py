@@ -433,15 +433,15 @@ def shortfalls(a, chk, imp, speed, slider, checks):
         out.append(_shortfall("response", bad, 0, "x0",
                               f"does not respond at {frequency:g} Hz from {bad} of "
                               f"{chk['points']} x0 of the re-check grid"))
-    loud = [f"{f:g} Hz" for f, r in zip(a.forbidden, chk["r_max"]) if r > 0]
+    at = [f for f, r in zip(a.forbidden, chk["r_max"]) if r > 0]
+    near = [f for f in checks.get("violated_tones_hz", ()) if f not in at]
+    loud = [f"{f:g} Hz" for f in at]
+    loud += [f"inside the guard band of {f:g} Hz" for f in near]
     loud += [f"the summed drive {label!r}" for label in checks["violated_drives"]]
-    if not chk["fine_ok"] and loud:
+    if not chk["fine_ok"]:
         out.append(_shortfall("silence", len(loud), 0, "frequencies",
-                              "responds at " + ", ".join(loud)))
-    elif not chk["fine_ok"] and chk["r_min"] > 0:
-        # silent at every forbidden tone itself but not across a guard band
-        out.append(_shortfall("silence", 1, 0, "frequencies",
-                              "responds inside the guard band of a forbidden frequency"))
+                              "responds " + (", ".join(loud) if loud else
+                                             "inside the guard band of a forbidden frequency")))
     if chk["fine_ok"] and not chk["long_ok"]:
         out.append(_shortfall("silence_long", chk["long_violated_hz"] or math.nan, 0, "Hz",
                               f"responds at {chk['long_violated_hz']:g} Hz within the "
@@ -499,6 +499,12 @@ def _checks(a, problem, ev, chk, history, rounds):
         # the re-check grid or its long window: what an array planner must move away
         "violated_drives": sorted({problem.check_hz[j].label for j in chk["violated"]
                                    if isinstance(problem.check_hz[j], Ensemble)}),
+        # the forbidden tones whose guard band (or the tone itself) it answers, on the
+        # re-check grid or over the long window
+        "violated_tones_hz": sorted({float(problem.forbidden[problem.owner[j]])
+                                     for j in chk["violated"]
+                                     if not isinstance(problem.check_hz[j], Ensemble)
+                                     and problem.owner[j] >= 0}),
     }
     if sensitivity is not None:
         checks["line_width_sensitivity_per_um"] = (

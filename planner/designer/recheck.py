@@ -106,12 +106,14 @@ def recheck_design(previous, frequency, forbidden=(), *, new_forbidden=(), forbi
     margins = tuple(new.get(f, old.get(f))[1] for f in all_forbidden)
     violated = sorted({problem.check_hz[j].label for j in chk["violated"]
                        if isinstance(problem.check_hz[j], Ensemble)})
+    tones = sorted({float(problem.forbidden[problem.owner[j]]) for j in chk["violated"]
+                    if not isinstance(problem.check_hz[j], Ensemble) and problem.owner[j] >= 0})
     checks = {**previous.checks, "kept_by_recheck": True,
               "recheck_new_forbidden": len(a.forbidden),
               "recheck_new_drives": [e.label for e in a.ensembles],
               "fine_grid_passed": bool(chk["fine_ok"]),
               "long_window_passed": bool(chk["long_ok"]),
-              "violated_drives": violated}
+              "violated_drives": violated, "violated_tones_hz": tones}
     if not a.targets:
         # the response at the tone itself did not change: only the new checks count
         chk = {**chk, "r_min": previous.r_min_n, "worst_u": previous.worst_x0_m / imp.gap}

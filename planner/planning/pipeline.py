@@ -184,11 +184,17 @@ def _design_round(settings, steps, assignment, clock, tick, design_cache, draws=
 
 
 def _design_stats(designs, before):
-    """How the round's designs were made: {"designed", "kept", "reused"} (a re-check
-    kept a design whose inputs changed; reused: from an earlier round or the cache)."""
+    """How the round's distinct designs were made: {"designed", "kept", "reused"} (a
+    re-check kept a design whose inputs changed; reused: unchanged since the last
+    round)."""
     out = {"designed": 0, "kept": 0, "reused": 0}
+    seen = set()
     for n, d in designs.items():
-        if before is not None and before.get(n) is d:
+        # impacters sharing every design input share one design: count it once
+        if id(d) in seen:
+            continue
+        seen.add(id(d))
+        if before is not None and any(b is d for b in before.values()):
             out["reused"] += 1
         elif d.checks.get("kept_by_recheck") and before is not None:
             out["kept"] += 1

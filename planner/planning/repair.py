@@ -85,15 +85,27 @@ def design_levers(designs, steps, assignment, draws, pair_sep, sep, reseed, rese
     by_key = {st.key: st for st in steps}
     playing = tone_players(assignment.frequencies)
     sits_out = idle_ensembles(steps, assignment.frequencies)
-    actions, away, drawn = [], {}, set()
+    away, drawn, said = {}, set(), {}
+
+    def say(text, n):
+        # impacters sharing a channel get the same action: one line names them all
+        said.setdefault(text, []).append(n)
+
+    def tones_of(nodes):
+        by_tone = {}
+        for m in sorted(nodes):
+            by_tone.setdefault(assignment.frequencies[m], []).append(m.text)
+        return ", ".join(f"{f / 1e3:.5g} kHz ({_names(ms)})" for f, ms in sorted(by_tone.items()))
+
     for n in sorted(designs):
         d = designs[n]
         if d.feasible:
             continue
         kinds = {s["constraint"] for s in d.shortfalls}
         drives = [k for k in d.checks.get("violated_drives", ()) if k in by_key]
-        singles = {m for hz, r in zip(d.forbidden_hz, d.r_max_forbidden_n) if r > 0
-                   for m in playing(float(hz)) if m != n}
+        loud = {float(hz) for hz, r in zip(d.forbidden_hz, d.r_max_forbidden_n) if r > 0}
+        loud |= set(d.checks.get("violated_tones_hz", ()))
+        singles = {m for hz in loud for m in playing(hz) if m != n}
         if "silence_long" in kinds and not singles and not drives:
             hz = next(s["value"] for s in d.shortfalls if s["constraint"] == "silence_long")
             if math.isfinite(hz):
@@ -113,36 +125,45 @@ def design_levers(designs, steps, assignment, draws, pair_sep, sep, reseed, rese
             if draws.get(k, 0) + 1 < MAX_PHASE_DRAWS:
                 draws[k] = draws.get(k, 0) + 1
                 drawn.add(k)
-                actions.append(f"{k}: phases drawn anew (draw {draws[k] + 1}): {n} answers "
-                               "its summed drive")
+                say(f"{k}: phases drawn anew (draw {draws[k] + 1}): {{who}} answer(s) its "
+                    "summed drive", n)
             else:
                 players = sorted(Node(dv, dr) for dv, dr in by_key[k].active_nodes())
                 f = assignment.frequencies[n]
                 near = min(players, key=lambda a: abs(math.log(assignment.frequencies[a] / f)))
                 _widen(pair_sep, assignment, n, near, sep)
                 away.setdefault(n, set()).update(players)
-                actions.append(f"{n}: moved further from the tones of {k} (its summed drive "
-                               f"still answered after {MAX_PHASE_DRAWS} phase draws)")
+                say(f"{{who}}: moved further from the tones of {k} (its summed drive still "
+                    f"answered after {MAX_PHASE_DRAWS} phase draws)", n)
         for m in sorted(singles):
             _widen(pair_sep, assignment, n, m, sep)
             away.setdefault(n, set()).add(m)
         if singles:
-            actions.append(f"{n}: moved away from " + ", ".join(m.text for m in sorted(singles))
-                           + " (it answers their tones)")
+            say(f"{{who}}: moved away from {tones_of(singles)} (it answers them)", n)
         if not drives and not singles:
             soft = kinds <= {"speed_floor", "mass_ratio", "bounds", "sensitivity"}
             if soft and n not in reseeded:
                 _next_seeds(reseed, n)
                 reseeded.add(n)
-                actions.append(f"{n}: re-designed from further seeds ("
-                               + "; ".join(s["text"] for s in d.shortfalls) + ")")
+                say("{who}: re-designed from further seeds ("
+                    + "; ".join(s["text"] for s in d.shortfalls) + ")", n)
             else:
                 for m in _nearest_tones(n, designs, assignment):
                     _widen(pair_sep, assignment, n, m, sep)
                     away.setdefault(n, set()).add(m)
-                actions.append(f"{n}: moved away from its nearest neighbours ("
-                               + "; ".join(s["text"] for s in d.shortfalls) + ")")
+                say("{who}: moved away from its nearest neighbours ("
+                    + "; ".join(s["text"] for s in d.shortfalls) + ")", n)
+    actions = [text.replace("{who}", _names([m.text for m in nodes]))
+               for text, nodes in said.items()]
     return actions, away
+
+
+def _names(names, shown=3):
+    """``A1.forward, A2.forward and 3 more``."""
+    names = list(names)
+    if len(names) <= shown + 1:
+        return ", ".join(names)
+    return ", ".join(names[:shown]) + f" and {len(names) - shown} more"
 
 
 def _next_seeds(reseed, node):

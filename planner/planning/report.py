@@ -336,9 +336,12 @@ def _motion_notes(d):
                          f"design(s): {', '.join(rnd['infeasible'])}")
         for action in rnd.get("actions", ()):
             lines.append(f"- design round {r}: {action}")
+        moved = {}
         for mv in rnd.get("moved", ()):
-            lines.append(f"- design round {r}: {mv['impacter']} moved {mv['from_hz']:.0f} -> "
-                         f"{mv['to_hz']:.0f} Hz, every other channel kept")
+            moved.setdefault((mv["from_hz"], mv["to_hz"]), []).append(mv["impacter"])
+        for (a, b), who in moved.items():
+            lines.append(f"- design round {r}: {', '.join(who)} moved {a:.0f} -> {b:.0f} Hz, "
+                         "every other channel kept")
         if rnd.get("recoloured"):
             lines.append(f"- design round {r}: no free channel kept the widened separations; "
                          f"coloured again ({rnd['recoloured']} channels moved)")
