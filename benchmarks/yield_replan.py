@@ -194,7 +194,6 @@ def main(argv=None):
         lines.append("")
     Path(args.out).write_text("\n".join(lines) + "\n")
     if args.json:
-        import json
 
         Path(args.json).write_text(json.dumps(res, indent=2) + "\n")
     print("\n".join(lines))

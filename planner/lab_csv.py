@@ -6,7 +6,7 @@ its header against the columns its reader needs and allows; :func:`csv_number` r
 one cell as a finite number within what a MEMS measurement can be
 (:data:`MAX_VALUE`).  Every error names the file, the row (its line in the file) and
 the column.  :mod:`planner.calibrate` reads sweeps with them and
-:mod:`planner.planning.replan` the measured resonances.
+:mod:`planner.afterfab.replan` the measured resonances.
 """
 
 from __future__ import annotations

@@ -69,7 +69,7 @@ def command(plan_path, measured_path, out_dir, force, seed, no_figures, quiet):
     {EXIT}
     """
     from planner._io import output_folder
-    from planner.planning.replan import replan, write_replan_outputs
+    from planner.afterfab.replan import replan, write_replan_outputs
 
     plan, measured, inputs, progress = chip_inputs(plan_path, measured_path, out_dir,
                                                    command="replan", force=force, quiet=quiet)

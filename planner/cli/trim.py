@@ -54,9 +54,9 @@ def command(plan_path, measured_path, out_dir, seed, force, no_figures, quiet):
     {EXIT}
     """
     from planner._io import output_folder
-    from planner.planning.replan import write_replan_outputs
-    from planner.planning.trimming import trim_chip
-    from planner.trim import write_trim_csv
+    from planner.afterfab.replan import write_replan_outputs
+    from planner.afterfab.trim import trim_chip
+    from planner.afterfab.trim import write_trim_csv
 
     plan, measured, inputs, progress = chip_inputs(plan_path, measured_path, out_dir,
                                                    command="trim", force=force, quiet=quiet)

@@ -123,3 +123,8 @@ from planner.designer.recheck import recheck_design
 from planner.designer.response import response_band, response_curves
 from planner.designer.result import DesignResult, PairDesign
 from planner.designer.runs import Ensemble, x0_grid
+
+__all__ = ["BUDGETS", "Budget", "DEFAULT_UPPER", "DesignBounds", "DesignResult", "Ensemble",
+           "GUARD", "NATURAL_RATIO", "PAPER_LOWER", "PairDesign", "UM", "design_impacter",
+           "design_pair", "natural_ratio", "recheck_design", "response_band",
+           "response_curves", "x0_grid"]

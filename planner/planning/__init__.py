@@ -16,8 +16,10 @@
   :mod:`~planner.planning.report` -- report.md;
 - :mod:`~planner.planning.result` -- :class:`Plan`, the declared (frozen) result;
 - :mod:`~planner.planning.estimate` -- the work and time left after the assignment;
-- :mod:`~planner.planning.replan`, :mod:`~planner.planning.rescue`,
-  :mod:`~planner.planning.trimming` -- a fabricated chip's drive re-planned (and trimmed).
+- :mod:`~planner.planning.reach` -- the tones a design can serve, measured before the
+  assignment.
+
+After fabrication (measure, re-plan, trim) is :mod:`planner.afterfab`.
 
 Inside, impacters are keyed by :class:`planner.nodes.Node`; plan.json and the CSVs carry
 a node's text.  pyproject.toml's ``planning-layers`` contract keeps the stages importing

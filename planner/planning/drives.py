@@ -17,7 +17,7 @@ SINGLE_TONE_TOLERANCE_REL = 1e-4
 #: sharing one design, one tone in the plan) each follow their own measured resonance:
 #: one tone then drives them all, moved by under 1 Hz, well inside their tone windows
 #: and inside the 1 Hz the re-plan keeps off every silent band's edge
-#: (planner.planning.rescue.EDGE_MARGIN_HZ).
+#: (planner.afterfab.drive.EDGE_MARGIN_HZ).
 MERGE_HZ = 1.0
 
 

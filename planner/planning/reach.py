@@ -242,7 +242,6 @@ class Reach:
 
     def lines(self) -> list[str]:
         """Lines for the CLI before any design."""
-        rng = self.range_hz
         compiled = (f", numba's cache cold: {self.kernels_cold[0]} of {self.kernels_cold[1]} "
                     "kernels compiled first" if self.kernels_cold[0] and self.designs else "")
         head = (f"reach (measured in {self.seconds:.1f} s, {self.designs} probe "

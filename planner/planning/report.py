@@ -2,7 +2,7 @@
 
 :func:`write_report` reads plan.json's content (``Plan.data``) and the verification
 table; :func:`md_table` and :func:`fmt` also serve the re-plan's section
-(:func:`planner.planning.replan.replan_report_lines`).
+(:func:`planner.afterfab.replan.replan_report_lines`).
 """
 
 from __future__ import annotations

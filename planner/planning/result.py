@@ -18,9 +18,9 @@ class Plan:
     """A verified array plan; the same content as ``plan.json``, as DataFrames.
 
     Built once, by the pipeline (:func:`planner.planning.run_plan`) or a re-plan
-    (:func:`planner.planning.replan.replan`), and never changed: writing it somewhere
+    (:func:`planner.afterfab.replan.replan`), and never changed: writing it somewhere
     gives a new one with its ``out_dir`` (:func:`planner.planning.plan`), a trim one
-    with its ``trim`` block (:func:`planner.planning.trimming.trim_chip`).
+    with its ``trim`` block (:func:`planner.afterfab.trim.trim_chip`).
 
     Attributes
     ----------

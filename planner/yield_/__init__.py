@@ -30,7 +30,7 @@ Check kinds counted in ``failures`` (chips on which that check failed at least o
 With ``replan=True`` (``vibroplan yield --replan``) every chip is also *measured* --
 its true natural frequencies (of the sampled impacters) times ``1 + noise z / 100``,
 z standard normal from the chip's own seed -- re-planned from the measurement with
-:func:`planner.planning.replan.replan_chip` (only the drive changes), and the re-planned
+:func:`planner.afterfab.replan.replan_chip` (only the drive changes), and the re-planned
 drive is verified with the same checks on the chip's TRUE models (the sampled impacters
 and sliders, not the re-plan's as-built models built from the measurement).
 
@@ -50,7 +50,7 @@ Layout of this package (each module imports only those listed below it); the out
   and causes, and the content of ``yield.json``.
 - :mod:`~planner.yield_.chip`: :func:`verify_chip`, the per-chip worker, with the
   measurement, re-plan and trim of a chip.
-- :mod:`~planner.yield_.checks`: :func:`check_drive`, every check of a drive on one
+- :func:`check_drive` (:mod:`planner.afterfab.checks`): every check of a drive on one
   chip's models, by kind, with the impacters implicated.
 - :mod:`~planner.yield_.inputs`: :class:`Payload` and :func:`make_payload` (what the
   workers get from the plan), and the checks of the command's numbers.
@@ -58,7 +58,7 @@ Layout of this package (each module imports only those listed below it); the out
 """
 
 
-from planner.yield_.checks import CARRIED, CARRIED_KINDS, KINDS, check_drive
+from planner.afterfab.checks import CARRIED, CARRIED_KINDS, KINDS, check_drive
 from planner.yield_.chip import (REPLAN_CAUSES, measured_frequencies, replan_chip_on,
                                  trim_chip_on, verify_chip)
 from planner.yield_.inputs import (Payload, check_chip_count, check_noise, make_payload,

@@ -9,8 +9,8 @@ from model import halves
 from planner._random import chip_seed
 from planner.fabrication import sample_chip
 from planner.planning.plan_file import plan_record
-from planner.yield_.checks import check_drive
-from planner.yield_.inputs import Payload, _drive_of
+from planner.afterfab.checks import check_drive, drive_of
+from planner.yield_.inputs import Payload
 
 #: Why a re-plan failed, in the order reports list them (a chip may have several):
 #: two impacters the spec must tell apart can no longer be (the re-plan's unresolved
@@ -92,9 +92,9 @@ def trim_chip_on(payload: Payload, settings, scale: float, chip_index: int, chip
 
     A chip the re-plan rescued needs no trim (its result is the re-plan's); a chip the
     re-plan lost for another reason is not helped by one.  The trims are chosen from the
-    chip's measurement (:func:`planner.trim.plan_trim`); each lands on its target times
+    chip's measurement (:func:`planner.afterfab.trim.plan_trim`); each lands on its target times
     (1 + precision z / 100) of the true resonance's move, z from the chip's seed
-    (:func:`planner.trim.trimmed_resonances`); the trimmed chip is measured again (the
+    (:func:`planner.afterfab.trim.trimmed_resonances`); the trimmed chip is measured again (the
     same noise level, new draws) and re-planned.
 
     Returns
@@ -104,10 +104,11 @@ def trim_chip_on(payload: Payload, settings, scale: float, chip_index: int, chip
         naming the moves beyond the range, or the re-plan's causes after the trim),
         ``failures`` (kind -> rows on the trimmed true models).
     """
-    from planner.planning.replan import measured_resonances
-    from planner.planning.rescue import must_differ, separations_of
+    from planner.afterfab.replan import measured_resonances
+    from planner.afterfab.drive import must_differ
+    from planner.afterfab.separations import separations_of
     from planner.spec import TrimSpec
-    from planner.trim import plan_trim, trim_models, trimmed_resonances
+    from planner.afterfab.trim import plan_trim, trim_models, trimmed_resonances
 
     if replanned["passed"] or not replanned["collisions"]:
         return {**{k: replanned[k] for k in ("passed", "causes", "failures")}, "trimmed": []}
@@ -217,7 +218,7 @@ def _replan_and_check(payload, settings, measured, impacters, sliders, original,
     """Re-plan from ``measured`` and verify the drive on the true models (a yield's
     re-plan and its trim's; ``remeasure``: the trimmed impacters, whose separations the
     re-plan measures again)."""
-    from planner.planning.replan import replan_chip
+    from planner.afterfab.replan import replan_chip
     from planner.synthesis import LoopLengthError
 
     try:
@@ -239,7 +240,7 @@ def _replan_and_check(payload, settings, measured, impacters, sliders, original,
                 "outside_band": list(rp["outside_band"]),
                 "split_steps": sorted(rp["split_steps"]), "tones_moved": len(rp["moved"])}
     # the re-plan's plan.json, read back as any plan is
-    steps, waveforms, dwells = _drive_of(plan_record(data, source="the chip's re-plan"))
+    steps, waveforms, dwells = drive_of(plan_record(data, source="the chip's re-plan"))
     got = check_drive(settings, steps, waveforms, dwells, impacters, sliders)
     causes = []
     if not got["passed"]:

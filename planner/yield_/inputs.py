@@ -9,7 +9,8 @@ from dataclasses import dataclass
 
 from planner.fabrication import ChipDesign, design_from_plan
 from planner.nodes import Node
-from planner.planning.plan_file import PlanRecord, drives
+from planner.afterfab.checks import drive_of
+from planner.planning.plan_file import PlanRecord
 from planner.spec import FabricationSpec, LoadedSpec
 
 #: Memory one chip's task and result hold until the end of a run [bytes]: its result
@@ -52,11 +53,6 @@ class Payload:
     def nodes(self) -> tuple[Node, ...]:
         """The plan's impacters, in its order."""
         return tuple(Node(n.device, n.direction) for n in self.design.nodes)
-
-
-def _drive_of(record: PlanRecord):
-    """(steps, step key -> recorded drive, step key -> settle dwell [s]) of a plan."""
-    return tuple(st.step for st in record.steps), drives(record), dict(record.dwells)
 
 
 def check_noise(pct, option: str = "--measure-noise") -> float:
@@ -112,7 +108,7 @@ def make_payload(record: PlanRecord, seed: int, fabrication: FabricationSpec | N
                          "check the nominal chip alone")
     from planner.planning.settings import plan_settings
 
-    steps, waveforms, dwells = _drive_of(record)
+    steps, waveforms, dwells = drive_of(record)
     loaded = LoadedSpec(record.spec, steps, str(record.path or "plan.json"))
     return Payload(design_from_plan(record), loaded, waveforms, fab, int(seed),
                    dwells=dwells, replan=bool(replan), measure_noise_pct=noise,

@@ -1,7 +1,6 @@
 """Reproductions of the paper's simulated results (Saitou, Wang, Wou, JMEMS 2000)."""
 
 import numpy as np
-import pytest
 
 import model
 from model import Drive

@@ -371,7 +371,7 @@ def test_each_half_of_a_pair_is_fitted_and_read_by_the_replan(tmp_path):
     own, measured.csv keeps the half, and the re-plan's reader takes it as two halves of
     one pair (nu_n of each within its reported error); a pair given with and without a
     half, or a half that is not a or b, is refused by row and column."""
-    from planner.planning.replan import read_measured
+    from planner.afterfab.replan import read_measured
 
     halves = {"a": air_impacter(9000.0), "b": air_impacter(9060.0)}
     rng = np.random.default_rng(5)

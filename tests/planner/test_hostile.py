@@ -218,7 +218,8 @@ def test_trim_reckons_from_the_designs_whatever_the_plan_json(close_plan_dir, tm
     import numpy as np
 
     from planner.planning.plan_file import plan_record, read_plan
-    from planner.planning.rescue import rescaled_tones, separations_of
+    from planner.afterfab.drive import rescaled_tones
+    from planner.afterfab.separations import separations_of
     from planner.planning.settings import plan_settings
 
     plan = read_plan(close_plan_dir)
@@ -252,7 +253,7 @@ def test_trim_gives_one_answer_for_one_chip(close_plan_dir, tmp_path):
     import csv as csvmod
 
     from planner.planning.plan_file import read_plan
-    from planner.planning.rescue import separations_of
+    from planner.afterfab.separations import separations_of
     from planner.planning.settings import plan_settings
 
     plan = read_plan(close_plan_dir)

@@ -130,7 +130,6 @@ def test_a_moved_tone_redesigns_what_it_touches_and_keeps_the_rest(tmp_path):
 def test_move_groups_moves_only_the_movers():
     """On a band with room, an impacter moved away from its offender takes a free
     position; every other channel stays."""
-    from planner.nodes import Node
     from planner.planning.settings import resolve_settings
     from planner.reassign import move_groups
     from planner.spec import load_spec

@@ -49,7 +49,7 @@ def _run(*args):
 
 
 def test_as_built_parameters_follow_the_measurement(plan_data, plan):
-    from planner.planning.replan import as_built_parameters
+    from planner.afterfab.replan import as_built_parameters
 
     rec = plan_data["impacters"][0]
     nu = 1.03 * rec["natural_frequency_hz"]
@@ -118,7 +118,7 @@ def test_shifted_chip_is_rescued(plan_data, plan, tmp_path):
         assert (m["tone_shift"] > 0) == (m["natural_frequency_shift"] > 0)
     # and the re-planned drive, checked independently on the same models, passes
     from planner.planning.plan_file import plan_record
-    from planner.planning.replan import verify_drive
+    from planner.afterfab.replan import verify_drive
 
     passed, rows = verify_drive(plan_record(d), {n: {"natural_frequency_hz": f}
                                                  for n, f in freqs.items()})
@@ -129,7 +129,7 @@ def test_shifted_chip_is_rescued(plan_data, plan, tmp_path):
 
 
 def test_replan_chip_api(plan):
-    from planner.planning.replan import replan_chip
+    from planner.afterfab.replan import replan_chip
 
     chip = {r.id: {"natural_frequency_hz": 1.02 * r.natural_frequency_hz}
             for r in plan.impacters}
@@ -170,7 +170,7 @@ def test_a_weakened_multi_tone_step_splits_into_runs_that_keep_the_scale(plan_da
     tones, each synthesised and limited again and keeping at least the scale asked."""
     from planner.planning.drives import limit_acceleration, synthesize_steps
     from planner.planning.plan_file import plan_record
-    from planner.planning.rescue import split_step, weakened
+    from planner.afterfab.drive import split_step, weakened
     from planner.planning.settings import resolve_settings
     from planner.spec import Step
 
@@ -220,7 +220,7 @@ def test_pair_halves_are_read_from_the_half_column(plan_data, tmp_path):
     the pair's resonance is their mean; half a pair, or a pair measured both ways, is
     refused naming the row."""
     from planner.errors import SpecError
-    from planner.planning.replan import read_measured
+    from planner.afterfab.replan import read_measured
 
     ids = [r["id"] for r in plan_data["impacters"]]
     csv = _write(tmp_path / "m.csv", "impacter,half,natural_frequency_hz\n"
@@ -240,7 +240,7 @@ def test_pair_halves_are_read_from_the_half_column(plan_data, tmp_path):
 
 def test_calibrate_output_is_accepted(plan_data, tmp_path):
     # calibrate's *_std columns are ignored
-    from planner.planning.replan import read_measured
+    from planner.afterfab.replan import read_measured
 
     csv = _write(tmp_path / "m.csv",
                  "impacter,natural_frequency_hz,quality_factor,natural_frequency_std_hz,"
@@ -257,7 +257,7 @@ def test_replanned_drive_meets_the_acceleration_limit(plan_data):
     import copy
 
     from planner.planning.plan_file import plan_record
-    from planner.planning.replan import replan_chip
+    from planner.afterfab.replan import replan_chip
 
     peak = max(st["peak_acceleration_m_s2"] for st in plan_data["steps"])
     limit_g = 0.5 * peak / 9.80665
@@ -280,8 +280,8 @@ def test_the_replan_keeps_a_margin_on_the_travel(plan_data):
     import copy
 
     from planner.planning.plan_file import plan_record
-    from planner.planning.replan import replan_chip
-    from planner.planning.rescue import REPLAN_TRAVEL_MARGIN
+    from planner.afterfab.replan import replan_chip
+    from planner.afterfab.drive import REPLAN_TRAVEL_MARGIN
 
     def travels(data):
         return [r["travel_m"] for st in data["verification"]["steps"].values()
@@ -310,7 +310,7 @@ def test_a_step_an_idle_impacter_answers_is_played_weaker(plan_data):
     weaker no longer does; its notes say by how much, and the mover still moves."""
     from planner.planning.drives import limit_acceleration, scaled, synthesize_steps
     from planner.planning.plan_file import plan_record
-    from planner.planning.rescue import RescuedDrive, as_built_models, quieten
+    from planner.afterfab.drive import RescuedDrive, as_built_models, quieten
     from planner.planning.settings import resolve_settings
     from planner.planning.verify import IDLE_RESPONSE, check_steps
 
@@ -366,8 +366,8 @@ def test_the_replan_plays_the_plans_phases(plan_data):
     import copy
 
     from planner.planning.plan_file import plan_record
-    from planner.planning.replan import replan_chip
-    from planner.planning.rescue import plan_phases
+    from planner.afterfab.replan import replan_chip
+    from planner.afterfab.drive import plan_phases
 
     data = copy.deepcopy(plan_data)
     for k, st in enumerate(data["steps"]):

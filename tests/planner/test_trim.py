@@ -9,7 +9,8 @@ import pytest
 
 from model import Impacter
 from planner.config import ProcessConfig
-from planner.trim import MARGIN_SIGMAS, Separations, cut_for, plan_trim
+from planner.afterfab.separations import MARGIN_SIGMAS, Separations
+from planner.afterfab.trim import cut_for, plan_trim
 
 
 def _seps(n, band=400.0, window=100.0, rho=1.002):
@@ -143,7 +144,7 @@ def test_trim_cli_moves_a_colliding_impacter_and_verifies_on_the_trimmed_models(
 
     from planner.cli import main
     from planner.planning.plan_file import read_plan
-    from planner.planning.rescue import separations_of
+    from planner.afterfab.separations import separations_of
     from planner.planning.settings import resolve_settings
 
     plan = read_plan(close_plan_dir)
@@ -198,7 +199,7 @@ def test_trim_cli_names_a_chip_no_trim_in_range_can_fix(close_plan_dir, tmp_path
     import csv as csvmod
     import re
 
-    from planner.trim import TRIM_COLUMNS
+    from planner.afterfab.trim import TRIM_COLUMNS
 
     with (out / "trim.csv").open() as fh:
         reader = csvmod.DictReader(fh)
@@ -224,8 +225,8 @@ def test_remeasured_replaces_only_the_trimmed_rows_by_simulation(close_plan_dir)
     plan recorded it."""
     from planner.manufacturability import BAND_MARGIN, measure_separation
     from planner.planning.plan_file import read_plan
-    from planner.planning.replan import measured_models
-    from planner.planning.rescue import remeasured, separations_of
+    from planner.afterfab.replan import measured_models
+    from planner.afterfab.separations import remeasured, separations_of
     from planner.planning.settings import resolve_settings
 
     plan = read_plan(close_plan_dir)

@@ -7,7 +7,6 @@ message names the argument, for the value objects and every public entry point.
 
 import math
 
-import numpy as np
 import pytest
 
 import model

@@ -10,10 +10,10 @@ module re-plans the drive without searching by simulation:
    resonance, keeping its place relative to it (t' = t nu'/nu; for a pair of unequal
    halves, the mean of the halves).
 2. **separability** (:func:`inseparable`): by the collision rule of
-   :mod:`planner.manufacturability` (:class:`planner.trim.Separations`), every pair of
+   :mod:`planner.manufacturability` (:class:`planner.afterfab.separations.Separations`), every pair of
    impacters the plan's steps must tell apart is checked; a pair that cannot be is named
    with its as-built resonances and the separation it would need.  No drive can tell
-   such a pair apart: a trim can (:mod:`planner.trim`).
+   such a pair apart: a trim can (:mod:`planner.afterfab.trim`).
 3. **steps** (:func:`split_weak`): each multi-tone step is synthesised with the new tones
    and held to ``drive.max_acceleration_g`` as the plan's; when the limit lowers its tones
    further than the plan's verified drive did and the step then fails by a slow slider,
@@ -38,7 +38,7 @@ import numpy as np
 
 from model import halves
 from planner.nodes import Node
-from planner.trim import Separations
+from planner.afterfab.separations import Separations, remeasured, separations_of
 
 #: A tone chosen beside a neighbour's silent band keeps this far from its edge: the
 #: edge's bisection tolerance (planner.manufacturability.EDGE_TOL_HZ) and twice the
@@ -283,61 +283,6 @@ def natural_frequencies(impacters: dict) -> dict:
     return out
 
 
-def separations_of(plan, settings) -> Separations:
-    """The plan's :class:`planner.trim.Separations`: its designs' silent bands and tone
-    windows, from its ``manufacturability`` block, or, for a plan without one (made
-    before it, or a re-plan from before re-plans carried it), measured now on its
-    designs (a few seconds).
-
-    Always the *designs'*: a chip is one chip whether its plan.json is the plan it was
-    made by or a re-plan of it (whose impacters are as built and whose tones moved), so
-    the separations, their tone ratios rho (designed tone / designed nu) and hence a
-    re-plan's tones and a trim's targets are the same for both.  Measured now, each
-    design is simulated at its designed tone, at the largest amplitude its tone plays in
-    the plan's steps, as :func:`planner.planning.manufacture.assess` measured it.
-    """
-    from planner.fabrication import NodeDesign, nominal_impacter
-    from planner.manufacturability import measure_separation
-
-    ids = tuple(sorted(r.id for r in plan.impacters))
-    recs = {r.id: r for r in plan.impacters}
-    tone = plan.design_frequency_hz or {r.id: r.frequency_hz for r in plan.impacters}
-    block = (plan.manufacturability or {}).get("separation_hz")
-    if block and set(block) >= set(ids):
-        seps = [block[n] for n in ids]
-    else:
-        amps = _tone_amplitudes(plan)
-        seps = []
-        for n in ids:
-            rec, g = recs[n], recs[n].geometry
-            design = nominal_impacter(plan.spec, NodeDesign(
-                n, rec.device, rec.direction, g.area_m2, g.width_m, g.length_m, g.gap_m,
-                rec.impact_angle_rad, rec.restitution))
-            seps.append(measure_separation(design, tone[n], tone_amplitude=amps.get(n),
-                                           **settings.separation_kwargs()).to_dict())
-    rho = np.array([tone[n] / plan.design_natural_frequency_hz[n] for n in ids])
-    return Separations.of(ids, rho, seps)
-
-
-def _tone_amplitudes(plan) -> dict:
-    """Impacter id -> the largest amplitude [m] its tone plays at in the plan's steps
-    (the steps that drive it; its tone the recorded one nearest its planned tone)."""
-    out = {}
-    for st in plan.steps:
-        if not st.tones:
-            continue
-        freqs = np.array([t.frequency_hz for t in st.tones])
-        for d, r in st.step.active_nodes():
-            n = Node(d, r).text
-            try:
-                f = plan.impacter(n).frequency_hz
-            except KeyError:
-                continue
-            k = int(np.argmin(np.abs(freqs - f)))
-            out[n] = max(out.get(n, 0.0), float(st.tones[k].amplitude_m))
-    return out
-
-
 def plan_phases(plan) -> dict:
     """Step key -> {Node -> the phase [rad] its tone played at in the plan}.
 
@@ -394,7 +339,7 @@ class RescuedDrive:
         ``(steps, tones) -> (waveforms, notes)`` under the plan's settings.
     gating : dict
         Step key -> the gate search's notes of each ``targets_um`` step, gated again
-        for the chip (:func:`planner.planning.replan.regate`).
+        for the chip (:func:`planner.afterfab.replan.regate`).
     """
 
     steps: tuple
@@ -408,35 +353,6 @@ class RescuedDrive:
     weak: dict = dataclasses.field(default_factory=dict)
     synthesize_and_limit: Callable | None = None
     gating: dict = dataclasses.field(default_factory=dict)
-
-
-def remeasured(seps: Separations, ids, models: dict, tones: dict, settings) -> Separations:
-    """``seps`` with the silent bands and tone windows of ``ids`` measured again, by
-    simulation, on their as-built ``models`` (impacter id -> model) at ``tones`` (id ->
-    tone [Hz]).
-
-    The plan's separations were measured on the nominal designs; a trimmed impacter's
-    model moved by up to the trim range (a few per cent), and at a band's edge the
-    idle response is a grazing impact that such a move can bring a few per cent
-    further out (measured: the close plan's A2.backward, trimmed 30 Hz up, answered a
-    tone 304 Hz away once, outside its nominal band widened to 300 Hz).  About 0.1 s
-    per impacter.
-    """
-    from planner.manufacturability import measure_separation
-
-    ids = list(ids)
-    rows = [seps.ids.index(n) for n in ids]
-    # widened as the plan's are (Separations.of)
-    fresh = Separations.of(ids, seps.rho[rows],
-                           [measure_separation(models[n], tones[n],
-                                               **settings.separation_kwargs()).to_dict()
-                            for n in ids])
-    out = {}
-    for name in ("below", "above", "lo", "hi"):
-        col = getattr(seps, name).copy()
-        col[rows] = getattr(fresh, name)
-        out[name] = col
-    return dataclasses.replace(seps, **out)
 
 
 def rescue(plan, measured: dict, settings, models: dict, sliders: dict,

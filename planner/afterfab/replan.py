@@ -3,7 +3,7 @@
 After fabrication an impacter's geometry is fixed, but its drive is not.  Given a plan
 (its plan.json) and each impacter's measured natural frequency (and optionally its
 quality factor and gap, and each half of a pair), this module builds the as-built model
-of every impacter and re-plans the drive only (:mod:`planner.planning.rescue`):
+of every impacter and re-plans the drive only (:mod:`planner.afterfab.drive`):
 
 1. **as-built models** (:func:`as_built_parameters`): the design's mass m; stiffness
    k = m (2 pi nu_n)^2 from the measured nu_n; damping b = m 2 pi nu_n / Q when a
@@ -46,8 +46,8 @@ from planner.nodes import device_key, node_key
 from planner.planning.plan_file import PlanRecord, drives
 from planner.planning.record import build_record
 from planner.planning.repair import scenes_and_motion
-from planner.planning.rescue import (REPLAN_TRAVEL_MARGIN, as_built_models, plan_phases,
-                                     quieten, rescue, split_weak)
+from planner.afterfab.drive import (REPLAN_TRAVEL_MARGIN, as_built_models, plan_phases,
+                                    quieten, rescue, split_weak)
 from planner.planning.result import Plan
 from planner.planning.settings import plan_settings, tone_amplitudes
 from planner.planning.verify import check_step, check_steps, coupling_matrix, x0_grid
@@ -353,7 +353,7 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
         empty table).  The drive and its verification are the same.
     remeasure : iterable of str
         Impacter ids whose silent bands and tone windows are measured again on their
-        as-built models (a trim's moved impacters: :func:`planner.planning.rescue.
+        as-built models (a trim's moved impacters: :func:`planner.afterfab.drive.
         remeasured`) instead of taken from the plan's ``manufacturability`` block.
 
     Returns
@@ -573,7 +573,7 @@ def _replan_record(plan, settings, params, drive, orig_passed, orig_rows):
 
 
 def inseparable_message(c) -> str:
-    """One line on impacters no drive tells apart (:func:`planner.planning.rescue.rescue`'s
+    """One line on impacters no drive tells apart (:func:`planner.afterfab.drive.rescue`'s
     ``inseparable``: a pair, or one impacter whose window several bands cover)."""
     names = [f"{n} ({hz:.0f} Hz as built)" for n, hz in zip(c["pair"], c["as_built_hz"])]
     if c.get("needs_hz") is None:

@@ -6,109 +6,27 @@ way only: removing plate mass raises a resonance (``trim.direction: up``), cutti
 free of its anchor over a length lowers it (``down``) -- by at most ``trim.range_pct``.
 :func:`plan_trim` chooses the targets with the fewest and smallest moves; :func:`cut_for`
 says what to cut, through eqs. (2)-(4); the drive is then re-planned for the trimmed chip.
-
-When are two resonances separable?
-----------------------------------
-The plan's ``manufacturability`` block gives every design its silent band (it answers a
-tone from some x0 only within (nu - a, nu + b)) and its tone window (its tone may sit
-anywhere in [t - lo, t + hi] and still drive it), and the re-plan keeps each tone's place
-relative to its resonance, t = rho nu (rho = the designed tone over the designed nu_n).
-Two impacters i below j are separable when some tone of i's window lies below j's silent
-band and some tone of j's window above i's:
-
-    nu_j >= max(rho_i nu_i - lo_i + a_j, (nu_i + b_i - hi_j) / rho_j) + margin,
-
-the margin covering the trim's own error (:data:`MARGIN_SIGMAS` sigmas of
-``trim.precision_pct`` on both).  This is the collision rule of
-:mod:`planner.manufacturability`, solved for nu_j.
+(:mod:`planner.afterfab.separations` says when two resonances can be told apart).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-#: Sigmas of the trim precision kept between two trimmed targets, on top of the
-#: separation: a trimmed pair then stays separable on ~98 % of trims [-].
-MARGIN_SIGMAS = 2.0
+from planner.afterfab.separations import Separations
+from planner.planning.plan_file import PlanRecord
+from planner.planning.result import Plan
+from planner.spec import TrimSpec
+
 #: Relative tolerance of "already separable": a move smaller than this is no move [-].
 MOVE_TOL = 1e-9
 #: Passes of :func:`plan_trim` over the impacters (each pass clears what the previous
 #: moves crossed; two suffice on the default plan's chips).
 MAX_PASSES = 8
-
-
-@dataclass(frozen=True)
-class Separations:
-    """What :func:`plan_trim` needs of each impacter, as arrays over impacters.
-
-    Attributes
-    ----------
-    ids : tuple of str
-    rho : ndarray
-        Designed tone / designed natural frequency [-].
-    below, above : ndarray
-        Silent band reach below and above the resonance [Hz].
-    lo, hi : ndarray
-        Tone window reach below and above the tone [Hz].
-    """
-
-    ids: tuple
-    rho: np.ndarray
-    below: np.ndarray
-    above: np.ndarray
-    lo: np.ndarray
-    hi: np.ndarray
-
-    @classmethod
-    def of(cls, ids, rho, separations) -> "Separations":
-        """From the separations of plan.json's ``manufacturability.separation_hz`` (one
-        dict per impacter of ``ids``), every silent band widened by
-        :data:`planner.manufacturability.BAND_MARGIN`."""
-        from planner.manufacturability import BAND_MARGIN
-
-        widen = 1.0 + BAND_MARGIN
-        return cls(tuple(ids), np.asarray(rho, dtype=float),
-                   widen * np.array([s["silent_below"] for s in separations]),
-                   widen * np.array([s["silent_above"] for s in separations]),
-                   np.array([s["responds_below"] for s in separations]),
-                   np.array([s["responds_above"] for s in separations]))
-
-    @classmethod
-    def from_plan(cls, data: dict) -> "Separations":
-        """From a plan.json dict (its impacters and ``manufacturability`` block).
-
-        Raises
-        ------
-        ValueError
-            The plan has no ``manufacturability`` block (made before issue 25).
-        """
-        m = data.get("manufacturability")
-        if not m or "separation_hz" not in m:
-            raise ValueError("plan.json has no manufacturability.separation_hz (a plan made "
-                             "before design for yield): re-plan it with this version")
-        recs = sorted(data["impacters"], key=lambda r: r["id"])
-        sep = m["separation_hz"]
-        return cls.of([r["id"] for r in recs],
-                      [r["frequency_hz"] / r["natural_frequency_hz"] for r in recs],
-                      [sep[r["id"]] for r in recs])
-
-    def needed(self, i: int, j: int, nu_i: float, precision: float = 0.0) -> float:
-        """The lowest resonance [Hz] impacter ``j`` may have above impacter ``i`` at
-        ``nu_i`` [Hz] and still be told apart from it (module notes); ``precision`` [-]
-        adds the trim margin."""
-        r_i, r_j = self.rho[i], self.rho[j]
-        base = max(r_i * nu_i - self.lo[i] + self.below[j],
-                   (nu_i + self.above[i] - self.hi[j]) / r_j)
-        return base + MARGIN_SIGMAS * precision * math.sqrt(2.0) * base
-
-    def separable(self, i: int, j: int, nu_i: float, nu_j: float) -> bool:
-        """Whether ``i`` at ``nu_i`` and ``j`` at ``nu_j`` [Hz] can be told apart."""
-        if nu_i > nu_j:
-            i, j, nu_i, nu_j = j, i, nu_j, nu_i
-        return nu_j >= self.needed(i, j, nu_i)
 
 
 @dataclass
@@ -353,3 +271,112 @@ def trim_models(impacters: dict, ratios: dict, direction: str) -> dict:
         new = [trimmed(h, r) for h, _ in parts]
         out[n] = new[0] if len(new) == 1 else model.pair_of(*new)
     return out
+
+
+@dataclass(frozen=True)
+class TrimResult:
+    """A chip's trims and the drive re-planned for it.
+
+    Attributes
+    ----------
+    trims : TrimPlan
+        Targets, the impacters to trim and why a chip cannot be trimmed.
+    rows : list of dict
+        trim.csv's rows (:func:`planner.afterfab.trim.trim_rows`).
+    spec : TrimSpec
+        The trim settings used.
+    plan : Plan or None
+        The re-plan of the trimmed chip (None when it cannot be trimmed); its ``data``
+        carries a ``trim`` block.
+    passed : bool
+        The chip can be trimmed and the re-planned drive verifies on the trimmed models
+        (and on the targets' models).
+    """
+
+    trims: TrimPlan
+    rows: list
+    spec: TrimSpec
+    plan: Plan | None
+    passed: bool
+
+
+def _targets(measured: dict, tp: TrimPlan, resonances: dict) -> dict:
+    """measured.csv's dict for the trimmed chip: each impacter at ``resonances`` (its
+    halves moved by the same fraction)."""
+    out = {}
+    for n, meas in measured.items():
+        hz = resonances[n]
+        entry = {**meas, "natural_frequency_hz": hz}
+        if meas.get("halves_hz"):
+            ratio = hz / meas["natural_frequency_hz"]
+            entry["halves_hz"] = tuple(h * ratio for h in meas["halves_hz"])
+        out[n] = entry
+    return out
+
+
+def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
+              spec: TrimSpec | None = None, progress=None) -> TrimResult:
+    """Trims for a measured chip, and its drive re-planned and verified.
+
+    Parameters
+    ----------
+    plan : PlanRecord
+        The plan the chip was made by.
+    measured : dict
+        :func:`planner.afterfab.replan.read_measured`'s dict: every impacter of the plan
+        (a :class:`~planner.errors.SpecError` names those without a measurement).
+    seed : int, optional
+        Seeds the trims' errors and the drive's phases (default: the plan's).
+    spec : TrimSpec, optional
+        Default: the plan's ``trim:`` section, else :class:`planner.spec.TrimSpec`'s
+        defaults.
+    """
+    from planner.afterfab.replan import measured_models, measured_resonances, replan
+    from planner.afterfab.drive import must_differ
+    from planner.afterfab.separations import separations_of
+    from planner.planning.settings import plan_settings
+    from planner.afterfab.checks import check_drive, drive_of
+
+    missing = [r.id for r in plan.impacters if not measured.get(r.id)]
+    if missing:
+        # a design value is no measurement of this chip: trim.csv would state it as
+        # measured_hz and the trims would be chosen against a resonance nobody measured
+        from planner.errors import SpecError
+
+        raise SpecError(f"no measured resonance for {', '.join(missing)}: a trim is chosen "
+                        "from every impacter's measured resonance; measure them (vibroplan "
+                        "calibrate) and give each a row", path="measured.csv")
+    seed = plan.seed if seed is None else int(seed)
+    settings = plan_settings(plan, seed)
+    spec = spec or settings.trim
+    full = {r.id: measured.get(r.id) or {"natural_frequency_hz": r.natural_frequency_hz}
+            for r in plan.impacters}
+    resonances = measured_resonances(plan, full)
+    mean = {n: float(np.mean(v)) if isinstance(v, tuple) else v for n, v in resonances.items()}
+    seps = separations_of(plan, settings)
+    tp = plan_trim(seps, mean, must_differ(settings.steps), range_pct=spec.range_pct,
+                   direction=spec.direction, precision_pct=spec.precision_pct)
+    rows = trim_rows(plan, tp, spec.direction)
+    if not tp.ok:
+        return TrimResult(tp, rows, spec, None, False)
+    result = replan(plan, _targets(full, tp, tp.target), settings=settings,
+                    progress=progress, remeasure=tp.moved)
+    # where the cuts really put the resonances: the targets, off by the trim precision
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 26]))
+    actual = trimmed_resonances(tp, spec.precision_pct, rng)
+    true = _targets(full, tp, actual)
+    models = measured_models(plan, true)
+    sliders = {d: settings.sliders[d] for d in sorted({r.device for r in plan.impacters})}
+    from planner.planning.plan_file import plan_record
+
+    steps, waveforms, dwells = drive_of(plan_record(result.data, source="the trim's re-plan"))
+    got = check_drive(settings, steps, waveforms, dwells, models, sliders)
+    trim = {
+        "direction": spec.direction, "range_pct": spec.range_pct,
+        "precision_pct": spec.precision_pct, "seed": seed,
+        "moved": [{k: r[k] for k in ("impacter", "measured_hz", "target_hz", "change_pct")}
+                  | {"trimmed_hz": actual[r["impacter"]]}
+                  for r in rows if r["impacter"] in tp.moved],
+        "trimmed_models": {"passed": bool(got["passed"]), "failures": got["failures"]}}
+    result = dataclasses.replace(result, data={**result.data, "trim": trim})
+    return TrimResult(tp, rows, spec, result, bool(result.passed and got["passed"]))

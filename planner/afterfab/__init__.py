@@ -1,0 +1,27 @@
+"""After fabrication: a measured chip's models, its re-planned drive and its trims.
+
+One package for everything that happens to a chip once it is made (``vibroplan replan``,
+``vibroplan trim`` and every chip of ``vibroplan yield --replan``):
+
+- :mod:`~planner.afterfab.measurement` -- :class:`Measurement`, what a lab measures of an
+  impacter (resonance, per half where measured apart, quality factor, gap); measured.csv;
+  the measurement a yield study simulates;
+- :mod:`~planner.afterfab.as_built` -- the one builder of a measured chip's models: the
+  fabrication errors inferred from the measured resonances, the chip rebuilt through eqs.
+  (2)-(4) (mass, stiffness, damping and gap, not the stiffness alone);
+- :mod:`~planner.afterfab.separations` -- the designs' silent bands and tone windows, and
+  when two as-built resonances can be told apart;
+- :mod:`~planner.afterfab.drive` -- the re-planned drive: tones moved with their
+  resonances, pairs that cannot be told apart named, steps split or played weaker;
+- :mod:`~planner.afterfab.replan` -- the re-plan verified on the as-built models, its
+  plan.json and report;
+- :mod:`~planner.afterfab.trim` -- what to trim, and the trim sequence (measure, trim,
+  measure again, re-plan) used by ``trim`` and ``yield --trim``.
+
+Each module imports only those listed above it (``[tool.importlinter]``).
+"""
+
+from planner.afterfab.as_built import AsBuilt, as_built
+from planner.afterfab.measurement import Measurement, measure_models, read_measured
+
+__all__ = ["AsBuilt", "Measurement", "as_built", "measure_models", "read_measured"]
