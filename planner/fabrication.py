@@ -60,10 +60,10 @@ ERRORS = ("line_width_um", "thickness_um", "gap_um", "youngs_modulus_pct",
 class NodeDesign:
     """One designed impacter pair of a plan (SI).
 
-    ``stiffness_scale``, ``damping_scale``, ``damping_shift`` [N s/m] and ``gap_shift``
-    [m] carry a re-planned plan's as-built model: what the chip measured against what
-    its geometry gives (1, 1, 0 and 0 for a plan; the damping as a shift only where the
-    geometry gives none, in vacuum).  A chip's errors act on the geometry as for a plan,
+    ``stiffness_scale``, ``mass_scale``, ``damping_scale``, ``damping_shift`` [N s/m]
+    and ``gap_shift`` [m] carry a re-planned plan's as-built model: what the chip's
+    models are against what its geometry gives (1, 1, 1, 0 and 0 for a plan; the damping
+    as a shift only where the geometry gives none, in vacuum).  A chip's errors act on the geometry as for a plan,
     and the as-built differences on top, so the chip without errors is the as-built one.
     """
 
@@ -80,6 +80,7 @@ class NodeDesign:
     damping_scale: float = 1.0
     damping_shift: float = 0.0
     gap_shift: float = 0.0
+    mass_scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -110,6 +111,7 @@ def design_from_plan(record) -> ChipDesign:
             built = nominal_impacter(spec, node)
             damped = built.damping > 0
             node = replace(node, stiffness_scale=rec.stiffness_n_per_m / built.stiffness,
+                           mass_scale=rec.mass_kg / built.mass,
                            damping_scale=rec.damping_ns_per_m / built.damping if damped else 1.0,
                            damping_shift=0.0 if damped else rec.damping_ns_per_m,
                            gap_shift=rec.gap_m - built.gap)
@@ -146,12 +148,12 @@ def _impacter(spec: ArraySpec, node: NodeDesign, err) -> Impacter:
             raise ValueError("natural frequency scaled to <= 0")
         imp = Impacter(imp.mass, imp.stiffness * f * f, imp.damping, imp.gap,
                        imp.impact_angle, imp.restitution, imp.geometry)
-    if (node.stiffness_scale, node.damping_scale, node.damping_shift,
-            node.gap_shift) != (1.0, 1.0, 0.0, 0.0):
+    if (node.stiffness_scale, node.mass_scale, node.damping_scale, node.damping_shift,
+            node.gap_shift) != (1.0, 1.0, 1.0, 0.0, 0.0):
         gap = imp.gap + node.gap_shift
         if gap <= 0:
             raise ValueError("gap closed")
-        imp = Impacter(imp.mass, imp.stiffness * node.stiffness_scale,
+        imp = Impacter(imp.mass * node.mass_scale, imp.stiffness * node.stiffness_scale,
                        imp.damping * node.damping_scale + node.damping_shift, gap,
                        imp.impact_angle, imp.restitution, imp.geometry)
     return imp

@@ -65,7 +65,7 @@ def check_drive(settings, steps, waveforms, dwells, impacters, sliders, *,
     dwells : dict
         Step key -> settle dwell [s] after the step in the scene simulation.
     impacters, sliders : dict
-        The chip's models: node id -> :class:`model.Impacter`, device ->
+        The chip's models: node (or its id) -> :class:`model.Impacter`, device ->
         :class:`model.Slider`.
 
     Returns
@@ -77,12 +77,13 @@ def check_drive(settings, steps, waveforms, dwells, impacters, sliders, *,
         per-step verification rows), ``records`` (every
         :class:`~planner.planning.verify.Failure`, the carried-state ones last).
     """
+    from planner.planning.motion import by_node
     from planner.planning.scenes import scene_failures, simulate_scenes
     from planner.planning.verify import check_step
 
+    impacters = by_node(impacters)
     by_device = {}
-    for text in impacters:
-        node = Node.parse(text)
+    for node in impacters:
         by_device.setdefault(node.device, []).append(node)
     failures, nodes, rows, records = {}, set(), [], []
     for st in steps:

@@ -5,10 +5,11 @@ After fabrication an impacter's geometry is fixed, but its drive is not.  Given 
 quality factor and gap, and each half of a pair), this module builds the as-built model
 of every impacter and re-plans the drive only (:mod:`planner.afterfab.drive`):
 
-1. **as-built models** (:func:`as_built_parameters`): the design's mass m; stiffness
-   k = m (2 pi nu_n)^2 from the measured nu_n; damping b = m 2 pi nu_n / Q when a
-   quality factor is given, else the design's; the measured gap when given, else the
-   design's; a pair measured half by half is two such models
+1. **as-built models** (:func:`planner.afterfab.as_built.as_built`): the fabrication
+   errors inferred from the measured resonances under the spec's tolerances, the chip
+   rebuilt through eqs. (2)-(4) (mass, stiffness, damping, gap and sliders), each
+   resonance exactly as measured; a measured quality factor sets the damping and a
+   measured gap the gap; a pair measured half by half is two such models
    (:class:`model.PairHalves`);
 2. **tones**: each impacter's tone moves with its measured resonance, keeping its place
    relative to it; every pair the steps must tell apart is checked against the plan's
@@ -46,229 +47,22 @@ from planner.nodes import device_key, node_key
 from planner.planning.plan_file import PlanRecord, drives
 from planner.planning.record import build_record
 from planner.planning.repair import scenes_and_motion
-from planner.afterfab.drive import (REPLAN_TRAVEL_MARGIN, as_built_models, plan_phases,
-                                    quieten, rescue, split_weak)
+from planner.afterfab.as_built import AsBuilt, as_built, symmetric
+from planner.afterfab.drive import REPLAN_TRAVEL_MARGIN, plan_phases, quieten, rescue, split_weak
 from planner.planning.result import Plan
 from planner.planning.settings import plan_settings, tone_amplitudes
 from planner.planning.verify import check_step, check_steps, coupling_matrix, x0_grid
-from planner.units import UM
 
-#: Columns of measured.csv: required, optional, and ignored (calibrate's uncertainties).
-MEASURED_REQUIRED = ("impacter", "natural_frequency_hz")
-MEASURED_OPTIONAL = ("quality_factor", "gap_um", "half")
-#: The halves of a pair in measured.csv's ``half`` column.
-HALVES = ("a", "b")
-
-
-# --------------------------------------------------------------------------- inputs
-
-#: How far a measured resonance may lie from its design's, as a factor [-]: a fabricated
-#: chip's resonances move by a few per cent (1.2 % per line-width sigma on the default);
-#: one 4 x off is no measurement of this design (a typo, kHz for Hz, another chip),
-#: while a chip as far off as a study asks (a neighbour's resonance, 0.38 x) is read.
-MAX_MEASURED_FACTOR = 4.0
-#: The smallest gap a measurement may give [um]: the process's gaps are microns; a
-#: smaller number is a gap typed in metres (3e-6) or nm.
-MIN_GAP_UM = 0.05
-
-
-def read_measured(path, impacter_ids, design_hz=None) -> dict:
-    """Read and check a lab's measured.csv.
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        CSV with header ``impacter,natural_frequency_hz`` and optionally
-        ``quality_factor`` and ``gap_um`` (any order); columns ending in ``_std`` or
-        ``_std_hz`` (:func:`planner.calibrate.write_measured`'s uncertainties) are
-        ignored.  Blank lines and lines starting with ``#`` are skipped.
-    impacter_ids : iterable of str
-        The plan's impacters; any other name is an error.
-    design_hz : dict, optional
-        Impacter id -> its designed natural frequency [Hz]: a measured one further than
-        a factor :data:`MAX_MEASURED_FACTOR` from it is refused (another unit, a typo).
-
-    Returns
-    -------
-    dict
-        Impacter id -> ``{"natural_frequency_hz": [Hz], "quality_factor": [-] or None,
-        "gap_m": [m] or None}``; a pair measured half by half (``half`` column, a and b)
-        also has ``halves_hz`` (a, b) [Hz], ``halves_quality`` (a, b) [-] and
-        ``halves_gap_m`` (a, b) [m] (an entry None where that half's cell is blank; the
-        whole None where no half gives one), its ``natural_frequency_hz`` the halves'
-        mean and its ``gap_m`` the wider half's gap.
-
-    Raises
-    ------
-    planner.errors.SpecError
-        ``FILE: row N, column C: ...`` (N the 1-based line) for a missing or unknown
-        column, an unknown or repeated impacter, a value that is not a finite number, or
-        a frequency, quality factor or gap <= 0.
-    """
-    from planner.lab_csv import csv_number, read_csv_rows
-
-    known = set(impacter_ids)
-    # calibrate writes uncertainties beside the values: accepted and left alone
-    header_line, header, rows, fail = read_csv_rows(
-        path, MEASURED_REQUIRED, MEASURED_OPTIONAL, what="measured.csv",
-        ignore=lambda c: c.endswith("_std") or c.endswith("_std_hz"))
-    out, first_line = {}, {}
-    halves = {}                       # name -> {half: (line, rec)}
-    for line, row in rows:
-        if len(row) != len(header):
-            raise fail(line, header[min(len(row), len(header) - 1)],
-                       f"{len(row)} values where the header has {len(header)} columns")
-        values = dict(zip(header, (v.strip() for v in row)))
-        name = values["impacter"]
-        if not name:
-            raise fail(line, "impacter", "empty impacter name")
-        if name not in known:
-            raise fail(line, "impacter", f"unknown impacter {name!r} (the plan has: "
-                                         f"{', '.join(sorted(known, key=node_key))})")
-        half = values.get("half", "").lower()
-        if half and half not in HALVES:
-            raise fail(line, "half", f"must be a or b (one cantilever of the pair), "
-                                     f"{values['half']!r} was given")
-        key = (name, half)
-        if key in first_line:
-            what = f"half {half} of {name}" if half else name
-            raise fail(line, "impacter", f"{what} measured twice (rows {first_line[key]} "
-                                         f"and {line})")
-        if (half and (name, "") in first_line) or (not half and name in halves):
-            other = (first_line[(name, "")] if half else
-                     min(row_line for row_line, _ in halves[name].values()))
-            raise fail(line, "half", f"{name} measured both as a whole and by halves "
-                                     f"(rows {other} and {line})")
-        rec = {"natural_frequency_hz": None, "quality_factor": None, "gap_m": None}
-        for column in MEASURED_REQUIRED[1:] + MEASURED_OPTIONAL[:-1]:
-            if column not in header:
-                continue
-            text = values[column]
-            if text == "" and column in MEASURED_OPTIONAL:
-                continue        # an optional value left blank: the design's
-            x = csv_number(text, line, column, fail)
-            if x <= 0:
-                raise fail(line, column, f"must be > 0, {text} was given")
-            if column == "gap_um" and x < MIN_GAP_UM:
-                raise fail(line, column, f"{text} um is no gap of this process (at least "
-                                         f"{MIN_GAP_UM:g} um): a gap in metres? gap_um is "
-                                         "in um (3e-6 m is 3)")
-            nu0 = (design_hz or {}).get(name)
-            if column == "natural_frequency_hz" and nu0 and not (
-                    1 / MAX_MEASURED_FACTOR <= x / nu0 <= MAX_MEASURED_FACTOR):
-                raise fail(line, column, f"{text} Hz is {x / nu0:.3g} x the design's "
-                                         f"{nu0:.6g} Hz: a fabricated chip's resonance "
-                                         f"lies within a factor {MAX_MEASURED_FACTOR:g} of "
-                                         "its design's (a typo, another unit such as kHz, "
-                                         "or another chip?)")
-            if column == "natural_frequency_hz":
-                rec["natural_frequency_hz"] = x
-            elif column == "quality_factor":
-                rec["quality_factor"] = x
-            else:
-                rec["gap_m"] = x * UM
-        first_line[key] = line
-        if half:
-            halves.setdefault(name, {})[half] = (line, rec)
-        else:
-            out[name] = rec
-    for name, got in halves.items():
-        if len(got) < 2:
-            (only, (line, _)), = got.items()
-            raise fail(line, "half", f"only half {only} of {name} measured: give both "
-                                     "halves, or the pair as a whole")
-        (_, a), (_, b) = got["a"], got["b"]
-        gaps = (a["gap_m"], b["gap_m"])
-        qs = (a["quality_factor"], b["quality_factor"])
-        # a value given for one half only is that half's (the other keeps its design's)
-        out[name] = {"natural_frequency_hz": 0.5 * (a["natural_frequency_hz"]
-                                                    + b["natural_frequency_hz"]),
-                     "halves_hz": (a["natural_frequency_hz"], b["natural_frequency_hz"]),
-                     "halves_quality": qs if any(qs) else None,
-                     "halves_gap_m": gaps if any(gaps) else None,
-                     "quality_factor": None,
-                     "gap_m": max(g for g in gaps if g) if any(gaps) else None}
-    if not out:
-        raise fail(header_line + 1, "impacter", "no impacters after the header")
-    return out
-
-
-def as_built_parameters(plan: PlanRecord, measured) -> dict:
-    """Impacter id -> ``{natural_frequency_hz, stiffness_n_per_m, damping_ns_per_m,
-    gap_m}`` of the as-built model (plan.json's ``as_built``).
-
-    ``measured``: impacter id -> mapping with ``natural_frequency_hz`` [Hz] and
-    optionally ``quality_factor`` [-], ``damping_ns_per_m`` [N s/m] (used when no
-    quality factor is given) and ``gap_m`` [m]; an impacter not in it keeps its design.
-    """
-    out = {}
-    for rec in plan.impacters:
-        n = rec.id
-        m = rec.mass_kg
-        meas = measured.get(n) or {}
-        nu = meas.get("natural_frequency_hz") or rec.natural_frequency_hz
-        w = 2.0 * math.pi * float(nu)
-        if meas.get("quality_factor"):
-            b = m * w / float(meas["quality_factor"])
-        elif meas.get("damping_ns_per_m") is not None:
-            b = float(meas["damping_ns_per_m"])
-        else:
-            b = rec.damping_ns_per_m
-        gap = meas.get("gap_m") or rec.gap_m
-        out[n] = {"natural_frequency_hz": float(nu), "stiffness_n_per_m": m * w * w,
-                  "damping_ns_per_m": b, "gap_m": float(gap)}
-        if meas.get("halves_hz"):
-            # each half as measured, what the chip's models are (measured_models), kept
-            # in plan.json's as_built; the pair's own record is their symmetric stand-in
-            model_ = _halves_model(plan, n, meas)
-            sym = symmetric(model_)
-            out[n].update(natural_frequency_hz=float(sym.natural_frequency),
-                          stiffness_n_per_m=float(sym.stiffness),
-                          damping_ns_per_m=float(sym.damping), gap_m=float(sym.gap))
-            out[n]["halves"] = [
-                {"half": h, "natural_frequency_hz": float(imp.natural_frequency),
-                 "stiffness_n_per_m": float(imp.stiffness),
-                 "damping_ns_per_m": float(imp.damping), "gap_m": float(imp.gap)}
-                for h, (imp, _) in zip(HALVES, model.halves(model_))]
-    return out
-
-
-def symmetric(imp):
-    """The symmetric pair standing for a pair of unequal halves (plan.json's impacter
-    record and ``as_built`` of a pair measured half by half): their mean resonance,
-    mean damping and the wider gap (:attr:`model.PairHalves.gap`); a symmetric pair is
-    itself."""
-    if not isinstance(imp, model.PairHalves):
-        return imp
-    parts = [h for h, _ in model.halves(imp)]
-    w = 2.0 * math.pi * float(imp.natural_frequency)
-    m = float(imp.mass)
-    return model.Impacter(m, m * w * w, float(np.mean([h.damping for h in parts])),
-                          float(imp.gap), imp.a.impact_angle, imp.a.restitution)
-
-
-def _impacter(rec, params=None):
-    """model.Impacter of a plan's impacter record, with as-built ``params``."""
-    p = params or {}
-    return model.Impacter(rec.mass_kg,
-                          float(p.get("stiffness_n_per_m", rec.stiffness_n_per_m)),
-                          float(p.get("damping_ns_per_m", rec.damping_ns_per_m)),
-                          float(p.get("gap_m", rec.gap_m)),
-                          rec.impact_angle_rad, rec.restitution)
-
-
-def verify_drive(plan: PlanRecord, as_built: dict, settings=None):
-    """Verify a plan's recorded drive on as-built impacter models.
+def verify_drive(plan: PlanRecord, models: AsBuilt, settings=None):
+    """Verify a plan's recorded drive on a chip's models.
 
     Parameters
     ----------
     plan : PlanRecord
         A plan (:func:`planner.planning.plan_file.read_plan`; its steps' tones are the
         drive).
-    as_built : dict
-        Impacter id -> as-built parameters, as :func:`as_built_parameters` takes them
-        (``natural_frequency_hz`` and optionally ``quality_factor``,
-        ``damping_ns_per_m``, ``gap_m``).
+    models : AsBuilt
+        The chip's models (:func:`planner.afterfab.as_built.as_built`).
     settings : Settings, optional
         The plan's settings (re-resolved from its spec when omitted).
 
@@ -280,16 +74,32 @@ def verify_drive(plan: PlanRecord, as_built: dict, settings=None):
     """
     if settings is None:
         settings = plan_settings(plan)
-    # the chip as measured: a pair measured half by half is its two halves
-    built = measured_models(plan, as_built)
-    models = {r.node: built[r.id] for r in plan.impacters}
-    devices = sorted({r.device for r in plan.impacters}, key=device_key)
-    sliders = {d: settings.sliders[d] for d in devices}
+    impacters = {r.node: models.impacters[r.id] for r in plan.impacters}
     waves = drives(plan)
     rows = []
     for st in plan.steps:
-        rows += check_step(settings, st.step, waves[st.key], models, sliders)[0]
+        rows += check_step(settings, st.step, waves[st.key], impacters, models.sliders)[0]
     return bool(rows) and all(r["passed"] for r in rows), rows
+
+
+def chip_models(plan: PlanRecord, measured: dict, noise_pct=None) -> AsBuilt:
+    """The as-built models of a chip of ``plan`` measured as ``measured`` (id ->
+    :class:`~planner.afterfab.measurement.Measurement`; an impacter without one keeps
+    the die's errors): :func:`planner.afterfab.as_built.as_built` on the plan's designs,
+    the measurement's noise the spec's ``fabrication.measurement_noise_pct`` unless
+    given."""
+    from planner.fabrication import design_from_plan
+
+    if noise_pct is None:
+        noise_pct = plan.spec.fabrication.measurement_noise_pct
+    return as_built(design_from_plan(plan), measured, noise_pct=noise_pct)
+
+
+def resonances(plan: PlanRecord, measured: dict) -> dict:
+    """Impacter id -> its measured resonance [Hz] (the halves' (a, b) where measured
+    apart), the design's where not measured: what the tone rules read."""
+    return {r.id: (measured[r.id].resonance if r.id in measured else r.natural_frequency_hz)
+            for r in plan.impacters}
 
 
 # --------------------------------------------------------------------------- the re-plan
@@ -322,7 +132,7 @@ def _design_like(rec, imp, tone, settings):
 
 
 def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=None,
-           original=None, record=True, remeasure=()):
+           original=None, record=True, remeasure=(), models=None):
     """Re-plan the drive of a fabricated chip from its measured resonances.
 
     Parameters
@@ -331,9 +141,9 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
         The original plan (:func:`planner.planning.plan_file.read_plan`; a re-planned
         plan is a plan too).
     measured : dict
-        Impacter id -> ``natural_frequency_hz`` [Hz] and optionally
-        ``quality_factor`` [-], ``damping_ns_per_m`` [N s/m], ``gap_m`` [m]
-        (:func:`read_measured`); an impacter not in it keeps its design.
+        Impacter id -> :class:`~planner.afterfab.measurement.Measurement`
+        (:func:`~planner.afterfab.measurement.read_measured`); an impacter not in it keeps
+        its design's resonance.
     seed : int, optional
         Drive phases' seed (default: the plan's).
     settings : Settings, optional
@@ -355,6 +165,10 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
         Impacter ids whose silent bands and tone windows are measured again on their
         as-built models (a trim's moved impacters: :func:`planner.afterfab.drive.
         remeasured`) instead of taken from the plan's ``manufacturability`` block.
+    models : AsBuilt, optional
+        The chip's models when known otherwise (a trimmed chip's: the as-built models of
+        its first measurement with the trims applied); default
+        :func:`chip_models` of ``measured``.
 
     Returns
     -------
@@ -369,17 +183,17 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
     if settings is None:
         settings = plan_settings(plan, seed)
     plan_imps = {r.node: r for r in plan.impacters}
-    params = as_built_parameters(plan, measured)
-    built = measured_models(plan, measured, params)
-    models = {n: built[r.id] for n, r in plan_imps.items()}
+    built = models if models is not None else chip_models(plan, measured)
+    params = built.parameters()
+    models = {n: built.impacters[r.id] for n, r in plan_imps.items()}
     devices = sorted({n.device for n in models}, key=device_key)
-    sliders = {d: settings.sliders[d] for d in devices}
+    sliders = {d: built.sliders[d] for d in devices}
 
     # the original drive on this chip
     ts = time.perf_counter()
     tick("original", total=1)
     if original is None:
-        orig_passed, orig_rows = verify_drive(plan, measured, settings)
+        orig_passed, orig_rows = verify_drive(plan, built, settings)
     else:
         orig_passed, orig_rows = bool(original[0]), list(original[1])
     timings["original_drive"] = time.perf_counter() - ts
@@ -389,7 +203,7 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
     strict = dataclasses.replace(settings,
                                  max_travel_m=settings.max_travel_m * REPLAN_TRAVEL_MARGIN)
     ts = time.perf_counter()
-    drive = rescue(plan, measured_resonances(plan, measured), settings, models, sliders,
+    drive = rescue(plan, resonances(plan, measured), settings, models, sliders,
                    remeasure=remeasure)
     steps_, waveforms_, gating = regate(settings, drive.steps, drive.waveforms, drive.tones,
                                         models, sliders, plan_phases(plan))
@@ -453,7 +267,8 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
         steps=pd.DataFrame(step_recs), verification=ver, coupling=coupling,
         scenes=pd.DataFrame(scene_rows), passed=passed, data=data, timings=timings,
         settings=settings, waveforms=drive.waveforms, designs=designs,
-        assignment=assignment, failures=tuple(failures))
+        assignment=assignment, failures=tuple(failures), run_steps=tuple(steps),
+        dwells=dict(settle))
 
 
 def regate(settings, steps, waveforms, tones, models, sliders, phases=None):
@@ -485,45 +300,6 @@ def regate(settings, steps, waveforms, tones, models, sliders, phases=None):
         return place_targets(settings, steps, {**waveforms, **raw}, tones, models, sliders)
     except PlanningError:
         return steps, waveforms, {}
-
-
-def measured_resonances(plan: PlanRecord, measured: dict) -> dict:
-    """Impacter id -> measured resonance [Hz] (the halves' (a, b) where each half was
-    measured), for every impacter of the plan (its design where not measured)."""
-    out = {}
-    for rec in plan.impacters:
-        meas = measured.get(rec.id) or {}
-        if meas.get("halves_hz"):
-            out[rec.id] = tuple(float(x) for x in meas["halves_hz"])
-        else:
-            out[rec.id] = float(meas.get("natural_frequency_hz") or rec.natural_frequency_hz)
-    return out
-
-
-def _halves_model(plan: PlanRecord, node_id: str, meas: dict):
-    """The :class:`model.PairHalves` of a pair measured half by half: each half's
-    resonance, and its quality factor and gap where given (else the design's)."""
-    qs = meas.get("halves_quality")
-    gaps = meas.get("halves_gap_m")
-    if gaps is None and meas.get("gap_m"):
-        gaps = (meas["gap_m"],) * 2
-    return as_built_models(plan, {node_id: tuple(meas["halves_hz"])},
-                           quality={node_id: qs} if qs else None,
-                           gaps={node_id: gaps} if gaps else None)[node_id]
-
-
-def measured_models(plan: PlanRecord, measured: dict, params=None) -> dict:
-    """Impacter id -> the as-built model of each impacter (:func:`as_built_parameters`;
-    a :class:`model.PairHalves` where each half was measured)."""
-    params = params or as_built_parameters(plan, measured)
-    out = {}
-    for rec in plan.impacters:
-        meas = measured.get(rec.id) or {}
-        if meas.get("halves_hz"):
-            out[rec.id] = _halves_model(plan, rec.id, meas)
-        else:
-            out[rec.id] = _impacter(rec, params[rec.id])
-    return out
 
 
 def _assignment(steps, settings, chosen, lower_bound):
@@ -585,39 +361,38 @@ def inseparable_message(c) -> str:
             "other's silent band); trim one of them (vibroplan trim) or drive them together")
 
 
-def replan_chip(plan: PlanRecord, as_built: dict, seed=None, *, settings=None, original=None,
-                record=True, remeasure=()):
+def replan_chip(plan: PlanRecord, measured: dict, seed=None, *, settings=None, original=None,
+                record=True, remeasure=(), models=None):
     """Re-plan one chip for a yield study: ``(passed, plan)``.
 
     Parameters
     ----------
     plan : PlanRecord
         The nominal plan.
-    as_built : dict
-        Impacter id -> what was measured of it: ``natural_frequency_hz`` [Hz] and
-        optionally ``quality_factor`` [-], ``damping_ns_per_m`` [N s/m], ``gap_m`` [m].
+    measured : dict
+        Impacter id -> :class:`~planner.afterfab.measurement.Measurement`.
     seed : int, optional
         Drive phases' seed (default: the plan's).
     settings : Settings, optional
         The plan's settings, resolved once for every chip (:func:`replan`).
-    original, record, remeasure :
+    original, record, remeasure, models :
         As :func:`replan`: the original drive's ``(passed, rows)`` when already known
         (not verified again), False to skip the scenes and the coupling matrix
-        (``vibroplan yield --replan`` passes both), and the impacters whose separations
-        are measured again (a trim's).
+        (``vibroplan yield --replan`` passes both), the impacters whose separations are
+        measured again (a trim's), and the chip's models when known otherwise.
 
     Returns
     -------
     passed : bool
-        The re-planned drive verifies on the given models and no impacters collide.
+        The re-planned drive verifies on the measured chip's models and no impacters
+        collide.
     plan : Plan
-        The re-plan (``plan.data`` is its plan.json).  To check it on a chip's TRUE
-        models when ``as_built`` was a noisy measurement, read ``plan.data`` back
-        (:func:`planner.planning.plan_file.plan_record`) and pass it and the true
-        parameters to :func:`verify_drive`.
+        The re-plan: ``plan.data`` is its plan.json; ``plan.run_steps``,
+        ``plan.waveforms`` and ``plan.dwells`` its drive, which a yield study checks on
+        the chip's true models in memory (:func:`planner.afterfab.checks.check_drive`).
     """
-    result = replan(plan, as_built, seed=seed, settings=settings, original=original,
-                    record=record, remeasure=remeasure)
+    result = replan(plan, measured, seed=seed, settings=settings, original=original,
+                    record=record, remeasure=remeasure, models=models)
     return result.passed, result
 
 

@@ -58,7 +58,7 @@ class TrimPlan:
 
 
 def plan_trim(seps: Separations, measured: dict, pairs, *, range_pct=1.0, direction="up",
-              precision_pct=0.1) -> TrimPlan:
+              precision_pct=0.1, used_pct=None) -> TrimPlan:
     """The fewest and smallest one-way moves that make every pair in ``pairs`` separable.
 
     Parameters
@@ -71,6 +71,9 @@ def plan_trim(seps: Separations, measured: dict, pairs, *, range_pct=1.0, direct
         Impacters that must be told apart (the plan's conflict graph).
     range_pct, direction, precision_pct
         ``trim:`` of the spec.
+    used_pct : dict, optional
+        Impacter id -> how far earlier passes already moved it [%]: the range left to it
+        is ``range_pct`` less that.
 
     Returns
     -------
@@ -92,7 +95,7 @@ def plan_trim(seps: Separations, measured: dict, pairs, *, range_pct=1.0, direct
     missing = sorted(set(seps.ids) - set(measured))
     if missing:
         raise ValueError(f"no measured resonance for {', '.join(missing)}")
-    limit = range_pct / 100.0
+    used = used_pct or {}
     prec = precision_pct / 100.0
     partners = {n: set() for n in seps.ids}
     for a, b in pairs:
@@ -121,7 +124,8 @@ def plan_trim(seps: Separations, measured: dict, pairs, *, range_pct=1.0, direct
                     need = min(need, _highest_below(seps, j, i, target[m], prec))
             move = need / measured[n] - 1.0
             if (need - target[n]) * (1 if up else -1) > MOVE_TOL * target[n]:
-                if abs(move) > limit:
+                # what earlier passes moved it counts against the range
+                if abs(move) > (range_pct - abs(used.get(n, 0.0))) / 100.0:
                     failed[n] = move
                     continue
                 target[n] = need
@@ -130,7 +134,9 @@ def plan_trim(seps: Separations, measured: dict, pairs, *, range_pct=1.0, direct
             break
     failures = [{"impacter": n, "needed_pct": 100.0 * mv,
                  "why": f"needs a {100 * mv:+.2f} % move to clear its neighbours, beyond "
-                        f"trim.range_pct {range_pct:g}"} for n, mv in sorted(failed.items())]
+                        f"trim.range_pct {range_pct:g}"
+                        + (f" (earlier passes moved it {used[n]:+.2f} %)" if used.get(n) else "")}
+                for n, mv in sorted(failed.items())]
     # the outcome, checked pair by pair (without the trim margin)
     for a, b in sorted({tuple(sorted(p)) for p in pairs}):
         if a in failed or b in failed:
@@ -300,30 +306,128 @@ class TrimResult:
     passed: bool
 
 
-def _targets(measured: dict, tp: TrimPlan, resonances: dict) -> dict:
-    """measured.csv's dict for the trimmed chip: each impacter at ``resonances`` (its
-    halves moved by the same fraction)."""
-    out = {}
-    for n, meas in measured.items():
-        hz = resonances[n]
-        entry = {**meas, "natural_frequency_hz": hz}
-        if meas.get("halves_hz"):
-            ratio = hz / meas["natural_frequency_hz"]
-            entry["halves_hz"] = tuple(h * ratio for h in meas["halves_hz"])
-        out[n] = entry
-    return out
+def scaled_measurements(measured: dict, resonances: dict) -> dict:
+    """Id -> :class:`~planner.afterfab.measurement.Measurement` of ``measured`` with
+    each pair's resonance at ``resonances[id]`` [Hz] (both halves moved by the same
+    fraction), unchanged where ``resonances`` has none."""
+    return {n: (m.scaled(resonances[n] / m.natural_frequency_hz) if n in resonances else m)
+            for n, m in measured.items()}
+
+
+@dataclass(frozen=True)
+class TrimOutcome:
+    """The passes of a trim sequence (:func:`trim_sequence`).
+
+    Attributes
+    ----------
+    passes : list of TrimPlan
+        Each pass's targets (from the measurement it started with).
+    measured : dict
+        Id -> the last measurement (:class:`~planner.afterfab.measurement.Measurement`).
+    ratios : dict
+        Id -> how far the trims moved each trimmed resonance in all, as the measurements
+        say (last / first) [-].
+    moved : list of str
+        Every impacter trimmed in some pass.
+    scrapped : list of dict
+        Why the chip cannot be trimmed (a pass whose moves exceed what is left of the
+        range): ``impacter``, ``why``, ``needed_pct``; empty when it can be.
+    """
+
+    passes: list
+    measured: dict
+    ratios: dict
+    moved: list
+    scrapped: list
+
+    @property
+    def separable(self) -> bool:
+        """The last measurement has every pair separable (no pass needed more)."""
+        return not self.scrapped and (not self.passes or not self.passes[-1].moved)
+
+
+def trim_sequence(seps: Separations, measured: dict, pairs, spec: TrimSpec, *, cut,
+                  measure_again, precision_pct=None, passes=None) -> TrimOutcome:
+    """Measure, trim, measure again: the loop a lab runs on a chip whose pairs collide,
+    used by ``vibroplan yield --trim`` (a simulated chip) and, for one pass, by
+    :func:`trim_chip`.
+
+    Each pass chooses the trims from the last measurement (:func:`plan_trim`, within
+    what earlier passes left of ``trim.range_pct``), cuts them (``cut``), and measures
+    the chip again (``measure_again``); the sequence ends when a measurement has every
+    pair separable, when ``passes`` (``trim.passes``) are used, or when a pass needs more
+    than the range allows (the chip is scrapped, with why).
+
+    Parameters
+    ----------
+    seps : Separations
+        The designs' silent bands and tone windows.
+    measured : dict
+        Id -> :class:`~planner.afterfab.measurement.Measurement`, the chip as first
+        measured.
+    pairs : iterable of (str, str)
+        The impacters the steps must tell apart.
+    spec : TrimSpec
+        ``trim:`` of the spec.
+    cut : callable(TrimPlan, k) -> None
+        Cuts pass ``k``'s trims on the chip (each lands off its target by the trim's
+        precision: the chip's business).
+    measure_again : callable(k) -> dict
+        The chip measured after pass ``k``: id -> Measurement.
+    precision_pct, passes : optional
+        Override ``spec.precision_pct`` and ``spec.passes``.
+
+    Returns
+    -------
+    TrimOutcome
+    """
+    precision = spec.precision_pct if precision_pct is None else precision_pct
+    passes = spec.passes if passes is None else int(passes)
+    first = measured
+    done, used, moved = [], {}, []
+    for k in range(passes):
+        mean = {n: m.natural_frequency_hz for n, m in measured.items()}
+        tp = plan_trim(seps, mean, pairs, range_pct=spec.range_pct, direction=spec.direction,
+                       precision_pct=precision, used_pct=used)
+        if not tp.ok:
+            return TrimOutcome(done, measured, _ratios(first, measured, moved), moved,
+                               tp.failures)
+        done.append(tp)
+        if not tp.moved:
+            break
+        cut(tp, k)
+        measured = measure_again(k)
+        for n in tp.moved:
+            if n not in moved:
+                moved.append(n)
+            used[n] = 100.0 * (measured[n].natural_frequency_hz
+                               / first[n].natural_frequency_hz - 1.0)
+    return TrimOutcome(done, measured, _ratios(first, measured, moved), sorted(moved), [])
+
+
+def _ratios(first, last, moved):
+    return {n: last[n].natural_frequency_hz / first[n].natural_frequency_hz for n in moved}
 
 
 def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
               spec: TrimSpec | None = None, progress=None) -> TrimResult:
     """Trims for a measured chip, and its drive re-planned and verified.
 
+    One pass of the trim sequence (:func:`trim_sequence`): the trims are chosen from the
+    measurement, the drive re-planned for the targets on the chip's as-built models with
+    the trims applied (:func:`trim_models`), and that drive verified, in memory, on the
+    *trimmed models*: every trimmed resonance where a cut really puts it, its target off
+    by ``trim.precision_pct`` (one normal draw per trim, seeded).  After cutting, a lab
+    measures the chip again and runs ``vibroplan trim`` again if a pair still collides
+    (``trim.passes`` is what ``yield --trim`` simulates).
+
     Parameters
     ----------
     plan : PlanRecord
         The plan the chip was made by.
     measured : dict
-        :func:`planner.afterfab.replan.read_measured`'s dict: every impacter of the plan
+        Id -> :class:`~planner.afterfab.measurement.Measurement`
+        (:func:`~planner.afterfab.measurement.read_measured`): every impacter of the plan
         (a :class:`~planner.errors.SpecError` names those without a measurement).
     seed : int, optional
         Seeds the trims' errors and the drive's phases (default: the plan's).
@@ -331,13 +435,13 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
         Default: the plan's ``trim:`` section, else :class:`planner.spec.TrimSpec`'s
         defaults.
     """
-    from planner.afterfab.replan import measured_models, measured_resonances, replan
+    from planner.afterfab.checks import check_drive
     from planner.afterfab.drive import must_differ
+    from planner.afterfab.replan import chip_models, replan
     from planner.afterfab.separations import separations_of
     from planner.planning.settings import plan_settings
-    from planner.afterfab.checks import check_drive, drive_of
 
-    missing = [r.id for r in plan.impacters if not measured.get(r.id)]
+    missing = [r.id for r in plan.impacters if r.id not in measured]
     if missing:
         # a design value is no measurement of this chip: trim.csv would state it as
         # measured_hz and the trims would be chosen against a resonance nobody measured
@@ -349,28 +453,26 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
     seed = plan.seed if seed is None else int(seed)
     settings = plan_settings(plan, seed)
     spec = spec or settings.trim
-    full = {r.id: measured.get(r.id) or {"natural_frequency_hz": r.natural_frequency_hz}
-            for r in plan.impacters}
-    resonances = measured_resonances(plan, full)
-    mean = {n: float(np.mean(v)) if isinstance(v, tuple) else v for n, v in resonances.items()}
+    models = chip_models(plan, measured)
     seps = separations_of(plan, settings)
+    mean = {n: m.natural_frequency_hz for n, m in measured.items()}
     tp = plan_trim(seps, mean, must_differ(settings.steps), range_pct=spec.range_pct,
                    direction=spec.direction, precision_pct=spec.precision_pct)
     rows = trim_rows(plan, tp, spec.direction)
     if not tp.ok:
         return TrimResult(tp, rows, spec, None, False)
-    result = replan(plan, _targets(full, tp, tp.target), settings=settings,
-                    progress=progress, remeasure=tp.moved)
+    aimed = trim_models(models.impacters, {n: tp.target[n] / tp.measured[n] for n in tp.moved},
+                        spec.direction)
+    result = replan(plan, scaled_measurements(measured, tp.target), settings=settings,
+                    progress=progress, remeasure=tp.moved,
+                    models=dataclasses.replace(models, impacters=aimed))
     # where the cuts really put the resonances: the targets, off by the trim precision
     rng = np.random.default_rng(np.random.SeedSequence([seed, 26]))
     actual = trimmed_resonances(tp, spec.precision_pct, rng)
-    true = _targets(full, tp, actual)
-    models = measured_models(plan, true)
-    sliders = {d: settings.sliders[d] for d in sorted({r.device for r in plan.impacters})}
-    from planner.planning.plan_file import plan_record
-
-    steps, waveforms, dwells = drive_of(plan_record(result.data, source="the trim's re-plan"))
-    got = check_drive(settings, steps, waveforms, dwells, models, sliders)
+    true = trim_models(models.impacters, {n: actual[n] / tp.measured[n] for n in tp.moved},
+                       spec.direction)
+    got = check_drive(settings, result.run_steps, result.waveforms, result.dwells,
+                      {r.node: true[r.id] for r in plan.impacters}, models.sliders)
     trim = {
         "direction": spec.direction, "range_pct": spec.range_pct,
         "precision_pct": spec.precision_pct, "seed": seed,

@@ -38,8 +38,9 @@ def command(plan_path, measured_path, out_dir, force, seed, no_figures, quiet):
     checked as a whole first: a missing or mistyped key, a plan of another format, or
     numbers that contradict each other (an edited natural frequency) are refused
     naming the key (exit 2).  Each impacter's
-    as-built model keeps its design's mass (and damping and gap unless measured);
-    k = m (2 pi nu_n)^2 from the measured natural frequency; a quality factor sets
+    as-built model is rebuilt through eqs. (2)-(4) from the fabrication errors the
+    measured resonances imply under the spec's tolerances (mass, stiffness, damping,
+    gap and sliders), each resonance exactly as measured; a quality factor sets
     b = m 2 pi nu_n / Q.  The designs are fixed: each impacter's tone moves with its
     resonance (scaled by measured / designed nu_n).  Every pair the steps must tell
     apart is checked against the plan's measured silent bands and tone windows; a

@@ -44,7 +44,8 @@ from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_err
                    "chip's true models: the yield with re-planning beside the nominal one.")
 @click.option("--measure-noise", "measure_noise", default=None, metavar="PCT",
               help="With --replan: one sigma of the Gaussian noise of each measured "
-                   "natural frequency [%], seeded per chip.  [default: 0]")
+                   "natural frequency [%], seeded per chip.  [default: the spec's "
+                   "fabrication.measurement_noise_pct, 0.05 unless set]")
 @click.option("--trim", is_flag=True,
               help="With --replan: a chip the re-plan cannot rescue because two of its "
                    "impacters cannot be told apart is trimmed (vibroplan trim: one-way "
@@ -116,7 +117,7 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
     if trim_precision is not None and not trim:
         raise click.UsageError("--trim-precision needs --trim")
     try:
-        noise = check_noise(0.0 if measure_noise is None else measure_noise)
+        noise = None if measure_noise is None else check_noise(measure_noise)
     except ValueError as exc:
         raise click.BadParameter(str(exc).split(": ", 1)[-1],
                                  param_hint="'--measure-noise'") from None
@@ -129,6 +130,9 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
     record = read_plan(plan_path)
     plan_file = record.path
     fab = load_spec(Path(spec_file)).spec.fabrication if spec_file else None
+    if noise is None:
+        # the lab's noise as the spec declares it (a study's --spec, else the plan's)
+        noise = (fab or record.spec.fabrication).measurement_noise_pct if replan else 0.0
     inputs = [plan_file] + ([spec_file] if spec_file else [])
     check_output_folder(out_dir, command="yield", inputs=inputs, force=force)
     payload = make_payload(record, seed, fab, replan=replan, measure_noise_pct=noise,

@@ -389,4 +389,5 @@ def _finish(settings, kept: _Round, rounds, clock, scheduler, design_cache) -> P
         steps=pd.DataFrame(step_recs), verification=ver, coupling=coupling,
         scenes=pd.DataFrame(scene_rows), passed=passed, data=data, timings=clock.timings,
         settings=settings, waveforms=kept.played, designs=designs, assignment=assignment,
-        failures=tuple(failures), design_cache=design_cache)
+        failures=tuple(failures), design_cache=design_cache, run_steps=tuple(run_steps),
+        dwells=dict(step_settle))

@@ -218,6 +218,9 @@ class AsBuilt:
     damping_ns_per_m: NonNegative
     gap_m: Positive
     halves: tuple[AsBuiltHalf, ...] | None = None
+    #: the as-built mass [kg] (a re-plan since issue 37 infers it from the measurement;
+    #: absent in older re-plans, whose mass was the design's)
+    mass_kg: Positive | None = None
 
 
 @dataclass(frozen=True)
@@ -618,7 +621,11 @@ def _check(record: PlanRecord, source: str) -> None:
         nominal = nominal_impacter(record.spec, NodeDesign(rec.id, rec.device, rec.direction,
                                                   g.area_m2, g.width_m, g.length_m, g.gap_m,
                                                   rec.impact_angle_rad, rec.restitution))
-        checks = [("mass_kg", rec.mass_kg, nominal.mass)]
+        ab = (record.as_built or {}).get(rec.id)
+        # a re-plan's mass is as built (issue 37: inferred with the stiffness, the
+        # damping and the gap from the measurement); a plan's follows from its geometry
+        checks = [("mass_kg", rec.mass_kg,
+                   ab.mass_kg if ab is not None and ab.mass_kg is not None else nominal.mass)]
         if record.as_built is None:
             checks += [("stiffness_n_per_m", rec.stiffness_n_per_m, nominal.stiffness),
                        ("damping_ns_per_m", rec.damping_ns_per_m, nominal.damping)]
@@ -636,7 +643,6 @@ def _check(record: PlanRecord, source: str) -> None:
                      f"{design_nu:.6g} Hz does not follow from its geometry "
                      f"({nominal.natural_frequency:.6g} Hz through the fabrication equations): "
                      "the numbers contradict each other (was the file edited?)")
-            ab = record.as_built.get(rec.id)
             if ab is None:
                 fail(f"as_built.{rec.id}", "missing: a re-planned impacter has its as-built "
                                           "model")

@@ -66,6 +66,12 @@ class Plan:
         With an on-disk design cache: its ``path``, the designs ``read`` from it and
         ``written`` to it, and the distinct designs of the plan (``designed``, every
         repair round's); None without one (keyword only; not in plan.json).
+    run_steps : tuple of Step
+        The steps as they play (bursts sized, gated): with ``waveforms`` and ``dwells``
+        the drive a chip's check replays in memory (:func:`planner.afterfab.checks.
+        check_drive`) (keyword only).
+    dwells : dict
+        Step key -> the settle dwell after the step [s] (keyword only).
     """
 
     impacters: pd.DataFrame
@@ -84,3 +90,5 @@ class Plan:
     designs: dict = field(default_factory=dict, kw_only=True, repr=False)
     failures: tuple = field(default=(), kw_only=True, repr=False)
     design_cache: dict | None = field(default=None, kw_only=True, repr=False)
+    run_steps: tuple = field(default=(), kw_only=True, repr=False)
+    dwells: dict = field(default_factory=dict, kw_only=True, repr=False)

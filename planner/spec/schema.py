@@ -274,6 +274,12 @@ class FabricationSpec(Strict):
     #: The collision-free yield the channel grid is sized for (``drive.channels.spacing:
     #: tolerance``) and the plan's predicted yield is held against [-].
     target_yield: Annotated[float, Field(gt=0, lt=1, allow_inf_nan=False)] = 0.95
+    #: One sigma of a lab's measured resonance, relative [%]: how far the as-built models
+    #: may let a measurement be off (:mod:`planner.afterfab.as_built`), the noise a yield
+    #: study's re-plan measures its chips with (``vibroplan yield --measure-noise``
+    #: overrides it) and what a design's tone window is sized for
+    #: (``design.tone_window_pct``).  A swept resonance fits to 1e-4 to 1e-3.
+    measurement_noise_pct: Annotated[float, Field(ge=0, le=5, allow_inf_nan=False)] = 0.05
 
     @property
     def zero(self) -> bool:
@@ -289,6 +295,10 @@ class TrimSpec(Strict):
         stiffness by cutting the beam free of its anchor over a length (it falls).  A
         trim moves a resonance one way only.
     precision_pct : one sigma of the error of a trim, relative to the resonance [%].
+    passes : how often a lab measures, trims and measures again at most, each pass
+        cutting what the last measurement says is still missing (every cut's error is
+        drawn anew), within ``range_pct`` over all passes (``vibroplan yield --trim``;
+        ``vibroplan trim`` says what one pass cuts).
     """
 
     range_pct: Annotated[float, Field(gt=0, le=20, allow_inf_nan=False)] = 1.0
@@ -297,6 +307,7 @@ class TrimSpec(Strict):
     #: tabs are steps of this size (0 would need infinitely many); the yield's
     #: ``--trim-precision 0`` can still study an ideal trim
     precision_pct: Annotated[float, Field(gt=0, le=5, allow_inf_nan=False)] = 0.1
+    passes: Annotated[int, Field(ge=1, le=10)] = 3
 
     @model_validator(mode="after")
     def _precision_within_range(self):

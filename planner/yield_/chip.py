@@ -3,13 +3,13 @@ with ``--replan``, measure it, re-plan it and (with ``--trim``) trim it."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
-from model import halves
 from planner._random import chip_seed
 from planner.fabrication import sample_chip
-from planner.planning.plan_file import plan_record
-from planner.afterfab.checks import check_drive, drive_of
+from planner.afterfab.checks import check_drive
 from planner.yield_.inputs import Payload
 
 #: Why a re-plan failed, in the order reports list them (a chip may have several):
@@ -88,92 +88,87 @@ def verify_chip(payload: Payload, scale_index: int, chip_index: int, scale: floa
 def trim_chip_on(payload: Payload, settings, scale: float, chip_index: int, chip,
                  nominal: dict, replanned: dict) -> dict:
     """Trim a chip the re-plan could not rescue because two of its impacters cannot be
-    told apart, re-measure it, re-plan it and verify the drive on its trimmed true models.
+    told apart: the trim sequence a lab runs (:func:`planner.afterfab.trim.trim_sequence`:
+    measure, trim, measure again, up to ``trim.passes`` times, each cut off its target
+    by the trim precision, drawn anew every pass), then the re-plan from the last
+    measurement on the chip's as-built models with the trims applied, verified on its
+    trimmed true models.
 
     A chip the re-plan rescued needs no trim (its result is the re-plan's); a chip the
-    re-plan lost for another reason is not helped by one.  The trims are chosen from the
-    chip's measurement (:func:`planner.afterfab.trim.plan_trim`); each lands on its target times
-    (1 + precision z / 100) of the true resonance's move, z from the chip's seed
-    (:func:`planner.afterfab.trim.trimmed_resonances`); the trimmed chip is measured again (the
-    same noise level, new draws) and re-planned.
+    re-plan lost for another reason is not helped by one.
 
     Returns
     -------
     dict
-        ``passed``, ``trimmed`` (impacters trimmed), ``causes`` (``cannot be trimmed``
-        naming the moves beyond the range, or the re-plan's causes after the trim),
-        ``failures`` (kind -> rows on the trimmed true models).
+        ``passed``, ``trimmed`` (impacters trimmed), ``passes`` (trim passes made),
+        ``causes`` (``cannot be trimmed`` naming the moves beyond the range, or the
+        re-plan's causes after the trims), ``failures`` (kind -> failed checks on the
+        trimmed true models).
     """
-    from planner.afterfab.replan import measured_resonances
     from planner.afterfab.drive import must_differ
     from planner.afterfab.separations import separations_of
+    from planner.afterfab.trim import trim_models, trim_sequence, trimmed_resonances
     from planner.spec import TrimSpec
-    from planner.afterfab.trim import plan_trim, trim_models, trimmed_resonances
 
     if replanned["passed"] or not replanned["collisions"]:
-        return {**{k: replanned[k] for k in ("passed", "causes", "failures")}, "trimmed": []}
+        return {**{k: replanned[k] for k in ("passed", "causes", "failures")}, "trimmed": [],
+                "passes": 0}
     spec = payload.record.spec.trim or TrimSpec()
     precision = (spec.precision_pct if payload.trim_precision_pct is None
                  else payload.trim_precision_pct)
-    freqs = measured_frequencies(payload, scale, chip_index, chip)
-    measured = measured_resonances(payload.record, _as_measured(freqs))
-    mean = {n: float(np.mean(v)) if isinstance(v, tuple) else v for n, v in measured.items()}
-    tp = plan_trim(separations_of(payload.record, settings), mean, must_differ(settings.steps),
-                   range_pct=spec.range_pct, direction=spec.direction,
-                   precision_pct=precision)
-    if not tp.ok:
-        return {"passed": False, "trimmed": [], "failures": {},
-                "causes": ["cannot be trimmed"],
-                "beyond_range": [f["impacter"] for f in tp.failures]}
-    seq = chip_seed(payload.seed, scale, chip_index).spawn(3)
-    actual = trimmed_resonances(tp, precision, np.random.default_rng(seq[1]))
-    ratios = {n: actual[n] / tp.measured[n] for n in tp.moved}
-    true = trim_models(chip.impacters, ratios, spec.direction)
-    again = _as_measured(_measure(payload, true, seq[2]))     # the trimmed chip measured again
-    got = _replan_and_check(payload, settings, again, true, chip.sliders,
-                            (nominal["steps_passed"], nominal["rows"]), remeasure=tp.moved)
-    return {"passed": got["passed"], "trimmed": list(tp.moved), "causes": got["causes"],
-            "failures": got["failures"]}
+    seq = chip_seed(payload.seed, scale, chip_index).spawn(2 + 2 * spec.passes)
+    measured = _measure(payload, chip.impacters, seq[0])
+    state = {"true": chip.impacters}
+
+    def cut(tp, k):
+        # where the cuts really put the resonances: the targets, off by the precision
+        actual = trimmed_resonances(tp, precision, np.random.default_rng(seq[2 + 2 * k]))
+        ratios = {n: actual[n] / tp.measured[n] for n in tp.moved}
+        state["true"] = trim_models(state["true"], ratios, spec.direction)
+
+    def measure_again(k):
+        return _measure(payload, state["true"], seq[3 + 2 * k])
+
+    out = trim_sequence(separations_of(payload.record, settings), measured,
+                        must_differ(settings.steps), spec, cut=cut,
+                        measure_again=measure_again, precision_pct=precision)
+    if out.scrapped:
+        return {"passed": False, "trimmed": list(out.moved), "passes": len(out.passes),
+                "failures": {}, "causes": ["cannot be trimmed"],
+                "beyond_range": [f["impacter"] for f in out.scrapped]}
+    # the re-plan's models: the chip as first measured, with the trims the measurements
+    # saw applied
+    from planner.afterfab.replan import chip_models
+
+    first = chip_models(payload.record, measured, payload.measure_noise_pct)
+    models = dataclasses.replace(first, impacters=trim_models(first.impacters, out.ratios,
+                                                              spec.direction))
+    got = _replan_and_check(payload, settings, out.measured, state["true"], chip.sliders,
+                            (nominal["steps_passed"], nominal["rows"]), remeasure=out.moved,
+                            models=models)
+    return {"passed": got["passed"], "trimmed": list(out.moved), "passes": len(out.passes),
+            "causes": got["causes"], "failures": got["failures"]}
 
 
 def measured_frequencies(payload: Payload, scale: float, chip_index: int, chip) -> dict:
     """Node id -> (true, measured) natural frequency [Hz] of a sampled chip; for a pair
-    of unequal halves each is a tuple (half a, half b).
+    of unequal halves each is a tuple (half a, half b): what
+    :func:`replan_chip_on` measures of it (:func:`planner.afterfab.measurement.
+    measure_models`, the normals from the first child of the chip's SeedSequence)."""
+    from planner.afterfab.measurement import true_resonances
 
-    measured = true (1 + pct z / 100), z standard normal from the first child of the
-    chip's SeedSequence (two draws per node in the design's order, the second for its
-    second half, whatever pct, so the same chip gets the same normals at every noise
-    level), floored at a tenth of the true frequency (a measurement never finds a
-    resonance at or below 0 Hz; only a noise of tens of per cent reaches the floor).
-    """
-    seq = chip_seed(payload.seed, scale, chip_index).spawn(1)[0]
-    return _measure(payload, chip.impacters, seq)
+    measured = _measure(payload, chip.impacters, chip_seed(payload.seed, scale,
+                                                           chip_index).spawn(1)[0])
+    true = true_resonances(chip.impacters)
+    return {n: (true[n], measured[n].resonance) for n in measured}
 
 
 def _measure(payload: Payload, impacters: dict, seq) -> dict:
-    """:func:`measured_frequencies` of the models ``impacters`` (node id ->
-    :class:`model.Impacter`), with the normals drawn from the SeedSequence ``seq``."""
-    z = np.random.default_rng(seq).standard_normal((len(payload.design.nodes), 2))
-    out = {}
-    for node, zi in zip(payload.design.nodes, z):
-        parts = halves(impacters[node.id])
-        true = [float(h.natural_frequency) for h, _ in parts]
-        meas = [nu * max(1.0 + payload.measure_noise_pct / 100.0 * float(zk), 0.1)
-                for nu, zk in zip(true, zi)]
-        out[node.id] = ((true[0], meas[0]) if len(parts) == 1 else
-                        (tuple(true), tuple(meas)))
-    return out
+    """The lab's measurement of the models ``impacters`` (node id -> model): id ->
+    :class:`~planner.afterfab.measurement.Measurement` at the payload's noise."""
+    from planner.afterfab.measurement import measure_models
 
-
-def _as_measured(freqs: dict) -> dict:
-    """The re-plan's ``measured`` of :func:`measured_frequencies`' pairs."""
-    out = {}
-    for n, (_, m) in freqs.items():
-        if isinstance(m, tuple):
-            out[n] = {"natural_frequency_hz": float(np.mean(m)), "halves_hz": m}
-        else:
-            out[n] = {"natural_frequency_hz": m}
-    return out
+    return measure_models(impacters, payload.design.node_ids, payload.measure_noise_pct, seq)
 
 
 def replan_chip_on(payload: Payload, settings, scale: float, chip_index: int, chip,
@@ -202,36 +197,38 @@ def replan_chip_on(payload: Payload, settings, scale: float, chip_index: int, ch
         ``passed`` (the re-planned drive passes every check on the true models),
         ``measured_passed`` (the re-plan verified on the models it was made from),
         ``causes`` (:data:`REPLAN_CAUSES` that apply when it fails), ``failures``
-        (kind -> rows on the true models), ``collisions`` (pairs no drive tells apart:
-        ``pair``, their measured resonances ``as_built_hz``, ``apart_hz`` and the
+        (kind -> failed checks on the true models), ``collisions`` (pairs no drive tells
+        apart: ``pair``, their measured resonances ``as_built_hz``, ``apart_hz`` and the
         ``needs_hz`` they would need), ``outside_band`` (impacters whose tone fell
-        beyond the band), ``split_steps`` (steps played as sub-steps),
-        ``tones_moved``.
+        beyond the band), ``split_steps`` (steps played as sub-steps), ``tones_moved``.
     """
-    freqs = measured_frequencies(payload, scale, chip_index, chip)
-    return _replan_and_check(payload, settings, _as_measured(freqs), chip.impacters,
-                             chip.sliders, (nominal["steps_passed"], nominal["rows"]))
+    measured = _measure(payload, chip.impacters,
+                        chip_seed(payload.seed, scale, chip_index).spawn(1)[0])
+    return _replan_and_check(payload, settings, measured, chip.impacters, chip.sliders,
+                             (nominal["steps_passed"], nominal["rows"]))
 
 
 def _replan_and_check(payload, settings, measured, impacters, sliders, original,
-                      remeasure=()):
-    """Re-plan from ``measured`` and verify the drive on the true models (a yield's
-    re-plan and its trim's; ``remeasure``: the trimmed impacters, whose separations the
-    re-plan measures again)."""
-    from planner.afterfab.replan import replan_chip
+                      remeasure=(), models=None):
+    """Re-plan from ``measured`` (or on ``models``) and verify the drive, in memory, on
+    the true models (a yield's re-plan and its trim's; ``remeasure``: the trimmed
+    impacters, whose separations the re-plan measures again)."""
+    from planner.afterfab.replan import chip_models, replan_chip
     from planner.synthesis import LoopLengthError
 
+    if models is None:
+        models = chip_models(payload.record, measured, payload.measure_noise_pct)
     try:
         ok, plan = replan_chip(payload.record, measured, settings=settings,
-                               original=original, record=False, remeasure=remeasure)
+                               original=original, record=False, remeasure=remeasure,
+                               models=models)
     except LoopLengthError:
         # this chip's tones fit no loop the synthesis may play: the chip fails (with
         # that cause), the study goes on
         return {"passed": False, "measured_passed": False, "causes": ["drive not playable"],
                 "failures": {}, "collisions": [], "outside_band": [], "split_steps": [],
                 "tones_moved": 0}
-    data = plan.data
-    rp = data["replan"]
+    rp = plan.data["replan"]
     collisions = [{k: c[k] for k in ("pair", "as_built_hz", "apart_hz", "needs_hz")}
                   for c in rp["inseparable"]]
     if collisions:      # no drive can pass: not simulated on the true models
@@ -239,9 +236,9 @@ def _replan_and_check(payload, settings, measured, impacters, sliders, original,
                 "causes": ["cannot be told apart"], "failures": {}, "collisions": collisions,
                 "outside_band": list(rp["outside_band"]),
                 "split_steps": sorted(rp["split_steps"]), "tones_moved": len(rp["moved"])}
-    # the re-plan's plan.json, read back as any plan is
-    steps, waveforms, dwells = drive_of(plan_record(data, source="the chip's re-plan"))
-    got = check_drive(settings, steps, waveforms, dwells, impacters, sliders)
+    # the re-planned drive as it plays, checked on the chip's true models in memory
+    got = check_drive(settings, plan.run_steps, plan.waveforms, plan.dwells, impacters,
+                      sliders)
     causes = []
     if not got["passed"]:
         if rp["outside_band"]:
@@ -258,4 +255,3 @@ def _replan_and_check(payload, settings, measured, impacters, sliders, original,
             "split_steps": sorted(rp["split_steps"]),
             "tones_moved": sum(1 for m in rp["moved"]
                                if m["frequency_hz"] != m["original_frequency_hz"])}
-

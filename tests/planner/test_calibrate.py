@@ -371,7 +371,7 @@ def test_each_half_of_a_pair_is_fitted_and_read_by_the_replan(tmp_path):
     own, measured.csv keeps the half, and the re-plan's reader takes it as two halves of
     one pair (nu_n of each within its reported error); a pair given with and without a
     half, or a half that is not a or b, is refused by row and column."""
-    from planner.afterfab.replan import read_measured
+    from planner.afterfab.measurement import read_measured
 
     halves = {"a": air_impacter(9000.0), "b": air_impacter(9060.0)}
     rng = np.random.default_rng(5)
@@ -397,7 +397,7 @@ def test_each_half_of_a_pair_is_fitted_and_read_by_the_replan(tmp_path):
         assert abs(fit["natural_frequency_hz"] - imp.natural_frequency) \
             < 3 * fit["natural_frequency_std_hz"]
     got = read_measured(out, ["A1.forward"])["A1.forward"]
-    assert got["halves_hz"] == pytest.approx((9000.0, 9060.0), rel=2e-3)
+    assert got.halves_hz == pytest.approx((9000.0, 9060.0), rel=2e-3)
 
     lines = csv.read_text().splitlines()
     for bad, column in ((lines[0] + "\n" + lines[1].replace(",a,", ",,", 1), "half"),

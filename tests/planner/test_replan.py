@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from planner.afterfab import Measurement
 from planner.nodes import Node
 
 A1F, A2B = Node("A1", "forward"), Node("A2", "backward")
@@ -42,29 +43,39 @@ def _measured_csv(path, freqs, extra=""):
     return _write(path, "\n".join(rows) + "\n")
 
 
+def _models(built):
+    """Node -> model of an :class:`~planner.afterfab.AsBuilt`."""
+    return {Node.parse(n): m for n, m in built.impacters.items()}
+
+
 def _run(*args):
     from planner.cli import main
 
     return CliRunner().invoke(main, ["replan", *map(str, args)], catch_exceptions=False)
 
 
-def test_as_built_parameters_follow_the_measurement(plan_data, plan):
-    from planner.afterfab.replan import as_built_parameters
+def test_chip_models_follow_the_measurement(plan_data, plan):
+    """Without fabrication tolerances (the tiny spec) nothing splits a shift into mass,
+    damping and gap: the stiffness takes it, a measured Q the damping, a measured gap
+    the gap."""
+    from planner.afterfab import Measurement
+    from planner.afterfab.replan import chip_models
 
     rec = plan_data["impacters"][0]
     nu = 1.03 * rec["natural_frequency_hz"]
-    p = as_built_parameters(plan, {rec["id"]: {"natural_frequency_hz": nu,
-                                                    "quality_factor": 12.0,
-                                                    "gap_m": 2.5e-6}})[rec["id"]]
+    built = chip_models(plan, {rec["id"]: Measurement.of(nu, quality_factor=12.0,
+                                                         gap_m=2.5e-6)})
+    p = built.parameters()[rec["id"]]
     m = rec["mass_kg"]
+    assert p["mass_kg"] == pytest.approx(m, rel=1e-12)
     assert p["stiffness_n_per_m"] == pytest.approx(m * (2 * math.pi * nu) ** 2, rel=1e-12)
     assert p["damping_ns_per_m"] == pytest.approx(m * 2 * math.pi * nu / 12.0, rel=1e-12)
     assert p["gap_m"] == 2.5e-6
     other = plan_data["impacters"][1]
-    q = as_built_parameters(plan, {})[other["id"]]
+    q = built.parameters()[other["id"]]
     # not measured: the design's damping and gap, and its own resonance
-    assert q["damping_ns_per_m"] == other["damping_ns_per_m"]
-    assert q["gap_m"] == other["gap_m"]
+    assert q["damping_ns_per_m"] == pytest.approx(other["damping_ns_per_m"], rel=1e-12)
+    assert q["gap_m"] == pytest.approx(other["gap_m"], rel=1e-12)
     assert q["stiffness_n_per_m"] == pytest.approx(other["stiffness_n_per_m"], rel=1e-6)
 
 
@@ -75,8 +86,8 @@ def test_replan_of_the_design_verifies(plan_data, tmp_path):
     # the as-built record of the pinned contract, equal to the design here
     for r in plan_data["impacters"]:
         ab = d["as_built"][r["id"]]
-        assert set(ab) == {"natural_frequency_hz", "stiffness_n_per_m", "damping_ns_per_m",
-                           "gap_m"}
+        assert {"natural_frequency_hz", "stiffness_n_per_m", "damping_ns_per_m",
+                "gap_m", "mass_kg"} <= set(ab)
         assert ab["natural_frequency_hz"] == pytest.approx(r["natural_frequency_hz"])
     # same output contract as vibroplan plan
     assert {"impacters", "devices", "steps", "verification", "spec", "seed",
@@ -117,22 +128,24 @@ def test_shifted_chip_is_rescued(plan_data, plan, tmp_path):
     for m in d["replan"]["moved"]:
         assert (m["tone_shift"] > 0) == (m["natural_frequency_shift"] > 0)
     # and the re-planned drive, checked independently on the same models, passes
+    from planner.afterfab import Measurement
+    from planner.afterfab.replan import chip_models, verify_drive
     from planner.planning.plan_file import plan_record
-    from planner.afterfab.replan import verify_drive
 
-    passed, rows = verify_drive(plan_record(d), {n: {"natural_frequency_hz": f}
-                                                 for n, f in freqs.items()})
+    chip = chip_models(plan, {n: Measurement.of(f) for n, f in freqs.items()})
+    passed, rows = verify_drive(plan_record(d), chip)
     assert passed and len(rows) == 4
     # while the original drive does not
-    passed, _ = verify_drive(plan, {n: {"natural_frequency_hz": f} for n, f in freqs.items()})
+    passed, _ = verify_drive(plan, chip)
     assert not passed
 
 
 def test_replan_chip_api(plan):
     from planner.afterfab.replan import replan_chip
 
-    chip = {r.id: {"natural_frequency_hz": 1.02 * r.natural_frequency_hz}
-            for r in plan.impacters}
+    from planner.afterfab import Measurement
+
+    chip = {r.id: Measurement.of(1.02 * r.natural_frequency_hz) for r in plan.impacters}
     passed, result = replan_chip(plan, chip, seed=1)
     assert passed is result.passed
     assert result.data["seed"] == 1
@@ -220,15 +233,15 @@ def test_pair_halves_are_read_from_the_half_column(plan_data, tmp_path):
     the pair's resonance is their mean; half a pair, or a pair measured both ways, is
     refused naming the row."""
     from planner.errors import SpecError
-    from planner.afterfab.replan import read_measured
+    from planner.afterfab.measurement import read_measured
 
     ids = [r["id"] for r in plan_data["impacters"]]
     csv = _write(tmp_path / "m.csv", "impacter,half,natural_frequency_hz\n"
                  "A1.forward,a,6100\nA1.forward,b,6140\nA2.backward,,9000\n")
     got = read_measured(csv, ids)
-    assert got["A1.forward"]["halves_hz"] == (6100.0, 6140.0)
-    assert got["A1.forward"]["natural_frequency_hz"] == 6120.0
-    assert "halves_hz" not in got["A2.backward"]
+    assert got["A1.forward"].halves_hz == (6100.0, 6140.0)
+    assert got["A1.forward"].natural_frequency_hz == 6120.0
+    assert not got["A2.backward"].by_halves
     for text, row in (("A1.forward,a,6100\n", 2),
                       ("A1.forward,a,6100\nA1.forward,,6100\n", 3),
                       ("A1.forward,c,6100\n", 2)):
@@ -240,14 +253,15 @@ def test_pair_halves_are_read_from_the_half_column(plan_data, tmp_path):
 
 def test_calibrate_output_is_accepted(plan_data, tmp_path):
     # calibrate's *_std columns are ignored
-    from planner.afterfab.replan import read_measured
+    from planner.afterfab.measurement import read_measured
 
     csv = _write(tmp_path / "m.csv",
                  "impacter,natural_frequency_hz,quality_factor,natural_frequency_std_hz,"
                  "quality_factor_std\nA1.forward,2600.5,11.2,3.1,0.4\n")
+    from planner.afterfab import Measurement
+
     got = read_measured(csv, [r["id"] for r in plan_data["impacters"]])
-    assert got == {"A1.forward": {"natural_frequency_hz": 2600.5, "quality_factor": 11.2,
-                                  "gap_m": None}}
+    assert got == {"A1.forward": Measurement((2600.5,), (11.2,), (None,))}
 
 
 def test_replanned_drive_meets_the_acceleration_limit(plan_data):
@@ -263,7 +277,7 @@ def test_replanned_drive_meets_the_acceleration_limit(plan_data):
     limit_g = 0.5 * peak / 9.80665
     data = copy.deepcopy(plan_data)
     data["spec"]["drive"]["max_acceleration_g"] = limit_g
-    chip = {r["id"]: {"natural_frequency_hz": r["natural_frequency_hz"]}
+    chip = {r["id"]: Measurement.of(r["natural_frequency_hz"])
             for r in data["impacters"]}
     _, result = replan_chip(plan_record(data), chip)
     peaks = [st["peak_acceleration_m_s2"] for st in result.data["steps"]]
@@ -287,7 +301,7 @@ def test_the_replan_keeps_a_margin_on_the_travel(plan_data):
         return [r["travel_m"] for st in data["verification"]["steps"].values()
                 for r in st.values() if r["expected"] != "idle"]
 
-    chip = {r["id"]: {"natural_frequency_hz": r["natural_frequency_hz"]}
+    chip = {r["id"]: Measurement.of(r["natural_frequency_hz"])
             for r in plan_data["impacters"]}
     # the re-plan's own travel with the default limit (its tones sit mid-window, not
     # where the plan put them), then a limit 7 % above it
@@ -310,7 +324,9 @@ def test_a_step_an_idle_impacter_answers_is_played_weaker(plan_data):
     weaker no longer does; its notes say by how much, and the mover still moves."""
     from planner.planning.drives import limit_acceleration, scaled, synthesize_steps
     from planner.planning.plan_file import plan_record
-    from planner.afterfab.drive import RescuedDrive, as_built_models, quieten
+    from planner.afterfab import Measurement
+    from planner.afterfab.drive import RescuedDrive, quieten
+    from planner.afterfab.replan import chip_models
     from planner.planning.settings import resolve_settings
     from planner.planning.verify import IDLE_RESPONSE, check_steps
 
@@ -330,7 +346,7 @@ def test_a_step_an_idle_impacter_answers_is_played_weaker(plan_data):
         return rows, fails
 
     def answers(nu, factor):
-        models = as_built_models(record, {"A2.backward": nu})
+        models = _models(chip_models(record, {"A2.backward": Measurement.of(nu)}))
         w = {step.key: scaled(waveforms[step.key], factor, "test")}
         return any(f.kind == IDLE_RESPONSE for f in check([step], w, models)[1])
 
@@ -346,7 +362,7 @@ def test_a_step_an_idle_impacter_answers_is_played_weaker(plan_data):
     full, weak = edge(1.0), edge(0.85)
     assert full > weak                       # a stronger drive reaches further
     nu = 0.5 * (full + weak)
-    models = as_built_models(record, {"A2.backward": nu})
+    models = _models(chip_models(record, {"A2.backward": Measurement.of(nu)}))
     rows, fails = check([step], waveforms, models)
     assert [f.impacter for f in fails if f.kind == IDLE_RESPONSE] == [A2B]
     drive = RescuedDrive((step,), waveforms, notes, {step.key: 0.0}, tones, [], {}, {})
@@ -375,8 +391,7 @@ def test_the_replan_plays_the_plans_phases(plan_data):
     plan = plan_record(data)
     phases = plan_phases(plan)
     assert set(phases) == {st["scene"] + "/" + st["name"] for st in data["steps"]}
-    measured = {r.id: {"natural_frequency_hz": 1.01 * r.natural_frequency_hz}
-                for r in plan.impacters}
+    measured = {r.id: Measurement.of(1.01 * r.natural_frequency_hz) for r in plan.impacters}
     _, result = replan_chip(plan, measured, record=False)
     for st in result.data["steps"]:
         old = next(s for s in data["steps"] if s["name"] == st["name"])

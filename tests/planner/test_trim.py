@@ -225,7 +225,8 @@ def test_remeasured_replaces_only_the_trimmed_rows_by_simulation(close_plan_dir)
     plan recorded it."""
     from planner.manufacturability import BAND_MARGIN, measure_separation
     from planner.planning.plan_file import read_plan
-    from planner.afterfab.replan import measured_models
+    from planner.afterfab import Measurement
+    from planner.afterfab.replan import chip_models
     from planner.afterfab.separations import remeasured, separations_of
     from planner.planning.settings import resolve_settings
 
@@ -233,10 +234,9 @@ def test_remeasured_replaces_only_the_trimmed_rows_by_simulation(close_plan_dir)
     settings = resolve_settings(plan.loaded)
     seps = separations_of(plan, settings)
     hi = _neighbours(plan)[1].id
-    moved = {r.id: {"natural_frequency_hz": r.natural_frequency_hz * (1.02 if r.id == hi
-                                                                      else 1.0)}
+    moved = {r.id: Measurement.of(r.natural_frequency_hz * (1.02 if r.id == hi else 1.0))
              for r in plan.impacters}
-    models = measured_models(plan, moved)
+    models = chip_models(plan, moved).impacters
     tones = {r.id: r.frequency_hz * (1.02 if r.id == hi else 1.0) for r in plan.impacters}
     again = remeasured(seps, [hi], models, tones, settings)
     k = seps.ids.index(hi)
