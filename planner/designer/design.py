@@ -430,15 +430,18 @@ def shortfalls(a, chk, imp, speed, slider, checks):
     frequency = a.frequency
     if not chk["r_min"] > 0:
         bad = int(np.asarray(chk["bad_target"]).size)
+        under = checks.get("unanswered_target_drives") or []
         out.append(_shortfall("response", bad, 0, "x0",
                               f"does not respond at {frequency:g} Hz from {bad} of "
-                              f"{chk['points']} x0 of the re-check grid"))
+                              f"{chk['points']} x0 of the re-check grid"
+                              + (" (under the summed drive " + ", ".join(map(repr, under))
+                                 + " it plays in)" if under else "")))
     at = [f for f, r in zip(a.forbidden, chk["r_max"]) if r > 0]
     near = [f for f in checks.get("violated_tones_hz", ()) if f not in at]
     loud = [f"{f:g} Hz" for f in at]
     loud += [f"inside the guard band of {f:g} Hz" for f in near]
     loud += [f"the summed drive {label!r}" for label in checks["violated_drives"]]
-    if not chk["fine_ok"]:
+    if loud or np.asarray(chk["bad_forbid"]).size:
         out.append(_shortfall("silence", len(loud), 0, "frequencies",
                               "responds " + (", ".join(loud) if loud else
                                              "inside the guard band of a forbidden frequency")))
@@ -505,6 +508,9 @@ def _checks(a, problem, ev, chk, history, rounds):
                                      for j in chk["violated"]
                                      if not isinstance(problem.check_hz[j], Ensemble)
                                      and problem.owner[j] >= 0}),
+        # the summed drives it must move its slider under (a multi-tone step it plays
+        # in) from some x0 of the re-check grid it does not respond under
+        "unanswered_target_drives": _unanswered(problem, ev.geometry),
     }
     if sensitivity is not None:
         checks["line_width_sensitivity_per_um"] = (
@@ -513,6 +519,17 @@ def _checks(a, problem, ev, chk, history, rounds):
     if robust_shift is not None:
         checks["robust_natural_frequency_scales"] = list(problem.nu_scales(ev.geometry))
     return checks
+
+
+def _unanswered(problem, geometry):
+    """Labels of the target ensembles under which ``geometry`` does not respond from
+    some x0 of the re-check grid (runs the re-check made: cached)."""
+    if not problem.target_ensembles:
+        return []
+    u = _u_grid(problem.budget.verify_x0_points)
+    with problem.kernel_scope():
+        return sorted(e.label for e in problem.target_ensembles
+                      if np.any(problem.runs_of(geometry, e, u, problem.window, False)[0] <= 0))
 
 
 def _message(a, chk, status, worst_x0, violated_drives, short=()):

@@ -110,6 +110,11 @@ def design_levers(designs, steps, assignment, draws, pair_sep, sep, reseed, rese
             hz = next(s["value"] for s in d.shortfalls if s["constraint"] == "silence_long")
             if math.isfinite(hz):
                 singles.update(m for m in playing(hz) if m != n)
+        unanswered = [k for k in d.checks.get("unanswered_target_drives", ()) if k in by_key]
+        if "response" in kinds and unanswered and not drives:
+            # it does not respond under the summed drive of a step it plays in: that
+            # step's phases decide how its tones add up in it
+            drives = unanswered
         if (not drives and not singles and sits_out.get(n)
                 and kinds & {"response", "silence", "silence_long"}):
             # silent under every summed drive it sits out but unable to respond from
@@ -125,8 +130,18 @@ def design_levers(designs, steps, assignment, draws, pair_sep, sep, reseed, rese
             if draws.get(k, 0) + 1 < MAX_PHASE_DRAWS:
                 draws[k] = draws.get(k, 0) + 1
                 drawn.add(k)
-                say(f"{k}: phases drawn anew (draw {draws[k] + 1}): {{who}} answer(s) its "
-                    "summed drive", n)
+                say(f"{k}: phases drawn anew (draw {draws[k] + 1}): {{who}} "
+                    + ("cannot move its slider under its summed drive from every x0"
+                       if k in unanswered else "answer(s) its summed drive"), n)
+            elif k in unanswered:
+                # it plays in the step: no channel takes it away from its own tones;
+                # another search may find a design the step's sum drives
+                if n not in reseeded:
+                    _next_seeds(reseed, n)
+                    reseeded.add(n)
+                    say(f"{{who}}: re-designed from further seeds (cannot move its slider "
+                        f"under the summed drive of {k} after {MAX_PHASE_DRAWS} phase "
+                        "draws)", n)
             else:
                 players = sorted(Node(dv, dr) for dv, dr in by_key[k].active_nodes())
                 f = assignment.frequencies[n]
