@@ -183,7 +183,8 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
     if settings is None:
         settings = plan_settings(plan, seed)
     plan_imps = {r.node: r for r in plan.impacters}
-    built = models if models is not None else chip_models(plan, measured)
+    built = (models if models is not None else
+             chip_models(plan, measured, 100.0 * settings.measurement_noise))
     params = built.parameters()
     models = {n: built.impacters[r.id] for n, r in plan_imps.items()}
     devices = sorted({n.device for n in models}, key=device_key)

@@ -68,7 +68,8 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
                     impact_angle=_d.IMPACT_ANGLE, restitution=_d.RESTITUTION,
                     forbidden_drives=(), max_mass_ratio=None, contact="paper",
                     robust_shift=None, target_drives=(), sensitivity=None,
-                    speed_window=None, speed_x0_points=None, min_speed=None):
+                    speed_window=None, speed_x0_points=None, min_speed=None,
+                    tone_window=0.0):
     """Design one impacter by the paper's max-min problem, eqs. (13)-(18).
 
     Maximise the worst response over initial positions at ``frequency`` subject to
@@ -165,6 +166,13 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         The slowest predicted slider speed a design may have [m/s] (an array plan's
         ``verification.min_speed_mm_s``): a design predicted slower is infeasible, with
         the shortfall in ``shortfalls``.  None: no floor (the paper's problem).
+    tone_window : float
+        Relative half-width w of the design's tone window [-] (an array plan's
+        ``design.tone_window_pct``): the design must respond from every x0 at
+        ``frequency`` (1 - w) and (1 + w) too, and the objective's worst response is
+        taken over the tone and both edges -- the paper's max-min over x0 extended over
+        the tone, so that a tone moved by a measurement's error still drives it.  0:
+        the tone alone (the paper's problem).
 
     Returns
     -------
@@ -197,11 +205,12 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
     a = _checked_inputs(frequency, forbidden, process, environment, bounds, window, slider,
                         budget, x0_points, power, amplitude, seed, guard, impact_angle,
                         restitution, forbidden_drives, target_drives, contact,
-                        max_mass_ratio, robust_shift, sensitivity, min_speed)
+                        max_mass_ratio, robust_shift, sensitivity, min_speed, tone_window)
     problem = _Problem(a.frequency, a.forbidden, a.factory, a.tones, a.bounds, a.window,
                        a.budget, a.guard, a.ensembles, mass_cap=a.mass_cap,
                        q_per_kg=a.q_per_kg, robust_shift=a.robust_shift,
-                       target_ensembles=a.targets, sensitivity=a.sensitivity)
+                       target_ensembles=a.targets, sensitivity=a.sensitivity,
+                       tone_window=a.tone_window)
     report = _progress_hook(progress)
     ev, chk, status, history, rounds = _search(problem, a.rng, a.budget, report)
     return _result(a, problem, ev, chk, status, history, rounds, report, slider=a.slider,
@@ -233,12 +242,13 @@ class _Inputs:
     sensitivity: tuple | None
     max_mass_ratio: float | None
     min_speed: float | None
+    tone_window: float = 0.0
 
 
 def _checked_inputs(frequency, forbidden, process, environment, bounds, window, slider,
                     budget, x0_points, power, amplitude, seed, guard, impact_angle,
                     restitution, forbidden_drives, target_drives, contact, max_mass_ratio,
-                    robust_shift, sensitivity, min_speed=None):
+                    robust_shift, sensitivity, min_speed=None, tone_window=0.0):
     """:class:`_Inputs` from :func:`design_impacter`'s arguments; ValueError naming the
     first bad one."""
     from planner.config import EnvironmentConfig, ProcessConfig, SliderConfig, build_slider
@@ -317,12 +327,21 @@ def _checked_inputs(frequency, forbidden, process, environment, bounds, window, 
         min_speed = float(min_speed)
         if not (math.isfinite(min_speed) and min_speed >= 0.0):
             raise ValueError(f"min_speed must be finite and >= 0 [m/s], {min_speed!r} was given")
+    tone_window = float(tone_window)
+    if not (math.isfinite(tone_window) and 0.0 <= tone_window < 0.1):
+        raise ValueError(f"tone_window must be in [0, 0.1) [-], {tone_window!r} was given")
+    for f in forbidden:
+        # a forbidden tone inside the window would be one the design must answer
+        if tone_window and abs(math.log(f / frequency)) <= tone_window:
+            raise ValueError(f"the forbidden frequency {f:g} Hz lies inside the tone window "
+                             f"of the target {frequency:g} Hz (tone_window {tone_window:g})")
     return _Inputs(frequency=frequency, forbidden=forbidden, window=window, bounds=bounds,
                    slider=slider, budget=budget, budget_name=budget_name, tones=tones, rng=rng,
                    factory=factory, guard=guard, ensembles=ensembles, targets=targets,
                    contact=contact, mass_cap=mass_cap, q_per_kg=q_per_kg,
                    robust_shift=robust_shift, sensitivity=sensitivity,
-                   max_mass_ratio=max_mass_ratio, min_speed=min_speed)
+                   max_mass_ratio=max_mass_ratio, min_speed=min_speed,
+                   tone_window=tone_window)
 
 
 def _search(problem, rng, budget, report):
@@ -401,7 +420,7 @@ def _result(a, problem, ev, chk, status, history, rounds, report, *, slider, spe
         simulations=problem.simulations, checks=checks, response_band_hz=band, status=status,
         message=message, seed=seed if isinstance(seed, numbers.Integral) else None,
         budget=a.budget_name, window_s=window, mass_ratio=imp.mass / slider.mass, contact=contact,
-        shortfalls=short)
+        shortfalls=short, tone_window=a.tone_window)
 
 
 #: Relative slack of the bound checks of :func:`shortfalls`: the search clips to the

@@ -92,8 +92,16 @@ class _Problem:
 
     def __init__(self, frequency, forbidden, factory, tones, bounds, window, budget, guard,
                  ensembles=(), mass_cap=math.inf, q_per_kg=0.0, robust_shift=None,
-                 target_ensembles=(), sensitivity=None):
+                 target_ensembles=(), sensitivity=None, tone_window=0.0):
         self.frequency = frequency
+        # the tone window: the design must respond, from every x0, at the tone moved by
+        # -w and +w too (its tone moves with a measurement's error on a fabricated chip);
+        # the objective's worst response is taken over the tone and both edges
+        self.tone_window = float(tone_window)
+        self.window_tones = (() if self.tone_window <= 0.0 else
+                             (frequency * (1.0 - self.tone_window),
+                              frequency * (1.0 + self.tone_window)))
+        self._window_keys = {_freq_key(f) for f in self.window_tones}
         # eqs. (2), (4) in closed form: the beam length for a natural frequency and the
         # line-width sensitivity (planner.designer.sensitivity)
         self.line_width = LineWidthModel(factory)
@@ -334,7 +342,8 @@ class _Problem:
                 # driven); anywhere else the one that responds most (all must be silent)
                 target = (any(frequency is e for e in self.target_ensembles)
                           or (not isinstance(frequency, Ensemble)
-                              and _freq_key(frequency) == _freq_key(self.frequency)))
+                              and (_freq_key(frequency) == _freq_key(self.frequency)
+                                   or _freq_key(frequency) in self._window_keys)))
                 hit = ((np.min(rs, axis=0) if target else np.max(rs, axis=0)),
                        np.max(statuses, axis=0))
             self.runs[key] = hit
@@ -362,8 +371,9 @@ class _Problem:
         return imp
 
     def target(self, geometry, u, levels, window=None, ensembles=True):
-        """(u, r) at the target frequency, refined by bisection where r jumps; with
-        ``ensembles``, r is the least of the tone's and every target ensemble's."""
+        """(u, r) at the target frequency, refined by bisection where r jumps; r is the
+        least of the tone's and its window edges' (``tone_window``), and with
+        ``ensembles`` every target ensemble's too."""
         window = self.window if window is None else window
         u = np.asarray(u, dtype=float)
         r = self.runs_of(geometry, self.frequency, u, window, False)[0]
@@ -378,6 +388,9 @@ class _Problem:
             r = np.concatenate([r, r_new])
             order = np.argsort(u, kind="stable")
             u, r = u[order], r[order]
+        for f in self.window_tones:
+            # the tone anywhere in its window: the edges must drive it from every x0 too
+            r = np.minimum(r, self.runs_of(geometry, f, u, window, False)[0])
         for ens in (self.target_ensembles if ensembles else ()):
             # the slider must move under the step's summed drive from every x0 too
             r = np.minimum(r, self.runs_of(geometry, ens, u, window, False)[0])

@@ -30,7 +30,7 @@ def recheck_design(previous, frequency, forbidden=(), *, new_forbidden=(), forbi
                    power=50.0, amplitude=None, bounds=None, window=3e-3, budget="fast",
                    slider=None, guard=0.02, impact_angle=None, restitution=None,
                    max_mass_ratio=None, contact="paper", robust_shift=None, sensitivity=None,
-                   seed=0, x0_points=None, **_ignored):
+                   seed=0, x0_points=None, tone_window=0.0, **_ignored):
     """``previous`` (a feasible :class:`~planner.designer.DesignResult` for the same
     ``frequency``) with its inputs changed, re-checked where they changed.
 
@@ -51,7 +51,7 @@ def recheck_design(previous, frequency, forbidden=(), *, new_forbidden=(), forbi
         x0 is re-checked under them when any is given).
     min_speed, process, environment, power, amplitude, bounds, window, budget, slider,
     guard, impact_angle, restitution, max_mass_ratio, contact, robust_shift,
-    sensitivity, seed, x0_points :
+    sensitivity, seed, x0_points, tone_window :
         As :func:`planner.designer.design_impacter` (the design's own settings).
 
     Returns
@@ -72,11 +72,13 @@ def recheck_design(previous, frequency, forbidden=(), *, new_forbidden=(), forbi
     a = _checked_inputs(frequency, tuple(new_forbidden), process, environment, bounds, window,
                         slider, budget, x0_points, power, amplitude, seed, guard,
                         kw["impact_angle"], kw["restitution"], forbidden_drives, target_drives,
-                        contact, max_mass_ratio, robust_shift, sensitivity, min_speed)
+                        contact, max_mass_ratio, robust_shift, sensitivity, min_speed,
+                        tone_window)
     problem = _Problem(a.frequency, a.forbidden, a.factory, a.tones, a.bounds, a.window,
                        a.budget, a.guard, a.ensembles, mass_cap=a.mass_cap,
                        q_per_kg=a.q_per_kg, robust_shift=a.robust_shift,
-                       target_ensembles=a.targets, sensitivity=a.sensitivity)
+                       target_ensembles=a.targets, sensitivity=a.sensitivity,
+                       tone_window=a.tone_window)
     if a.targets:
         # the re-check counts the target drives in r_min
         problem.ensembles_in_search = True

@@ -69,6 +69,9 @@ class DesignResult:
         Every constraint the design misses by its own prediction, by how much
         (:func:`planner.designer.design.shortfalls`: ``constraint``, ``value``,
         ``limit``, ``unit``, ``text``); empty when ``feasible``.
+    tone_window : float
+        The relative half-width of the tone window it was made to answer from every x0
+        [-] (0: its tone alone).
     """
 
     impacter: Impacter
@@ -101,6 +104,7 @@ class DesignResult:
     mass_ratio: float = math.nan
     contact: str = "paper"
     shortfalls: tuple = ()
+    tone_window: float = 0.0
 
     def to_dict(self):
         """JSON-safe dict with the plan's impacter keys (SI units, unit-suffixed)."""
@@ -133,6 +137,7 @@ class DesignResult:
             "feasible": bool(self.feasible),
             "shortfalls": [{k: (num(v) if isinstance(v, float) else v) for k, v in s.items()}
                            for s in self.shortfalls],
+            "tone_window": num(self.tone_window),
             "status": self.status,
             "message": self.message,
             "checks": {k: (num(v) if isinstance(v, float) else v) for k, v in self.checks.items()},

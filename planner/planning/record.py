@@ -53,6 +53,11 @@ def impacter_record(n: Node, assignment, design):
                 "shortfalls"):
         if key in d:
             rec[key] = d[key]
+    w = d.get("tone_window")
+    if w:
+        # the tones the design was made to drive its slider at from every x0
+        f = assignment.frequencies[n]
+        rec["tone_window_hz"] = [f * (1.0 - w), f * (1.0 + w)]
     rec["mass_ratio"] = getattr(design, "mass_ratio", None)
     rec["contact"] = getattr(design, "contact", None)
     return rec

@@ -196,6 +196,13 @@ class Settings:
     sensitivity_band : (float, float) or None
         ``design.match_sensitivity``: the band (lo, hi) of the line-width sensitivity
         d ln nu_n / dw every design must lie in [1/m]; None when off.
+    tone_window : float
+        Relative half-width of every design's tone window [-] (``design.tone_window_pct``,
+        else :data:`TONE_WINDOW_SIGMAS` x ``fabrication.measurement_noise_pct``).
+    measurement_noise : float
+        Relative sigma of a lab's measured resonance [-]
+        (``fabrication.measurement_noise_pct`` / 100): the as-built models' and a yield
+        study's.
     fabrication : planner.spec.FabricationSpec
         The tolerance model (manufacturability, yield).
     pair_sigma_rel : float
@@ -254,6 +261,8 @@ class Settings:
     max_settle_s: float
     position_tolerance_m: float
     sensitivity_band: tuple | None
+    tone_window: float
+    measurement_noise: float
     fabrication: FabricationSpec
     pair_sigma_rel: float
     trim: TrimSpec
@@ -275,7 +284,7 @@ class Settings:
                     # the speed the verification will measure: its single-impacter step's
                     # length, from every x0 of its grid
                     speed_window=self.single_step_s, speed_x0_points=self.x0_points,
-                    **self._robust_kwargs(imp))
+                    tone_window=self.tone_window, **self._robust_kwargs(imp))
 
     def separation_kwargs(self) -> dict:
         """Keyword arguments of :func:`planner.manufacturability.measure_separation`
@@ -375,6 +384,23 @@ def _sensitivity_band(spec):
     return (s * (1.0 - des.sensitivity_tolerance), s * (1.0 + des.sensitivity_tolerance))
 
 
+#: Sigmas of a measured resonance's noise a design's tone window covers by default
+#: (``design.tone_window_pct``): a re-planned tone moves with the measurement, and the
+#: design must still drive its slider there (issue 37: the max-min design's response
+#: collapsed 25-96 Hz above its tone, 0.06 % at worst, while 0.05 % of noise is 22 Hz at
+#: 44 kHz) [-].
+TONE_WINDOW_SIGMAS = 3.0
+
+
+def _tone_window(spec) -> float:
+    """The designs' relative tone window [-]: ``design.tone_window_pct``, else
+    :data:`TONE_WINDOW_SIGMAS` x ``fabrication.measurement_noise_pct``."""
+    pct = spec.design.tone_window_pct
+    if pct is None:
+        pct = TONE_WINDOW_SIGMAS * spec.fabrication.measurement_noise_pct
+    return pct / 100.0
+
+
 def _check_over_limit(loaded):
     """Refuse ``drive.over_limit: split`` (see :func:`resolve_settings`)."""
     if loaded.spec.drive.over_limit != "scale":
@@ -468,6 +494,8 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
         max_settle_s=MAX_SETTLE_S,
         position_tolerance_m=ver.position_tolerance_um * UM,
         sensitivity_band=_sensitivity_band(spec),
+        tone_window=_tone_window(spec),
+        measurement_noise=spec.fabrication.measurement_noise_pct / 100.0,
         fabrication=spec.fabrication,
         pair_sigma_rel=pair_sigma_rel(spec),
         trim=spec.trim or TrimSpec(),

@@ -197,6 +197,12 @@ class DesignSpec(Strict):
     #: The array's common line-width sensitivity [1/um] (None: that of a beam of
     #: ``beam_width_um``, else 5 um, carrying a plate of 80 % of the mass: 1.4 / w).
     sensitivity_per_um: PositiveFloat | None = None
+    #: Half-width of every design's tone window [%]: each design must move its slider
+    #: from every x0 with its tone anywhere within +- this of where it was designed, so
+    #: that a tone re-planned from a measured resonance still drives it (None: three
+    #: sigmas of ``fabrication.measurement_noise_pct``, 0.15 % by default; 0: the tone
+    #: alone, the paper's max-min).
+    tone_window_pct: Annotated[float, Field(ge=0, lt=2, allow_inf_nan=False)] | None = None
 
     @model_validator(mode="after")
     def _width_rules(self):

@@ -112,6 +112,10 @@ CASES = [
     ("trim.range_pct", 5.0, lambda s: s.trim),
     ("trim.direction", "down", lambda s: s.trim),
     ("trim.precision_pct", 0.5, lambda s: s.trim),
+    ("trim.passes", 1, lambda s: s.trim),
+    ("design.tone_window_pct", 0.3, lambda s: s.tone_window),
+    # the as-built models' and a yield's noise, and the default tone window
+    ("fabrication.measurement_noise_pct", 0.1, lambda s: (s.measurement_noise, s.tone_window)),
     ("design.bounds.gap_um", [2.0, 4.0], lambda s: s.bounds),
     ("design.window_ms", 2.0, lambda s: s.window_s),
     ("design.seed", 3, lambda s: s.seed),
