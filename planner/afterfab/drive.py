@@ -481,6 +481,68 @@ def split_weak(settings, drive: RescuedDrive, rows, failures, models, sliders, c
             rows, failures)
 
 
+#: Phase draws :func:`redraw_slow` tries on a multi-tone step whose slider is too slow on
+#: the chip (each optimised afresh; the plan's phases are draw 0) [-].
+SLOW_REDRAWS = 3
+
+
+def redraw_slow(settings, drive: RescuedDrive, rows, failures, models, sliders, check):
+    """Draw the phases of every multi-tone step a slider is too slow in anew, where a
+    draw passes more checks.
+
+    The plan's phases are kept first (its designs were made silent under the summed
+    drives as they played), but on a chip a 25-tone step's sum can hold a mover off its
+    wall from some initial state, or the acceleration limit lowers it further (a
+    slider at 0 mm/s from some x0 of the default's positioning step on 2 of 40 sampled
+    chips).  As the plan's own loop does, :data:`SLOW_REDRAWS` new draws are tried
+    (:func:`planner.planning.drives.synthesize_steps`'s ``draws``), each under the
+    acceleration limit and with its burst sized again; the first draw whose step passes
+    every check but the motion's is kept, else the one with the fewest such failures if
+    fewer than before.  Every check, the idle impacters' silence included, is on the
+    chip's models.
+
+    Parameters and returns as :func:`quieten`.
+    """
+    from planner.planning.drives import limit_acceleration, synthesize_steps
+    from planner.planning.motion import size_bursts
+    from planner.planning.verify import TOO_SLOW, TRAVEL_OVER, UNSETTLED
+
+    def serious(fails):
+        return sum(1 for f in fails if f.kind not in (TRAVEL_OVER, UNSETTLED))
+
+    slow = {f.step for f in failures if f.kind == TOO_SLOW}
+    steps = list(drive.steps)
+    waveforms, notes = dict(drive.waveforms), dict(drive.notes)
+    rows, failures = list(rows), list(failures)
+    for pos, st in enumerate(drive.steps):
+        if (st.index not in slow or st.targets_m is not None
+                or len(np.atleast_1d(waveforms[st.key].frequencies)) < 2):
+            continue
+        before = serious(f for f in failures if f.step == st.index)
+        best = None
+        for k in range(1, SLOW_REDRAWS + 1):
+            w, nt = limit_acceleration(settings, synthesize_steps(
+                settings, (st,), drive.tones, draws={st.key: k}))
+            (sub,), _ = size_bursts(settings, (st,), w, models, sliders)
+            got_rows, got_fails = check([sub], w)
+            bad = serious(got_fails)
+            if best is None or bad < best[0]:
+                best = (bad, k, sub, w, nt, got_rows, got_fails)
+            if bad == 0:
+                break
+        if best is None or best[0] >= before:
+            continue
+        _, k, sub, w, nt, got_rows, got_fails = best
+        steps[pos] = sub
+        waveforms.update(w)
+        notes[st.key] = {**nt[st.key], "phases_drawn": k}
+        rows = [r for r in rows if r["index"] != st.index] + got_rows
+        failures = [f for f in failures if f.step != st.index] + list(got_fails)
+    rows.sort(key=lambda r: r["index"])
+    return (dataclasses.replace(drive, steps=tuple(steps), waveforms=waveforms, notes=notes),
+            rows, failures)
+
+
 #: Amplitude factors :func:`quieten` tries, in turn, on a step an idle impacter answers
 #: (relative to the step's drive as re-planned) [-].
 QUIET_FACTORS = (0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3)

@@ -48,7 +48,8 @@ from planner.planning.plan_file import PlanRecord, drives
 from planner.planning.record import build_record
 from planner.planning.repair import scenes_and_motion
 from planner.afterfab.as_built import AsBuilt, as_built, symmetric
-from planner.afterfab.drive import REPLAN_TRAVEL_MARGIN, plan_phases, quieten, rescue, split_weak
+from planner.afterfab.drive import (REPLAN_TRAVEL_MARGIN, plan_phases, quieten, redraw_slow,
+                                    rescue, split_weak)
 from planner.planning.result import Plan
 from planner.planning.settings import plan_settings, tone_amplitudes
 from planner.planning.verify import check_step, check_steps, coupling_matrix, x0_grid
@@ -225,6 +226,10 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
     # its sub-steps pass more checks
     drive, ver_rows, failures = split_weak(strict, drive, ver_rows, failures, models,
                                            sliders, check)
+    # a multi-tone step a slider is still too slow in: its phases drawn anew, where a
+    # draw passes more checks
+    drive, ver_rows, failures = redraw_slow(strict, drive, ver_rows, failures, models,
+                                            sliders, check)
     # a step an idle impacter answers on this chip: played weaker, where that passes
     drive, ver_rows, failures = quieten(strict, drive, ver_rows, failures, models,
                                         sliders, check)

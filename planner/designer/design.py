@@ -69,7 +69,7 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
                     forbidden_drives=(), max_mass_ratio=None, contact="paper",
                     robust_shift=None, target_drives=(), sensitivity=None,
                     speed_window=None, speed_x0_points=None, min_speed=None,
-                    tone_window=0.0):
+                    tone_window=0.0, direction=1.0):
     """Design one impacter by the paper's max-min problem, eqs. (13)-(18).
 
     Maximise the worst response over initial positions at ``frequency`` subject to
@@ -166,6 +166,12 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         The slowest predicted slider speed a design may have [m/s] (an array plan's
         ``verification.min_speed_mm_s``): a design predicted slower is infeasible, with
         the shortfall in ``shortfalls``.  None: no floor (the paper's problem).
+    direction : float
+        +1 for a forward pair, -1 for a backward one: the sense its kicks push the
+        slider in, for the predicted speed (the substrate's vibration drives the slider
+        too, and a kick adds to it in one half of the drive's cycle and opposes it in
+        the other: the same design moves its slider at different speeds forward and
+        backward).
     tone_window : float
         Relative half-width w of the design's tone window [-] (an array plan's
         ``design.tone_window_pct``): the design must respond from every x0 at
@@ -215,7 +221,7 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
     ev, chk, status, history, rounds = _search(problem, a.rng, a.budget, report)
     return _result(a, problem, ev, chk, status, history, rounds, report, slider=a.slider,
                    speed_window=speed_window, speed_x0_points=speed_x0_points,
-                   seed=seed, t_start=t_start)
+                   seed=seed, t_start=t_start, direction=direction)
 
 
 @dataclass(frozen=True)
@@ -382,7 +388,7 @@ def _search(problem, rng, budget, report):
 
 
 def _result(a, problem, ev, chk, status, history, rounds, report, *, slider, speed_window,
-            speed_x0_points, seed, t_start):
+            speed_x0_points, seed, t_start, direction=1.0):
     """The :class:`DesignResult` of the chosen design: band, margins, predicted slider
     speed (the only slider simulation), the checks and the message."""
     frequency, forbidden, window, budget, tones = (a.frequency, a.forbidden, a.window,
@@ -397,12 +403,24 @@ def _result(a, problem, ev, chk, status, history, rounds, report, *, slider, spe
     starts = [min(worst_x0, imp.gap)]
     if speed_x0_points:
         starts += list(np.linspace(-imp.gap, imp.gap, int(speed_x0_points)))
+    # the speed at the tone (the design's own prediction, its floor) and at its window's
+    # edges (a tone re-planned from a measurement sits anywhere in the window, and a
+    # slider's speed falls faster than the response towards the lower edge: friction
+    # takes a fixed part of each kick); an array plan retries designs slow there
+    edges = problem.window_tones
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SolverWarning)
-        speed = min(simulate_slider(imp, slider, tones.drive(frequency), x0,
-                                    duration=speed_window or window,
-                                    contact=contact).mean_velocity for x0 in starts)
+        sign = 1.0 if direction >= 0 else -1.0
+        speeds = [min(sign * simulate_slider(imp, slider, tones.drive(f), x0,
+                                             duration=speed_window or window,
+                                             contact=contact, direction=sign).mean_velocity
+                      for x0 in starts)
+                  for f in (frequency, *edges)]
+    speed = speeds[0]
     checks = _checks(a, problem, ev, chk, history, rounds)
+    if edges:
+        checks["speed_at_tone_m_s"] = float(speeds[0])
+        checks["speed_at_window_edges_m_s"] = [float(v) for v in speeds[1:]]
     short = shortfalls(a, chk, imp, float(speed), slider, checks)
     feasible = not short
     if not feasible:

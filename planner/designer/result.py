@@ -39,7 +39,8 @@ class DesignResult:
         bisected (``Budget.margin_points``, ``Budget.margin_tol``).
     predicted_slider_speed_m_s : float
         Mean slider speed over the window when driven at nu from the worst x0, under
-        the ``contact`` law [m/s].
+        the ``contact`` law, in its direction [m/s]; with a tone window, ``checks``
+        also has the speeds at its edges.
     mass_ratio : float
         m / M, impacter mass over slider mass [-] (eq. 10 holds for m/M << 1; it
         creates energy for m/M above about 1/3, see docs/contact.md).

@@ -39,6 +39,22 @@ INFEASIBLE_TRIES = 2
 #: (2.5 until the designer's first try became reliable: each try above the margin that
 #: 2.5 asked for cost a full design, ~1/3 of the default plan's design time.)
 SPEED_MARGIN = 1.75
+#: ... and while the least of its window edges' predicted speeds (its tone moved by the
+#: tone window, ``design.tone_window_pct``) is below this multiple: a re-planned tone
+#: lands anywhere in the window (a measurement's noise), where the speed falls towards
+#: the lower edge.  A design must respond there from every x0 (its feasibility); a speed
+#: at the edges is what the retries aim for.
+WINDOW_SPEED_MARGIN = 1.25
+
+
+def _fast_enough(res, min_speed, margin):
+    """Whether a feasible design needs no retry: its speed at its tone at least
+    ``margin`` x the floor, and at its tone window's edges :data:`WINDOW_SPEED_MARGIN` x
+    (or ``margin`` x when that is smaller: a probe's 1)."""
+    at_tone = res.checks.get("speed_at_tone_m_s", res.predicted_slider_speed_m_s)
+    edges = min(res.checks.get("speed_at_window_edges_m_s") or [at_tone])
+    return (at_tone >= margin * min_speed
+            and edges >= min(margin, WINDOW_SPEED_MARGIN) * min_speed)
 
 
 def _hard(res) -> bool:
@@ -51,7 +67,8 @@ def _design_task(kwargs, min_speed, infeasible_tries=INFEASIBLE_TRIES, margin=SP
     """One impacter's design; retried with the next seeds while it is predicted slower
     than ``margin * min_speed`` [m/s] (the search is stochastic; the best of the
     tries is kept: feasible first, then the ones that miss only the speed floor, then
-    the fastest).  A design is infeasible when it misses any constraint by its own
+    the fastest), or its tone window's edges slower than :data:`WINDOW_SPEED_MARGIN` x
+    the floor.  A design is infeasible when it misses any constraint by its own
     prediction, the floor ``min_speed`` included (the designer's ``min_speed``).  A try
     that misses more than the floor (silence, response) makes the next one search
     wider (:func:`planner.designer.budget.widened`, one level per such try), and after
@@ -89,7 +106,7 @@ def _design_task(kwargs, min_speed, infeasible_tries=INFEASIBLE_TRIES, margin=SP
             rank = (bool(res.feasible), not _hard(res), float(res.predicted_slider_speed_m_s))
             if best is None or rank > best[0]:
                 best = (rank, res)
-            if res.feasible and res.predicted_slider_speed_m_s >= margin * min_speed:
+            if res.feasible and _fast_enough(res, min_speed, margin):
                 break
             if hard >= infeasible_tries and not best[0][0]:
                 break
@@ -244,7 +261,7 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
             if "_keep" in shown:
                 shown["_keep"] = {**shown["_keep"], "previous": key[-1]}
             digests[key] = task_digest(shown, min_speed, DESIGN_RETRIES,
-                                       INFEASIBLE_TRIES, SPEED_MARGIN)
+                                       INFEASIBLE_TRIES, SPEED_MARGIN, WINDOW_SPEED_MARGIN)
             res = store.get(digests[key])
             if res is not None:
                 cache[key] = res

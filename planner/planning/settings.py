@@ -284,7 +284,8 @@ class Settings:
                     # the speed the verification will measure: its single-impacter step's
                     # length, from every x0 of its grid
                     speed_window=self.single_step_s, speed_x0_points=self.x0_points,
-                    tone_window=self.tone_window, **self._robust_kwargs(imp))
+                    tone_window=self.tone_window, direction=float(node.sign),
+                    **self._robust_kwargs(imp))
 
     def separation_kwargs(self) -> dict:
         """Keyword arguments of :func:`planner.manufacturability.measure_separation`
