@@ -133,7 +133,7 @@ def inseparable(seps: Separations, measured: dict, pairs) -> list:
     return out
 
 
-def choose_tones(seps: Separations, tones: dict, measured: dict, pairs) -> tuple:
+def choose_tones(seps: Separations, tones: dict, measured: dict, pairs, windows=None) -> tuple:
     """Each impacter's tone inside its window and outside the silent band of every
     impacter it must be told apart from, nearest the window's middle.
 
@@ -146,6 +146,10 @@ def choose_tones(seps: Separations, tones: dict, measured: dict, pairs) -> tuple
         Impacter id -> measured resonance [Hz] (or the halves').
     pairs : iterable of (str, str)
         Impacters that must be told apart.
+    windows : dict, optional
+        Impacter id -> its working window (lo, hi) [Hz] measured on the chip (a tuning
+        sweep: :mod:`planner.afterfab.tune`), instead of the design's scaled to its
+        measured resonance.
 
     Returns
     -------
@@ -162,9 +166,12 @@ def choose_tones(seps: Separations, tones: dict, measured: dict, pairs) -> tuple
     out, blocked = dict(tones), {}
     for n in seps.ids:
         k = index[n]
-        scale = nu[n] / (tones[n] / seps.rho[k]) if tones[n] else 1.0
-        half = 0.5 * (seps.lo[k] + seps.hi[k]) * scale
-        free = [(tones[n] - half, tones[n] + half)]
+        if windows and n in windows:
+            free = [tuple(float(x) for x in windows[n])]
+        else:
+            scale = nu[n] / (tones[n] / seps.rho[k]) if tones[n] else 1.0
+            half = 0.5 * (seps.lo[k] + seps.hi[k]) * scale
+            free = [(tones[n] - half, tones[n] + half)]
         covers = []
         for m in sorted(partners[n]):
             j = index[m]
@@ -356,7 +363,7 @@ class RescuedDrive:
 
 
 def rescue(plan, measured: dict, settings, models: dict, sliders: dict,
-           remeasure=()) -> RescuedDrive:
+           remeasure=(), windows=None) -> RescuedDrive:
     """Re-plan a chip's drive from its measured resonances (steps 1-4 of the module
     notes); no simulation but the burst sizing's short probes.
 
@@ -373,6 +380,9 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict,
     remeasure : iterable of str
         Impacter ids whose separations are measured again on their models
         (:func:`remeasured`; a trim's moved impacters) instead of taken from the plan.
+    windows : dict, optional
+        Impacter id -> its working window (lo, hi) [Hz] measured on the chip by a tuning
+        sweep: its tone goes to the window's middle (:func:`choose_tones`).
     """
     from planner.planning.drives import limit_acceleration, synthesize_steps
     from planner.planning.motion import size_bursts
@@ -382,11 +392,13 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict,
     seps = separations_of(plan, settings)
     pairs = must_differ(settings.steps)
     middle = rescaled_tones(plan, measured, seps)
+    for n, (lo, hi) in (windows or {}).items():
+        middle[n] = 0.5 * (lo + hi)
     remeasure = sorted(set(remeasure))
     if remeasure:
         by_id = {rec.id: models[rec.node] for rec in plan.impacters}
         seps = remeasured(seps, remeasure, by_id, middle, settings)
-    chosen, blocked = choose_tones(seps, middle, measured, pairs)
+    chosen, blocked = choose_tones(seps, middle, measured, pairs, windows)
     tones = {rec.node: chosen[rec.id] for rec in plan.impacters}
     # what blocks a tone is named pair by pair, with the separation each would need
     bad = inseparable(seps, measured, pairs)

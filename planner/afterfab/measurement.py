@@ -49,12 +49,16 @@ class Measurement:
     damping_ns_per_m : float, optional
         A damping [N s/m] known otherwise (a re-plan of a re-plan); a quality factor
         overrides it.
+    window_hz : (float, float), optional
+        The working window (lo, hi) [Hz] a tuning sweep measured: the tones that move
+        its slider on the chip (:mod:`planner.afterfab.tune`).
     """
 
     halves_hz: tuple
     quality: tuple = ()
     gap_m: tuple = ()
     damping_ns_per_m: float | None = None
+    window_hz: tuple | None = None
 
     def __post_init__(self):
         hz = tuple(float(f) for f in np.atleast_1d(self.halves_hz))
@@ -62,6 +66,12 @@ class Measurement:
             raise ValueError(f"a measured resonance is one or two finite frequencies > 0 "
                              f"[Hz], {self.halves_hz!r} was given")
         object.__setattr__(self, "halves_hz", hz)
+        if self.window_hz is not None:
+            lo, hi = (float(x) for x in self.window_hz)
+            if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
+                raise ValueError(f"a working window is (lo, hi) with 0 < lo < hi [Hz], "
+                                 f"{self.window_hz!r} was given")
+            object.__setattr__(self, "window_hz", (lo, hi))
         for name in ("quality", "gap_m"):
             v = tuple(getattr(self, name)) or (None,) * len(hz)
             if len(v) != len(hz):
@@ -100,7 +110,15 @@ class Measurement:
         """The same pair with every resonance times ``factor`` (a trim moves both halves
         by the same fraction)."""
         return Measurement(tuple(f * factor for f in self.halves_hz), self.quality,
-                           self.gap_m, self.damping_ns_per_m)
+                           self.gap_m, self.damping_ns_per_m,
+                           None if self.window_hz is None else
+                           tuple(f * factor for f in self.window_hz))
+
+    def with_window(self, window_hz) -> Measurement:
+        """The same measurement with a tuning sweep's working window (lo, hi) [Hz]."""
+        import dataclasses
+
+        return dataclasses.replace(self, window_hz=window_hz)
 
     def to_dict(self) -> dict:
         out = {"natural_frequency_hz": self.natural_frequency_hz}
@@ -110,6 +128,8 @@ class Measurement:
             out["quality_factor"] = list(self.quality) if self.by_halves else self.quality[0]
         if any(g is not None for g in self.gap_m):
             out["gap_m"] = list(self.gap_m) if self.by_halves else self.gap_m[0]
+        if self.window_hz is not None:
+            out["window_hz"] = list(self.window_hz)
         return out
 
 

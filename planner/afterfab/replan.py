@@ -205,8 +205,9 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
     strict = dataclasses.replace(settings,
                                  max_travel_m=settings.max_travel_m * REPLAN_TRAVEL_MARGIN)
     ts = time.perf_counter()
+    windows = {n: m.window_hz for n, m in measured.items() if m.window_hz is not None}
     drive = rescue(plan, resonances(plan, measured), settings, models, sliders,
-                   remeasure=remeasure)
+                   remeasure=remeasure, windows=windows)
     steps_, waveforms_, gating = regate(settings, drive.steps, drive.waveforms, drive.tones,
                                         models, sliders, plan_phases(plan))
     drive = dataclasses.replace(drive, steps=steps_, waveforms=waveforms_, gating=gating)

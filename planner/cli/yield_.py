@@ -54,6 +54,17 @@ from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_err
 @click.option("--trim-precision", "trim_precision", default=None, metavar="PCT",
               help="With --trim: one sigma of each trim's error [%] (default: the spec's "
                    "trim.precision_pct, else 0.1).")
+@click.option("--tune", is_flag=True,
+              help="With --replan: tune every re-planned chip as a lab would with the piezo "
+                   "on: a speed-against-tone sweep around each re-planned tone on the chip "
+                   "(its true models, a speed reading's noise), the working windows fitted "
+                   "(vibroplan calibrate --motion), the drive re-planned with each tone in "
+                   "its window's middle and verified again; yield.json gets a tune block, "
+                   "and --trim trims from the tuned re-plan.")
+@click.option("--tune-tones", "tune_tones", type=int, default=7, show_default=True,
+              metavar="N", help="With --tune: tones swept per impacter (3-50).")
+@click.option("--tune-noise", "tune_noise", default="5", show_default=True, metavar="PCT",
+              help="With --tune: one sigma of a speed reading's relative noise [%].")
 @click.option("--allow-zero", is_flag=True,
               help="Run even when every fabrication tolerance is 0 (no fabrication: "
                    "section in the plan's spec or --spec) or a --sigma-scale is 0: every "
@@ -66,7 +77,8 @@ from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_err
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @handle_errors
 def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_scale, replan,
-            measure_noise, trim, trim_precision, allow_zero, force, quiet):
+            measure_noise, trim, trim_precision, tune, tune_tones, tune_noise, allow_zero,
+            force, quiet):
     """Yield of a plan under fabrication variation (Monte Carlo over sampled chips).
 
     PLAN is a plan folder written by ``vibroplan plan`` or ``vibroplan replan``, or its
@@ -116,6 +128,17 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
         raise click.UsageError("--trim needs --replan (a trimmed chip's drive is re-planned)")
     if trim_precision is not None and not trim:
         raise click.UsageError("--trim-precision needs --trim")
+    if tune and not replan:
+        raise click.UsageError("--tune needs --replan (the sweep is around the re-planned "
+                               "tones)")
+    if not 3 <= tune_tones <= 50:
+        raise click.BadParameter(f"must be 3-50 tones per impacter, {tune_tones} was given",
+                                 param_hint="'--tune-tones'")
+    try:
+        speed_noise = check_noise(tune_noise, "--tune-noise")
+    except ValueError as exc:
+        raise click.BadParameter(str(exc).split(": ", 1)[-1],
+                                 param_hint="'--tune-noise'") from None
     try:
         noise = None if measure_noise is None else check_noise(measure_noise)
     except ValueError as exc:
@@ -136,7 +159,8 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
     inputs = [plan_file] + ([spec_file] if spec_file else [])
     check_output_folder(out_dir, command="yield", inputs=inputs, force=force)
     payload = make_payload(record, seed, fab, replan=replan, measure_noise_pct=noise,
-                           allow_zero=allow_zero, trim=trim, trim_precision_pct=precision)
+                           allow_zero=allow_zero, trim=trim, trim_precision_pct=precision,
+                           tune=tune, tune_tones=tune_tones, tune_noise_pct=speed_noise)
     if scheduler:
         check_scheduler(scheduler)
     total = 1 + chips * len(scales)
@@ -170,6 +194,14 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
         if rp["causes"]:
             click.echo("re-plan failures: " + ", ".join(f"{k} ({v} chips)"
                                                         for k, v in rp["causes"].items()))
+        if "tune" in result:
+            tu = result["tune"]
+            click.echo(f"tuned yield {tu['yield']:.3f} ({tu['passed']}/{tu['chips']} chips, "
+                       f"95 % CI [{tu['ci95'][0]:.3f}, {tu['ci95'][1]:.3f}], "
+                       f"{tu['tones_per_impacter']} tones per impacter); rescued "
+                       f"{tu['rescued']}, lost {tu['lost']}"
+                       + ("; " + ", ".join(f"{k} ({v} chips)" for k, v in tu["causes"].items())
+                          if tu["causes"] else ""))
         if "trim" in result:
             tr = result["trim"]
             click.echo(f"trimmed yield {tr['yield']:.3f} ({tr['passed']}/{tr['chips']} chips, "

@@ -25,6 +25,10 @@ from planner.yield_.inputs import Payload
 REPLAN_CAUSES = ("cannot be told apart", "outside band", "fails on the measured models",
                  "fails only on the true models", "carried state", "unbuildable",
                  "drive not playable")
+#: A tuned chip's tone is moved to its working window's middle only when it sits further
+#: than this fraction of the window's width from it (a lab retunes the tones near an
+#: edge; a chip whose every tone is central needs no second re-plan) [-].
+TUNE_CENTRE = 0.25
 
 
 def verify_chip(payload: Payload, scale_index: int, chip_index: int, scale: float) -> dict:
@@ -110,13 +114,14 @@ def trim_chip_on(payload: Payload, settings, scale: float, chip_index: int, chip
     from planner.afterfab.trim import trim_models, trim_sequence, trimmed_resonances
     from planner.spec import TrimSpec
 
-    if replanned["passed"] or not replanned["collisions"]:
-        return {**{k: replanned[k] for k in ("passed", "causes", "failures")}, "trimmed": [],
+    last = replanned.get("tuned", replanned)
+    if last["passed"] or not replanned["collisions"]:
+        return {**{k: last[k] for k in ("passed", "causes", "failures")}, "trimmed": [],
                 "passes": 0}
     spec = payload.record.spec.trim or TrimSpec()
     precision = (spec.precision_pct if payload.trim_precision_pct is None
                  else payload.trim_precision_pct)
-    seq = chip_seed(payload.seed, scale, chip_index).spawn(2 + 2 * spec.passes)
+    seq = chip_seed(payload.seed, scale, chip_index).spawn(3 + 2 * spec.passes)
     measured = _measure(payload, chip.impacters, seq[0])
     state = {"true": chip.impacters}
 
@@ -145,7 +150,8 @@ def trim_chip_on(payload: Payload, settings, scale: float, chip_index: int, chip
                                                               spec.direction))
     got = _replan_and_check(payload, settings, out.measured, state["true"], chip.sliders,
                             (nominal["steps_passed"], nominal["rows"]), remeasure=out.moved,
-                            models=models)
+                            models=models, tune_seq=seq[2 + 2 * spec.passes])
+    got = got.get("tuned", got)
     return {"passed": got["passed"], "trimmed": list(out.moved), "passes": len(out.passes),
             "causes": got["causes"], "failures": got["failures"]}
 
@@ -202,17 +208,19 @@ def replan_chip_on(payload: Payload, settings, scale: float, chip_index: int, ch
         ``needs_hz`` they would need), ``outside_band`` (impacters whose tone fell
         beyond the band), ``split_steps`` (steps played as sub-steps), ``tones_moved``.
     """
-    measured = _measure(payload, chip.impacters,
-                        chip_seed(payload.seed, scale, chip_index).spawn(1)[0])
+    seq = chip_seed(payload.seed, scale, chip_index).spawn(2)
+    measured = _measure(payload, chip.impacters, seq[0])
     return _replan_and_check(payload, settings, measured, chip.impacters, chip.sliders,
-                             (nominal["steps_passed"], nominal["rows"]))
+                             (nominal["steps_passed"], nominal["rows"]), tune_seq=seq[1])
 
 
 def _replan_and_check(payload, settings, measured, impacters, sliders, original,
-                      remeasure=(), models=None):
+                      remeasure=(), models=None, tune_seq=None):
     """Re-plan from ``measured`` (or on ``models``) and verify the drive, in memory, on
     the true models (a yield's re-plan and its trim's; ``remeasure``: the trimmed
-    impacters, whose separations the re-plan measures again)."""
+    impacters, whose separations the re-plan measures again).  With ``payload.tune``,
+    the re-planned chip is also tuned (:func:`_tune_and_check`, its sweep's noise from
+    the SeedSequence ``tune_seq``): the result's ``tuned``."""
     from planner.afterfab.replan import chip_models, replan_chip
     from planner.synthesis import LoopLengthError
 
@@ -232,13 +240,68 @@ def _replan_and_check(payload, settings, measured, impacters, sliders, original,
     collisions = [{k: c[k] for k in ("pair", "as_built_hz", "apart_hz", "needs_hz")}
                   for c in rp["inseparable"]]
     if collisions:      # no drive can pass: not simulated on the true models
-        return {"passed": False, "measured_passed": False,
-                "causes": ["cannot be told apart"], "failures": {}, "collisions": collisions,
-                "outside_band": list(rp["outside_band"]),
-                "split_steps": sorted(rp["split_steps"]), "tones_moved": len(rp["moved"])}
+        out = {"passed": False, "measured_passed": False,
+               "causes": ["cannot be told apart"], "failures": {}, "collisions": collisions,
+               "outside_band": list(rp["outside_band"]),
+               "split_steps": sorted(rp["split_steps"]), "tones_moved": len(rp["moved"])}
+        if payload.tune:        # no sweep tells a colliding pair apart
+            out["tuned"] = {**out, "windows": 0}
+        return out
     # the re-planned drive as it plays, checked on the chip's true models in memory
     got = check_drive(settings, plan.run_steps, plan.waveforms, plan.dwells, impacters,
                       sliders)
+    out = _checked(ok, rp, got, collisions)
+    if payload.tune:
+        out["tuned"] = _tune_and_check(payload, settings, measured, impacters, sliders,
+                                       original, remeasure, models, plan, out, tune_seq)
+    return out
+
+
+def _tune_and_check(payload, settings, measured, impacters, sliders, original, remeasure,
+                    models, plan, first, seq):
+    """Tune a re-planned chip, as a lab with the piezo on would: a speed sweep around
+    each re-planned tone on the chip itself (:func:`planner.afterfab.tune.sweep_speeds`,
+    the true models, a speed reading's noise), the working windows fitted
+    (:func:`planner.afterfab.tune.fit_windows`, at least the speed floor), the drive
+    re-planned with each tone in its window's middle and checked on the true models.
+
+    Only the tones further than :data:`TUNE_CENTRE` of their window's width from its
+    middle move; with none to move the re-plan stands as it was.
+
+    Returns
+    -------
+    dict
+        As the re-plan's (``passed``, ``measured_passed``, ``causes``, ``failures``) plus
+        ``windows`` (impacters whose tone moved to its window's middle).
+    """
+    from planner.afterfab.replan import replan_chip
+    from planner.afterfab.tune import fit_windows, sweep_speeds, windows_of
+
+    rng = np.random.default_rng(seq)
+    rows = sweep_speeds(settings, plan.assignment.frequencies, impacters, sliders, rng,
+                        count=payload.tune_tones, noise_pct=payload.tune_noise_pct)
+    fitted = fit_windows(rows, min_speed=settings.min_speed_m_s)
+    tones = {n.text: f for n, f in plan.assignment.frequencies.items()}
+    # a tone already in the middle half of its window stays (a lab retunes the others)
+    windows = {n: w for n, w in windows_of(fitted, keep_flagged=True).items()
+               if abs(tones[n] - 0.5 * (w[0] + w[1])) > TUNE_CENTRE * (w[1] - w[0])}
+    if not windows:
+        return {**first, "windows": 0}
+    tuned = {n: (m.with_window(windows[n]) if n in windows else m)
+             for n, m in measured.items()}
+    ok, again = replan_chip(payload.record, tuned, settings=settings, original=original,
+                            record=False, remeasure=remeasure, models=models)
+    rp = again.data["replan"]
+    got = check_drive(settings, again.run_steps, again.waveforms, again.dwells, impacters,
+                      sliders)
+    out = _checked(ok, rp, got, [])
+    out["windows"] = len(windows)
+    return out
+
+
+def _checked(ok, rp, got, collisions):
+    """A re-plan's result as yield.json counts it: passed on the true models or not, and
+    why (:data:`REPLAN_CAUSES`)."""
     causes = []
     if not got["passed"]:
         if rp["outside_band"]:

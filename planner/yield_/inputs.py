@@ -48,6 +48,14 @@ class Payload:
     #: The plan's :class:`~planner.planning.settings.Settings`, resolved once here for
     #: every chip (:func:`~planner.planning.settings.plan_settings`).
     settings: object = None
+    #: Tune every re-planned chip (``--tune``, needs ``replan``): a speed sweep around
+    #: each re-planned tone on the true chip, the tones moved to the middle of the
+    #: working windows, re-planned and checked again (:mod:`planner.afterfab.tune`).
+    tune: bool = False
+    #: Tones per impacter of the tuning sweep (``--tune-tones``).
+    tune_tones: int = 7
+    #: One sigma of the relative noise of a speed reading [%] (``--tune-noise``).
+    tune_noise_pct: float = 5.0
 
     @property
     def nodes(self) -> tuple[Node, ...]:
@@ -76,7 +84,8 @@ def check_noise(pct, option: str = "--measure-noise") -> float:
 def make_payload(record: PlanRecord, seed: int, fabrication: FabricationSpec | None = None, *,
                  replan: bool = False, measure_noise_pct: float = 0.0,
                  allow_zero: bool = False, trim: bool = False,
-                 trim_precision_pct: float | None = None) -> Payload:
+                 trim_precision_pct: float | None = None, tune: bool = False,
+                 tune_tones: int = 7, tune_noise_pct: float = 5.0) -> Payload:
     """The worker payload of a plan (:func:`planner.planning.plan_file.read_plan`);
     ``fabrication`` overrides the plan's.
 
@@ -84,6 +93,9 @@ def make_payload(record: PlanRecord, seed: int, fabrication: FabricationSpec | N
     sigma of the relative noise of each measured natural frequency [%] (>= 0).
     ``allow_zero``: accept a tolerance model whose every sigma is 0 (every chip is then
     the nominal one: the yield is 1 or 0 by construction, not a measurement).
+    ``tune``: sweep each re-planned chip's tones on the chip and re-plan at the working
+    windows' middles (``tune_tones`` tones per impacter, a speed reading's noise
+    ``tune_noise_pct`` [%]).
 
     Raises
     ------
@@ -95,6 +107,12 @@ def make_payload(record: PlanRecord, seed: int, fabrication: FabricationSpec | N
         raise ValueError("--measure-noise needs --replan (only a re-plan measures the chip)")
     if trim and not replan:
         raise ValueError("--trim needs --replan (a trimmed chip's drive is re-planned)")
+    if tune and not replan:
+        raise ValueError("--tune needs --replan (the sweep is around the re-planned tones)")
+    if not 3 <= int(tune_tones) <= 50:
+        raise ValueError(f"--tune-tones must be 3-50 tones per impacter, {tune_tones!r} was "
+                         "given")
+    tune_noise_pct = check_noise(tune_noise_pct, "--tune-noise")
     if trim_precision_pct is not None:
         trim_precision_pct = check_noise(trim_precision_pct, "--trim-precision")
         if not trim:
@@ -113,7 +131,8 @@ def make_payload(record: PlanRecord, seed: int, fabrication: FabricationSpec | N
     return Payload(design_from_plan(record), loaded, waveforms, fab, int(seed),
                    dwells=dwells, replan=bool(replan), measure_noise_pct=noise,
                    record=record if replan else None, trim=bool(trim),
-                   trim_precision_pct=trim_precision_pct, settings=plan_settings(record))
+                   trim_precision_pct=trim_precision_pct, settings=plan_settings(record),
+                   tune=bool(tune), tune_tones=int(tune_tones), tune_noise_pct=tune_noise_pct)
 
 
 def parse_scales(text: str | None) -> list[float]:

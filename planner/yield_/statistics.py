@@ -43,6 +43,8 @@ def _summary(results, chips):
                              "ci95": wilson_interval(both, chips)}}
     if results and "replan" in results[0]:
         out["replan"] = _replan_summary(results, chips)
+        if "tuned" in results[0]["replan"]:
+            out["tune"] = _tune_summary(results, chips)
     if results and "trim" in results[0]:
         out["trim"] = _trim_summary(results, chips)
     return out
@@ -75,6 +77,20 @@ def _replan_summary(results, chips):
             "failures": _tally((r["replan"]["failures"] for r in results), KINDS)}
 
 
+def _tune_summary(results, chips):
+    """The yield with the re-planned chips tuned on the chip (:mod:`planner.afterfab.tune`)."""
+    tuned = [r["replan"]["tuned"] for r in results]
+    ok = sum(t["passed"] for t in tuned)
+    return {"chips": chips, "passed": ok, "yield": ok / chips,
+            "ci95": wilson_interval(ok, chips),
+            "rescued": sum(1 for r, t in zip(results, tuned)
+                           if t["passed"] and not r["replan"]["passed"]),
+            "lost": sum(1 for r, t in zip(results, tuned)
+                        if r["replan"]["passed"] and not t["passed"]),
+            "causes": _tally((t["causes"] for t in tuned), REPLAN_CAUSES),
+            "failures": _tally((t["failures"] for t in tuned), KINDS)}
+
+
 def _chip_record(r) -> dict:
     """One chip's line of yield.json's ``replan.per_chip``."""
     rp = r["replan"]
@@ -83,6 +99,8 @@ def _chip_record(r) -> dict:
             "failures": _ordered(rp["failures"], KINDS), "collisions": rp["collisions"],
             "outside_band": rp["outside_band"], "split_steps": rp.get("split_steps", []),
             "tones_moved": rp.get("tones_moved", 0),
+            **({"tuned_passed": rp["tuned"]["passed"], "tuned_causes": rp["tuned"]["causes"],
+                "tuned_windows": rp["tuned"].get("windows", 0)} if "tuned" in rp else {}),
             **({"trim_passed": r["trim"]["passed"], "trimmed": r["trim"]["trimmed"],
                 "trim_causes": r["trim"]["causes"]} if "trim" in r else {})}
 
@@ -140,6 +158,15 @@ def yield_record(payload, chips: int, scales: list[float], nominal: dict, result
             "failed_chips": [r["chip"] for r in mine if not r["replan"]["passed"]],
             "per_chip": [_chip_record(r) for r in mine],
         }
+    if payload.tune:
+        tu = summary["tune"]
+        data["tune"] = {
+            "tones_per_impacter": payload.tune_tones,
+            "speed_noise_pct": payload.tune_noise_pct,
+            **{k: tu[k] for k in ("chips", "passed", "yield", "ci95", "rescued", "lost",
+                                  "causes", "failures")},
+            "failed_chips": [r["chip"] for r in mine if not r["replan"]["tuned"]["passed"]],
+        }
     if payload.trim:
         tr = summary["trim"]
         spec_trim = payload.record.spec.trim
@@ -159,6 +186,9 @@ def yield_record(payload, chips: int, scales: list[float], nominal: dict, result
             if payload.replan:
                 entry["replan"] = {k: out_scale[j][0]["replan"][k]
                                    for k in ("yield", "ci95", "passed", "rescued", "causes")}
+            if payload.tune:
+                entry["tune"] = {k: out_scale[j][0]["tune"][k]
+                                 for k in ("yield", "ci95", "passed", "rescued", "causes")}
             if payload.trim:
                 entry["trim"] = {k: out_scale[j][0]["trim"][k]
                                  for k in ("yield", "ci95", "passed", "rescued", "causes")}
