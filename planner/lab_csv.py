@@ -22,7 +22,8 @@ from planner.errors import SpecError
 #: reaches a fit or a model (frequencies: 1 GHz; amplitudes and gaps: 1 cm and 1 mm, the
 #: model's own bounds, :mod:`model.devices`; Q: the fit's search bound).
 MAX_VALUE = {"frequency_hz": 1e9, "natural_frequency_hz": 1e9, "amplitude_um": 1e4,
-             "drive_amplitude_um": 1e4, "gap_um": 1e3, "quality_factor": 1e6}
+             "drive_amplitude_um": 1e4, "gap_um": 1e3, "quality_factor": 1e6,
+             "window_lo_hz": 1e9, "window_hi_hz": 1e9, "speed_mm_s": 1e4}
 
 
 def csv_number(text, line, column, fail):

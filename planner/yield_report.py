@@ -51,6 +51,7 @@ def _figures(data: dict, spec: ArraySpec, folder: Path) -> list[str]:
     ax.errorbar(xs, ys, yerr=[lo, hi], fmt="o-", capsize=4,
                 label="nominal drive" if "replan" in data else None)
     for block, fmt, label in (("replan", "s--", "re-planned per chip"),
+                              ("tune", "D-.", "re-planned and tuned on the chip"),
                               ("trim", "^:", "trimmed where needed, re-planned")):
         if block not in data:
             continue
@@ -153,6 +154,23 @@ def _replan_lines(data: dict, timings: dict | None) -> list[str]:
         if len(bad) > 50:
             lines.append(f"| ... | | {len(bad) - 50} more in yield.json | |")
         lines.append("")
+    if "tune" in data:
+        tu = data["tune"]
+        lines += ["## Tuned on the chip (`--tune`)", "",
+                  f"Every re-planned chip was tuned as a lab with the piezo on would: "
+                  f"{tu['tones_per_impacter']} tones around each re-planned tone, one impacter "
+                  "at a time, each slider's speed read with "
+                  f"{tu['speed_noise_pct']:g} % noise (simulated on the chip's true models); "
+                  "each impacter's working window fitted (the tones moving its slider at half "
+                  "the fastest speed or more, and at the speed floor), the tones off their "
+                  "window's centre moved to its middle, the drive re-planned and verified "
+                  "again on the true models.", "",
+                  f"**Tuned yield {tu['yield']:.3f}** (95 % CI [{tu['ci95'][0]:.3f}, "
+                  f"{tu['ci95'][1]:.3f}], {tu['passed']} / {tu['chips']} chips); rescued "
+                  f"{tu['rescued']} the re-plan lost, lost {tu['lost']} it had.", ""]
+        if tu["causes"]:
+            lines += ["| why a tuned chip still fails | chips |", "|---|---|"]
+            lines += [f"| {k} | {v} |" for k, v in tu["causes"].items()] + [""]
     if "trim" in data:
         tr = data["trim"]
         lines += ["## Trimmed where needed (`--trim`)", "",

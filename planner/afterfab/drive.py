@@ -64,6 +64,10 @@ SPLIT_SCALE_MARGIN = 0.95
 REPLAN_TRAVEL_MARGIN = 0.85
 
 
+#: The fraction of the way to its measured window's middle a re-planned tone moves [-].
+CENTRE_FRACTION = float(__import__("os").environ.get("VP_CENTRE", "1.0"))
+
+
 def measured_frequency(value) -> float:
     """A measured resonance [Hz]: a number, or the mean of a pair's two halves."""
     if isinstance(value, (tuple, list)):
@@ -71,7 +75,8 @@ def measured_frequency(value) -> float:
     return float(value)
 
 
-def rescaled_tones(plan, measured: dict, seps: Separations | None = None) -> dict:
+def rescaled_tones(plan, measured: dict, seps: Separations | None = None,
+                   window: float = 0.0) -> dict:
     """Impacter id -> its tone [Hz] moved with its measured resonance (t nu' / nu).
 
     Parameters
@@ -87,10 +92,21 @@ def rescaled_tones(plan, measured: dict, seps: Separations | None = None) -> dic
         collapses (the max-min optimum), with 10 Hz of room above it and 100 below;
         the middle keeps the most room for what the model does not know (measurement
         noise, the amplitude's change with the frequency).
+    window : float
+        The designs' relative tone window [-] (``settings.tone_window``): the move to
+        the middle stays within it, where the design is known to drive its slider at
+        speed (the measured window is where it responds at all: a targets plan's
+        100 Hz below a 7 kHz tone is 0.7 %, where its slider is below the floor).  0:
+        no limit.
     """
     centre = {}
     if seps is not None:
         centre = {n: 0.5 * (seps.hi[k] - seps.lo[k]) for k, n in enumerate(seps.ids)}
+        centre = {n: CENTRE_FRACTION * c for n, c in centre.items()}
+        if window > 0.0:
+            tone0 = {r.id: r.frequency_hz for r in plan.impacters}
+            centre = {n: float(np.clip(c, -window * tone0[n], window * tone0[n]))
+                      for n, c in centre.items()}
     # from the design's tone and resonance (a re-planned plan's are as built: its tones
     # moved already, and would move again)
     tone = plan.design_frequency_hz or {r.id: r.frequency_hz for r in plan.impacters}
@@ -391,7 +407,7 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict,
                 for n in (r.id for r in plan.impacters)}
     seps = separations_of(plan, settings)
     pairs = must_differ(settings.steps)
-    middle = rescaled_tones(plan, measured, seps)
+    middle = rescaled_tones(plan, measured, seps, settings.tone_window)
     for n, (lo, hi) in (windows or {}).items():
         middle[n] = 0.5 * (lo + hi)
     remeasure = sorted(set(remeasure))

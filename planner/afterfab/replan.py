@@ -267,7 +267,7 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
                     "was made by (its predicted yield is the plan's)"}),
         sections={"as_built": params,
                   "replan": _replan_record(plan, settings, params, drive, orig_passed,
-                                           orig_rows)})
+                                           orig_rows, windows)})
     timings["total"] = time.perf_counter() - t0
     return Plan(
         impacters=pd.DataFrame(impacter_recs), devices=pd.DataFrame(device_recs),
@@ -326,8 +326,9 @@ def _assignment(steps, settings, chosen, lower_bound):
                       guard_violations(steps, freqs, settings.tone_rules))
 
 
-def _replan_record(plan, settings, params, drive, orig_passed, orig_rows):
-    """plan.json's ``replan`` block: what moved, the original drive on this chip, the
+def _replan_record(plan, settings, params, drive, orig_passed, orig_rows, windows=None):
+    """plan.json's ``replan`` block: what moved (with a tuning sweep's working window,
+    ``working_window_hz``, where one was measured), the original drive on this chip, the
     pairs no drive tells apart, the steps split, the tones beyond the band."""
     moved = []
     for rec in sorted(plan.impacters, key=lambda r: node_key(r.id)):
@@ -340,6 +341,8 @@ def _replan_record(plan, settings, params, drive, orig_passed, orig_rows):
                       "natural_frequency_hz": nu1, "natural_frequency_shift": nu1 / nu0 - 1,
                       "original_frequency_hz": f0, "frequency_hz": f1,
                       "tone_shift": f1 / f0 - 1})
+        if windows and n in windows:
+            moved[-1]["working_window_hz"] = [float(x) for x in windows[n]]
     fails = [r for r in orig_rows if not r["passed"]]
     lo, hi = settings.band_hz
     return {
@@ -428,11 +431,16 @@ def replan_report_lines(data) -> list:
     rp = data["replan"]
     od = rp["original_drive"]
     lines = ["## As-built re-plan", "",
-             "Every impacter's as-built model keeps its design's mass (and its damping and gap "
-             "unless measured); its stiffness follows from the measured natural frequency, "
-             "k = m (2 pi nu_n)^2, and a measured quality factor sets the damping, "
-             "b = m 2 pi nu_n / Q.  Only the drive is re-planned; every check above and below "
-             "is on the as-built models.", "",
+             "Every impacter's as-built model is rebuilt through eqs. (2)-(4) from the "
+             "fabrication errors its measured resonance implies under the spec's tolerances "
+             "(the die's share common to all, the rest its own): mass, stiffness, damping, "
+             "gap and the sliders move together, and each model's resonance is the measured "
+             "one; a measured quality factor sets the damping, b = m 2 pi nu_n / Q, a "
+             "measured gap the gap.  Each tone moves with its resonance, toward the middle of "
+             "its design's measured tone window (within the designed window, "
+             "design.tone_window_pct), or to the middle of the working window a tuning sweep "
+             "measured on the chip.  Only the drive is re-planned; every check above and "
+             "below is on the as-built models.", "",
              f"**The original drive on this chip: {'PASSES' if od['passed'] else 'FAILS'}** "
              f"({od['checks'] - od['failed_checks']} of {od['checks']} step x device checks "
              "pass).", ""]
@@ -443,15 +451,19 @@ def replan_report_lines(data) -> list:
             lines.append(f"- ... and {len(od['failures']) - 40} more (plan.json)")
         lines += ["", "</details>", ""]
     rows = []
+    tuned = any("working_window_hz" in m for m in rp["moved"])
     for m in rp["moved"]:
         rows.append([m["id"], fmt(m["design_natural_frequency_hz"], ".1f"),
                      fmt(m["natural_frequency_hz"], ".1f"),
                      fmt(100 * m["natural_frequency_shift"], "+.2f"),
                      fmt(m["original_frequency_hz"], ".1f"), fmt(m["frequency_hz"], ".1f"),
-                     fmt(100 * m["tone_shift"], "+.2f")])
+                     fmt(100 * m["tone_shift"], "+.2f")]
+                    + ([("-" if "working_window_hz" not in m else
+                         "{:.1f}-{:.1f}".format(*m["working_window_hz"]))] if tuned else []))
     lines += ["### What moved", ""]
     lines += md_table(["impacter", "design nu_n [Hz]", "as-built nu_n [Hz]", "shift [%]",
-                       "original tone [Hz]", "new tone [Hz]", "tone shift [%]"], rows)
+                       "original tone [Hz]", "new tone [Hz]", "tone shift [%]"]
+                      + (["working window [Hz]"] if tuned else []), rows)
     lines.append("")
     if rp.get("outside_band"):
         lo, hi = data["spec"]["drive"]["band_hz"]

@@ -12,7 +12,9 @@ stay out of).
 - :func:`fit_windows` reads a sweep (impacter, tone, speed) and returns each impacter's
   window: the run of tones around the fastest one at which the slider moves at least
   ``fraction`` of that fastest speed (and at least ``min_speed``), its edges interpolated
-  between the last tone in and the first out.  ``vibroplan calibrate --motion`` fits a
+  between the last tone in and the first out (the last tone in where the first out does
+  not move its slider at all: the designs' response collapses at a cliff, with the
+  fastest tones just before it).  ``vibroplan calibrate --motion`` fits a
   lab's sweep with it.
 - :func:`sweep_speeds` simulates such a sweep on a chip's models (a yield study's true
   chip: ``vibroplan yield --replan --tune``), with the lab's speed noise and a budget of
@@ -45,6 +47,9 @@ FRACTION = 0.5
 #: starts from wherever the last run left it, and the slowest of these is what it sees
 #: at worst [-].
 SWEEP_STARTS = 3
+#: A sweep whose window reaches its end is followed on that side by at most this
+#: fraction of its tones more [-].
+EXTEND_FRACTION = 1.0
 #: The relative noise of a lab's speed reading [%] (``--tune-noise``).
 SPEED_NOISE_PCT = 5.0
 
@@ -126,8 +131,12 @@ def fit_window(frequency_hz, speed_m_s, *, fraction=FRACTION, min_speed=0.0) -> 
         hi_i += 1
 
     def cross(i_in, i_out):
-        # linear interpolation of the threshold between the last tone in and the first out
+        # linear interpolation of the threshold between the last tone in and the first
+        # out; where the slider stops dead (the response collapsed: a cliff, not a
+        # slope) the edge is the last tone in, nothing being known of the cliff between
         a, b = v[i_in], v[i_out]
+        if b <= 0.0:
+            return float(f[i_in])
         t = (a - threshold) / (a - b) if a != b else 0.5
         return float(f[i_in] + t * (f[i_out] - f[i_in]))
 
@@ -159,12 +168,20 @@ def sweep_tones(tone_hz: float, window: float, count: int = TUNE_TONES) -> np.nd
 
 
 def sweep_speeds(settings, tones: dict, impacters: dict, sliders: dict, rng, *,
-                 count=TUNE_TONES, noise_pct=SPEED_NOISE_PCT, window=None) -> list:
+                 count=TUNE_TONES, noise_pct=SPEED_NOISE_PCT, window=None,
+                 fraction=FRACTION) -> list:
     """A simulated tuning sweep on a chip's models: for every impacter, ``count`` tones
     around its re-planned tone (:func:`sweep_tones`), each played alone for the
     single-impacter step's length at the spec's amplitude, its slider's speed the
     slowest of :data:`SWEEP_STARTS` initial states times (1 + pct z / 100), z normal
     from ``rng`` (the lab's reading).
+
+    As a lab would, a sweep whose window reaches one of its ends (the fastest tones at
+    the end: the designs' speed rises toward the edge where the response collapses,
+    often beyond the re-planned tone by more than the sweep's span) is followed on that
+    side, a tone at a time at the same spacing, until the speed falls below
+    ``fraction`` of the fastest or :data:`EXTEND_FRACTION` x ``count`` more tones are
+    played.
 
     Parameters
     ----------
@@ -174,38 +191,58 @@ def sweep_speeds(settings, tones: dict, impacters: dict, sliders: dict, rng, *,
     impacters, sliders : dict
         The chip's models (node -> model; device -> Slider): the truth a lab sweeps.
     rng : numpy.random.Generator
-        The reading noise's normals, one per tone in node order.
+        The reading noise's normals, one per tone played, in node order.
     count, noise_pct : optional
-        Tones per impacter, and the reading's relative noise [%].
+        Tones per impacter of the first sweep, and the reading's relative noise [%].
     window : float, optional
         The designs' tone window [-]; default ``settings.tone_window``.
+    fraction : float
+        The window's threshold (:func:`fit_window`) the extension follows.
 
     Returns
     -------
     list of dict
         ``impacter`` (id), ``frequency_hz`` [Hz], ``speed_m_s`` [m/s]: what
-        :func:`fit_windows` reads.
+        :func:`fit_windows` reads, in the order played.
     """
     models = by_node(impacters)
     window = settings.tone_window if window is None else window
+    extra = int(math.ceil(EXTEND_FRACTION * count))
     rows = []
     for node in sorted(tones):
-        freqs = sweep_tones(tones[node], window, count)
-        amps = tone_amplitudes(settings, freqs)
         own = {n: m for n, m in models.items() if n.device == node.device}
         starts = pair_starts(models[node], SWEEP_STARTS)
-        z = rng.standard_normal(freqs.size)
         contact = settings.contacts[node.device]
-        for f, a, zk in zip(freqs, amps, z):
-            drive = Drive(np.array([f]), np.array([a]), np.zeros(1))
+
+        def read(f):
+            a = tone_amplitudes(settings, np.array([f]))
+            drive = Drive(np.array([f]), a, np.zeros(1))
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", SolverWarning)
                 speed = min(node.sign * device_motion(own, sliders[node.device], drive,
                                                       settings.single_step_s,
                                                       {node: start}, contact)[0]
                             / settings.single_step_s for start in starts)
-            rows.append({"impacter": node.text, "frequency_hz": float(f),
-                         "speed_m_s": float(speed) * (1.0 + noise_pct / 100.0 * float(zk))})
+            v = float(speed) * (1.0 + noise_pct / 100.0 * float(rng.standard_normal()))
+            rows.append({"impacter": node.text, "frequency_hz": float(f), "speed_m_s": v})
+            return v
+
+        freqs = sweep_tones(tones[node], window, count)
+        speeds = [read(f) for f in freqs]
+        step = float(freqs[1] - freqs[0]) if freqs.size > 1 else 0.0
+        fastest = max(speeds)
+        # follow the window past either end while it is still in it (the top first: the
+        # speed rises toward the collapse)
+        for side in (+1, -1):
+            f_end = float(freqs[-1] if side > 0 else freqs[0])
+            v_end = speeds[-1] if side > 0 else speeds[0]
+            added = 0
+            while (fastest > 0.0 and step > 0.0 and v_end >= fraction * fastest
+                   and added < extra):
+                f_end += side * step
+                v_end = read(f_end)
+                fastest = max(fastest, v_end)
+                added += 1
     return rows
 
 
@@ -214,3 +251,147 @@ def windows_of(fitted: dict, keep_flagged=False) -> dict:
     status ok (and the flagged ones with ``keep_flagged``)."""
     return {n: (w.lo_hz, w.hi_hz) for n, w in fitted.items()
             if (w.ok or keep_flagged) and math.isfinite(w.lo_hz) and w.hi_hz > w.lo_hz}
+
+
+#: A motion sweep's columns (``vibroplan calibrate --motion``): the impacter, the tone
+#: [Hz] and the slider's mean speed in the impacter's own direction [mm/s].
+MOTION_COLUMNS = ("impacter", "frequency_hz", "speed_mm_s")
+#: windows.csv's columns (``calibrate --motion`` writes it, ``replan --windows`` reads it).
+WINDOW_COLUMNS = ("impacter", "window_lo_hz", "window_hi_hz", "peak_hz", "peak_speed_mm_s",
+                  "points", "status")
+#: The columns ``replan --windows`` needs of windows.csv (the rest are read if present).
+WINDOW_REQUIRED = ("impacter", "window_lo_hz", "window_hi_hz")
+#: A tone of a motion sweep below this is no resonance of these devices (written in kHz?).
+MIN_SWEEP_HZ = 10.0
+#: Fewest distinct tones of one impacter's motion sweep: a window needs a peak and a
+#: tone either side of it.
+MIN_TONES = 3
+MM = 1e-3
+
+
+def read_motion(path) -> list:
+    """Read and check a lab's motion sweep CSV (``calibrate --motion``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        CSV with the header ``impacter,frequency_hz,speed_mm_s`` (any order; blank lines
+        and ``#`` comments skipped): one row per tone played, the slider's mean speed
+        in the direction the impacter drives it [mm/s] (a backward impacter's slider
+        moving backward reads positive; moving the wrong way, negative).
+
+    Returns
+    -------
+    list of dict
+        ``impacter``, ``frequency_hz`` [Hz], ``speed_m_s`` [m/s], ``line`` (1-based):
+        what :func:`fit_windows` reads.
+
+    Raises
+    ------
+    planner.errors.SpecError
+        ``FILE: row N, column C: ...`` for a missing or unknown column, an empty name,
+        a number that is not finite, a tone <= 10 Hz, or an impacter with fewer than
+        :data:`MIN_TONES` distinct tones.
+    """
+    from planner.lab_csv import csv_number, read_csv_rows
+
+    header_line, header, rows, fail = read_csv_rows(path, MOTION_COLUMNS,
+                                                    what="a motion sweep")
+    out, lines = [], {}
+    for line, row in rows:
+        if len(row) != len(header):
+            raise fail(line, header[min(len(row), len(header) - 1)],
+                       f"{len(row)} values where the header has {len(header)} columns")
+        values = dict(zip(header, (v.strip() for v in row)))
+        name = values["impacter"]
+        if not name:
+            raise fail(line, "impacter", "empty impacter name")
+        f = csv_number(values["frequency_hz"], line, "frequency_hz", fail)
+        if f < MIN_SWEEP_HZ:
+            raise fail(line, "frequency_hz", f"{values['frequency_hz']} Hz is no tone of "
+                                             "these devices: frequency_hz is in Hz (was "
+                                             "the sweep written in kHz?)")
+        v = csv_number(values["speed_mm_s"], line, "speed_mm_s", fail)
+        out.append({"impacter": name, "frequency_hz": f, "speed_m_s": v * MM, "line": line})
+        lines.setdefault(name, []).append((line, f))
+    if not out:
+        raise fail(header_line + 1, "impacter", "no measurements after the header")
+    for name, seen in lines.items():
+        tones = {f for _, f in seen}
+        if len(tones) < MIN_TONES:
+            raise fail(seen[0][0], "impacter",
+                       f"impacter {name!r} has {len(tones)} distinct tones (rows "
+                       f"{', '.join(str(n) for n, _ in seen)}); a working window needs at "
+                       f"least {MIN_TONES}")
+    return out
+
+
+def write_windows(fitted: dict, path) -> None:
+    """Write windows.csv (:data:`WINDOW_COLUMNS`) of :func:`fit_windows`' result
+    (frequencies to 10 significant digits, speeds in mm/s)."""
+    import csv
+
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(WINDOW_COLUMNS)
+        for name, win in fitted.items():
+            w.writerow([name, f"{win.lo_hz:.10g}", f"{win.hi_hz:.10g}", f"{win.peak_hz:.10g}",
+                        f"{win.peak_speed_m_s / MM:.6g}", win.points, win.status])
+
+
+def read_windows(path, impacter_ids, tones_hz=None) -> dict:
+    """Read and check windows.csv (``replan --windows``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        CSV with ``impacter,window_lo_hz,window_hi_hz`` and optionally the other
+        :data:`WINDOW_COLUMNS` (``calibrate --motion`` writes them; a flagged row,
+        written with ``--keep-flagged``, is used and named in ``flagged``).
+    impacter_ids : iterable of str
+        The plan's impacters; any other name is an error.
+    tones_hz : dict, optional
+        Impacter id -> its planned tone [Hz]: a window further than a factor 2 from it
+        is refused (another unit, another chip).
+
+    Returns
+    -------
+    windows : dict
+        Impacter id -> (lo, hi) [Hz].
+    flagged : dict
+        Impacter id -> the status of a window calibrate flagged.
+    """
+    from planner.lab_csv import csv_number, read_csv_rows
+
+    known = set(impacter_ids)
+    optional = tuple(c for c in WINDOW_COLUMNS if c not in WINDOW_REQUIRED)
+    _, header, rows, fail = read_csv_rows(path, WINDOW_REQUIRED, optional, what="windows.csv")
+    out, first, flagged = {}, {}, {}
+    for line, row in rows:
+        if len(row) != len(header):
+            raise fail(line, header[min(len(row), len(header) - 1)],
+                       f"{len(row)} values where the header has {len(header)} columns")
+        values = dict(zip(header, (v.strip() for v in row)))
+        name = values["impacter"]
+        if name not in known:
+            raise fail(line, "impacter", f"unknown impacter {name!r} (the plan has: "
+                                         f"{', '.join(sorted(known))})")
+        if name in first:
+            raise fail(line, "impacter", f"{name} given twice (rows {first[name]} and {line})")
+        first[name] = line
+        status = values.get("status", "ok") or "ok"
+        if status != "ok":
+            flagged[name] = status
+        lo = csv_number(values["window_lo_hz"], line, "window_lo_hz", fail)
+        hi = csv_number(values["window_hi_hz"], line, "window_hi_hz", fail)
+        if not 0.0 < lo < hi:
+            raise fail(line, "window_hi_hz", f"a window is 0 < window_lo_hz < window_hi_hz, "
+                                             f"{values['window_lo_hz']}-"
+                                             f"{values['window_hi_hz']} was given")
+        tone = None if tones_hz is None else tones_hz.get(name)
+        if tone is not None and not (0.5 * tone < 0.5 * (lo + hi) < 2.0 * tone):
+            raise fail(line, "window_lo_hz", f"the window {lo:g}-{hi:g} Hz of {name} is more "
+                                             f"than a factor 2 from its tone {tone:.6g} Hz "
+                                             "(another unit, or another chip's file?)")
+        out[name] = (lo, hi)
+    return out, flagged

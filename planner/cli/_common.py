@@ -237,10 +237,13 @@ def handle_errors(func):
     return wrapper
 
 
-def chip_inputs(plan_path, measured_path, out_dir, *, command: str, force: bool, quiet: bool):
+def chip_inputs(plan_path, measured_path, out_dir, *, command: str, force: bool, quiet: bool,
+                windows_path=None):
     """What ``vibroplan replan`` and ``vibroplan trim`` start from: the plan, the chip's
-    measurement (read and checked), the inputs the output folder must not replace (the
-    folder checked before any work) and a progress callback printing each stage.
+    measurement (read and checked; with ``windows_path``, a tuning sweep's working
+    windows, ``calibrate --motion``, attached to it), the inputs the output folder must
+    not replace (the folder checked before any work) and a progress callback printing
+    each stage.
 
     Returns
     -------
@@ -253,6 +256,9 @@ def chip_inputs(plan_path, measured_path, out_dir, *, command: str, force: bool,
     measured = read_measured(measured_path, plan.impacter_ids,
                              design_hz=plan.design_natural_frequency_hz)
     inputs = [plan.path, measured_path]
+    if windows_path is not None:
+        measured = _with_windows(plan, measured, windows_path)
+        inputs.append(windows_path)
     check_output_folder(out_dir, command=command, inputs=inputs, force=force)
 
     def progress(stage, item=None, total=None):
@@ -260,3 +266,24 @@ def chip_inputs(plan_path, measured_path, out_dir, *, command: str, force: bool,
             click.echo(f"{stage}...", err=True)
 
     return plan, measured, inputs, progress
+
+
+def _with_windows(plan, measured, windows_path):
+    """``measured`` with windows.csv's working windows (``replan --windows``): a window
+    without a measured resonance is an error naming its row; a flagged window is used
+    with a warning."""
+    from planner.afterfab.tune import read_windows
+    from planner.errors import SpecError
+
+    tones = {r.id: r.frequency_hz for r in plan.impacters}
+    windows, flagged = read_windows(windows_path, plan.impacter_ids, tones)
+    unmeasured = sorted(set(windows) - set(measured))
+    if unmeasured:
+        raise SpecError(f"a working window for {', '.join(unmeasured)}, which measured.csv "
+                        "does not measure: a tuned tone moves from a measured resonance "
+                        "(measure it, or drop its window)", source=str(windows_path))
+    for name, status in flagged.items():
+        click.echo(f"warning: {name}: its window is flagged ({status}); used as given",
+                   err=True)
+    return {n: (m.with_window(windows[n]) if n in windows else m)
+            for n, m in measured.items()}

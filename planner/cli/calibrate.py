@@ -6,25 +6,39 @@ from pathlib import Path
 
 import click
 
-from planner.cli._common import (FORCE_FILES_HELP, check_output_files, handle_errors,
-                                 output_file, output_files)
+from planner.cli._common import (FORCE_FILES_HELP, Finite, check_output_files,
+                                 handle_errors, output_file, output_files)
 
 
 @click.command("calibrate")
 @click.argument("sweep_csv", metavar="SWEEP.csv",
                 type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--motion", is_flag=True,
+              help="SWEEP.csv is a speed-against-tone sweep (impacter,frequency_hz,"
+                   "speed_mm_s): fit each impacter's working window and write windows.csv "
+                   "(for `vibroplan replan --windows`).")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), callback=output_file,
-              default=Path("measured.csv"), show_default=True,
-              help="The measured CSV to write (for `vibroplan replan --measured`). Never the "
-                   "sweep; an existing file only if `vibroplan calibrate` wrote it (see "
-                   "--force).")
+              default=None,
+              help="The CSV to write: measured.csv (for `vibroplan replan --measured`; the "
+                   "default) or, with --motion, windows.csv (for `vibroplan replan "
+                   "--windows`; the default). Never the sweep; an existing file only if "
+                   "`vibroplan calibrate` wrote it (see --force).")
+@click.option("--fraction", type=click.FloatRange(0.0, 1.0, min_open=True, max_open=True),
+              default=0.5, show_default=True,
+              help="With --motion: a tone is in the working window while its slider moves "
+                   "at least this fraction of the sweep's fastest speed.")
+@click.option("--min-speed", "min_speed_mm_s", type=Finite(min=0.0), default=0.0,
+              show_default=True,
+              help="With --motion: ... and at least this speed [mm/s] (e.g. the spec's "
+                   "verify.min_speed_mm_s).")
 @click.option("--keep-flagged", is_flag=True,
               help="Write flagged impacters' fits too (by default only fits with status ok "
                    "are written, so a doubtful value never reaches a plan).")
 @click.option("--force", is_flag=True, help=FORCE_FILES_HELP)
 @handle_errors
-def command(sweep_csv, out, keep_flagged, force):
-    """Fit each impacter's natural frequency and Q to a measured frequency sweep.
+def command(sweep_csv, motion, out, fraction, min_speed_mm_s, keep_flagged, force):
+    """Fit each impacter's natural frequency and Q to a measured frequency sweep
+    (or, with --motion, its working window to a speed-against-tone sweep).
 
     Measure each impacter's vibration amplitude relative to the die (vibrometer,
     fibre-optic sensor or camera, as in the paper's Section IV) over drive
@@ -67,9 +81,37 @@ def command(sweep_csv, out, keep_flagged, force):
     an error naming its row (line in the file) and column; nothing is written.
 
     \b
-    Example:
+    With --motion, SWEEP.csv is a tuning sweep on the fabricated chip: a few
+    tones around each re-planned tone (plan.json's impacters give each tone
+    and the window its design answers over, tone_window_hz), played one
+    impacter at a time, the slider watched (camera, as in the paper):
+      impacter            name, as the plan's impacter table has it
+      frequency_hz        the tone [Hz]
+      speed_mm_s          the slider's mean speed in the direction the
+                          impacter drives it [mm/s] (backward impacters:
+                          moving backward reads positive; wrong way, negative)
+    At least 3 distinct tones per impacter; 7 spanning the designed window
+    2.5 times either side of the tone see both its edges.  The working window
+    is the run of tones around the fastest one at which the slider moves at
+    least --fraction of that speed (and --min-speed), its edges interpolated.
+    A window is flagged, and by default not written, when no tone moves the
+    slider or the window reaches the sweep's end (sweep wider).
+
+    \b
+    windows.csv: impacter,window_lo_hz,window_hi_hz,peak_hz,peak_speed_mm_s,
+                 points,status
+
+    \b
+    Examples:
       vibroplan calibrate sweep.csv --out measured.csv
+      vibroplan calibrate --motion motion.csv --out windows.csv
+      vibroplan replan plan_out --measured measured.csv --windows windows.csv
     """
+    if motion:
+        _motion(sweep_csv, out or Path("windows.csv"), fraction, min_speed_mm_s,
+                keep_flagged, force)
+        return
+    out = out or Path("measured.csv")
     from planner.calibrate import calibrate, read_sweep, write_measured
 
     check_output_files("calibrate", [("--out", out)], inputs=[sweep_csv], force=force)
@@ -112,3 +154,38 @@ def command(sweep_csv, out, keep_flagged, force):
     with output_files([out], command="calibrate", inputs=[sweep_csv], force=force) as (tmp,):
         write_measured(keep, tmp)
     click.echo(f"wrote {out} ({len(keep)} impacter{'s' if len(keep) != 1 else ''})")
+
+
+def _motion(sweep_csv, out, fraction, min_speed_mm_s, keep_flagged, force):
+    """``calibrate --motion``: working windows fitted to a speed-against-tone sweep."""
+    from planner.afterfab.tune import MM, fit_windows, read_motion, write_windows
+
+    check_output_files("calibrate", [("--out", out)], inputs=[sweep_csv], force=force)
+    rows = read_motion(sweep_csv)
+    fitted = fit_windows(rows, fraction=fraction, min_speed=min_speed_mm_s * MM)
+    width = max(len(n) for n in fitted)
+    for name, w in fitted.items():
+        label = f"{name}:".ljust(width + 1)
+        if w.peak_speed_m_s > 0 and w.status != "no tone moves its slider":
+            click.echo(f"{label} window {w.lo_hz:.1f}-{w.hi_hz:.1f} Hz ({w.hi_hz - w.lo_hz:.1f}"
+                       f" Hz wide, middle {w.middle_hz:.1f} Hz), fastest "
+                       f"{w.peak_speed_m_s / MM:.3g} mm/s at {w.peak_hz:.1f} Hz "
+                       f"({w.points} tones) [{w.status}]")
+        else:
+            click.echo(f"{label} no window ({w.points} tones) [{w.status}]")
+        if not w.ok:
+            click.echo(f"warning: {name}: {w.status}", err=True)
+    ok = {n: w for n, w in fitted.items() if w.ok}
+    flagged = {n: w for n, w in fitted.items() if not w.ok}
+    keep = {n: w for n, w in fitted.items()
+            if w.ok or (keep_flagged and w.status != "no tone moves its slider")}
+    summary = f"{len(ok)} of {len(fitted)} windows fitted ok"
+    if flagged:
+        summary += "; flagged: " + ", ".join(f"{n} ({w.status})" for n, w in flagged.items())
+        summary += "" if keep_flagged else " (not written; --keep-flagged writes them)"
+    click.echo(summary)
+    if not keep:
+        raise click.ClickException(f"no usable window: {out} not written")
+    with output_files([out], command="calibrate", inputs=[sweep_csv], force=force) as (tmp,):
+        write_windows(keep, tmp)
+    click.echo(f"wrote {out} ({len(keep)} window{'s' if len(keep) != 1 else ''})")

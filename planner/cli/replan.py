@@ -17,6 +17,11 @@ from planner.cli._common import EXIT_CODES_HELP, chip_inputs, handle_errors
               type=click.Path(dir_okay=False, path_type=Path),
               help="measured.csv: impacter,natural_frequency_hz[,quality_factor][,gap_um] "
                    "(e.g. from `vibroplan calibrate`).")
+@click.option("--windows", "windows_path", type=click.Path(dir_okay=False, path_type=Path),
+              default=None,
+              help="windows.csv of a tuning sweep on the chip (`vibroplan calibrate "
+                   "--motion`): each tone goes to the middle of its impacter's working "
+                   "window, where that stays clear of every silent band it must avoid.")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default="replan_out",
               show_default=True,
               help="Output folder: a new or empty folder, or one an earlier `vibroplan "
@@ -31,7 +36,7 @@ from planner.cli._common import EXIT_CODES_HELP, chip_inputs, handle_errors
 @click.option("--no-figures", is_flag=True, help="Skip the PNG figures (faster).")
 @click.option("--quiet", is_flag=True, help="No progress output.")
 @handle_errors
-def command(plan_path, measured_path, out_dir, force, seed, no_figures, quiet):
+def command(plan_path, measured_path, windows_path, out_dir, force, seed, no_figures, quiet):
     """Re-plan the drive of a fabricated chip from its measured resonances.
 
     PLAN is a `vibroplan plan` (or `vibroplan replan`) output folder or its plan.json,
@@ -73,7 +78,8 @@ def command(plan_path, measured_path, out_dir, force, seed, no_figures, quiet):
     from planner.afterfab.replan import replan, write_replan_outputs
 
     plan, measured, inputs, progress = chip_inputs(plan_path, measured_path, out_dir,
-                                                   command="replan", force=force, quiet=quiet)
+                                                   command="replan", force=force, quiet=quiet,
+                                                   windows_path=windows_path)
 
     with output_folder(out_dir, command="replan", inputs=inputs, force=force) as tmp:
         result = replan(plan, measured, seed=seed, progress=progress)

@@ -62,7 +62,9 @@ from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_err
                    "its window's middle and verified again; yield.json gets a tune block, "
                    "and --trim trims from the tuned re-plan.")
 @click.option("--tune-tones", "tune_tones", type=int, default=7, show_default=True,
-              metavar="N", help="With --tune: tones swept per impacter (3-50).")
+              metavar="N", help="With --tune: tones of each impacter's first sweep "
+                                "(3-50); a window reaching the sweep's end is followed on "
+                                "that side by up to N more.")
 @click.option("--tune-noise", "tune_noise", default="5", show_default=True, metavar="PCT",
               help="With --tune: one sigma of a speed reading's relative noise [%].")
 @click.option("--allow-zero", is_flag=True,

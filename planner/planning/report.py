@@ -239,6 +239,19 @@ def _failures_section(ver):
     return lines
 
 
+def _designed_windows(d) -> str:
+    """' (designed for +-w % ...)': the window every design answers its tone over
+    (``design.tone_window_pct``), where plan.json's impacters give one."""
+    rel = [(w[1] - w[0]) / (w[1] + w[0]) for w in
+           (r.get("tone_window_hz") for r in d.get("impacters", [])) if w]
+    if not rel:
+        return ""
+    widths = [w[1] - w[0] for w in (r["tone_window_hz"] for r in d["impacters"]
+                                    if r.get("tone_window_hz"))]
+    return (f" (designed to answer over +-{100 * max(rel):.2f} % of the tone, "
+            f"design.tone_window_pct: windows {min(widths):.0f}-{max(widths):.0f} Hz wide)")
+
+
 def _manufacturability_section(d):
     """Design for yield: what a fabricated chip does to these designs."""
     m = d.get("manufacturability")
@@ -260,7 +273,8 @@ def _manufacturability_section(d):
            f"{min(s['silent_beyond'] for s in seps):.0f}-"
            f"{max(s['silent_beyond'] for s in seps):.0f} Hz; tone windows (how far its own "
            f"tone may move and still drive it): {min(s['responds_within'] for s in seps):.0f}-"
-           f"{max(s['responds_within'] for s in seps):.0f} Hz.", ""]
+           f"{max(s['responds_within'] for s in seps):.0f} Hz"
+           + _designed_windows(d) + ".", ""]
     y = m.get("collision_free_yield")
     if y is None:
         out += [f"Collision-free yield: not predicted ({m.get('note', 'no tolerances')}).", ""]

@@ -299,15 +299,13 @@ def test_yield_checks_the_positions_of_a_targets_plan(two_plan, tmp_path):
     assert "off target" in d["nominal"]["failures"]
 
 
-@pytest.mark.xfail(strict=True, reason="issue 37: the re-plan moves every tone to the middle of "
-                   "its window (0.4-0.7 % below the designed tone), where the designs of "
-                   "issue 36's loop drive their sliders at 0.16-0.19 mm/s, below the 0.2 "
-                   "floor; designs centred in their tone windows keep a perfect chip's tones")
 def test_replan_of_a_perfectly_measured_chip_of_a_targets_plan_verifies(two_plan, tmp_path):
     """Issue 38: the re-plan of a chip measured exactly as designed failed off target
     (its targets steps played as loops for their whole length); it gates them again
     for the chip, and every position check passes; the re-planned plan.json is a plan
-    (read back) whose gated steps keep their targets."""
+    (read back) whose gated steps keep their targets.  Issue 37: the re-plan's move of
+    each tone toward its measured window's middle stays inside the designed tone window
+    (it had moved a tone 0.7 % down, where the slider was below the speed floor)."""
     from planner.planning.plan_file import read_plan
 
     data = json.loads((two_plan.out_dir / "plan.json").read_text())
