@@ -64,10 +64,6 @@ SPLIT_SCALE_MARGIN = 0.95
 REPLAN_TRAVEL_MARGIN = 0.85
 
 
-#: The fraction of the way to its measured window's middle a re-planned tone moves [-].
-CENTRE_FRACTION = float(__import__("os").environ.get("VP_CENTRE", "1.0"))
-
-
 def measured_frequency(value) -> float:
     """A measured resonance [Hz]: a number, or the mean of a pair's two halves."""
     if isinstance(value, (tuple, list)):
@@ -97,12 +93,12 @@ def rescaled_tones(plan, measured: dict, seps: Separations | None = None,
         the middle stays within it, where the design is known to drive its slider at
         speed (the measured window is where it responds at all: a targets plan's
         100 Hz below a 7 kHz tone is 0.7 %, where its slider is below the floor).  0:
-        no limit.
+        no limit.  On 40 chips of the default plan (seed 5, 0.05 % noise) the move
+        re-plans 39 (0.975); keeping the scaled tones, 36 (three more pairs collide).
     """
     centre = {}
     if seps is not None:
         centre = {n: 0.5 * (seps.hi[k] - seps.lo[k]) for k, n in enumerate(seps.ids)}
-        centre = {n: CENTRE_FRACTION * c for n, c in centre.items()}
         if window > 0.0:
             tone0 = {r.id: r.frequency_hz for r in plan.impacters}
             centre = {n: float(np.clip(c, -window * tone0[n], window * tone0[n]))
