@@ -6,6 +6,8 @@ One package for everything that happens to a chip once it is made (``vibroplan r
 - :mod:`~planner.afterfab.measurement` -- :class:`Measurement`, what a lab measures of an
   impacter (resonance, per half where measured apart, quality factor, gap); measured.csv;
   the measurement a yield study simulates;
+- :mod:`~planner.afterfab.tune` -- tuning on the chip: a speed-against-tone sweep, the
+  working windows fitted to it (``calibrate --motion``, windows.csv, ``yield --tune``);
 - :mod:`~planner.afterfab.as_built` -- the one builder of a measured chip's models: the
   fabrication errors inferred from the measured resonances, the chip rebuilt through eqs.
   (2)-(4) (mass, stiffness, damping and gap, not the stiffness alone);
@@ -18,10 +20,12 @@ One package for everything that happens to a chip once it is made (``vibroplan r
 - :mod:`~planner.afterfab.trim` -- what to trim, and the trim sequence (measure, trim,
   measure again, re-plan) used by ``trim`` and ``yield --trim``.
 
-Each module imports only those listed above it (``[tool.importlinter]``).
+Each module imports only those listed before it (``[tool.importlinter]``).
 """
 
 from planner.afterfab.as_built import AsBuilt, as_built
 from planner.afterfab.measurement import Measurement, measure_models, read_measured
+from planner.afterfab.tune import Window, fit_window, fit_windows
 
-__all__ = ["AsBuilt", "Measurement", "as_built", "measure_models", "read_measured"]
+__all__ = ["AsBuilt", "Measurement", "Window", "as_built", "fit_window", "fit_windows",
+           "measure_models", "read_measured"]
