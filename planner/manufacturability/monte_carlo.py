@@ -7,7 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from planner.assign import told_apart_pairs
 from planner.fabrication import ERRORS
+from planner.intervals import wilson_interval
 from planner.manufacturability.grid import predicted_sigmas
 
 #: Chips of the Monte Carlo by default: the 95 % interval of a yield near 0.95 is then
@@ -137,8 +139,6 @@ def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,
     errors (the line width's curvature is below 1e-4 relative at 0.05 um on 5 um
     beams; the tests hold it against chips sampled through the full equations).
     """
-    from planner.intervals import wilson_interval
-
     nu = np.asarray(nu, dtype=float)
     tone = np.asarray(tone, dtype=float)
     sens = np.asarray(sens, dtype=float)
@@ -216,8 +216,6 @@ def predict_from_channels(spec, assignment, *, chips=CHIPS, seed=0) -> YieldPred
     resonances come closer than ``drive.channels.separation_hz`` (400 Hz by default
     when the grid is not a tolerance grid).  None without tolerances.
     """
-    from planner.assign import told_apart_pairs
-
     fab = spec.fabrication
     if fab.zero:
         return None

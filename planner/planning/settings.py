@@ -25,8 +25,9 @@ from model import devices as _d
 from planner.assign import plan_steps
 from planner.config import EnvironmentConfig, ProcessConfig, SliderConfig, build_slider
 from planner.errors import SpecError
+from planner.manufacturability import channel_grid, pair_sigma_rel, sensitivity_target_per_um
 from planner.nodes import DIRECTIONS, Node, device_key
-from planner.spec import ArraySpec, FabricationSpec, LoadedSpec, Step, TrimSpec, channel_grid
+from planner.spec import ArraySpec, FabricationSpec, LoadedSpec, Step, TrimSpec
 from planner.units import MS, UM
 from planner.yamlio import format_loc, line_of
 
@@ -123,7 +124,7 @@ class Settings:
         The drive band [Hz].
     channel_grid_hz : tuple of float
         Every channel's frequency [Hz], ascending (``drive.channels``:
-        :func:`planner.spec.channel_grid`).
+        :func:`planner.manufacturability.channel_grid`).
     channel_spacing : str
         ``log``, ``linear`` or ``tolerance`` (``drive.channels.spacing``).
     resonance_separation_hz : float
@@ -379,8 +380,6 @@ def _sensitivity_band(spec):
     des = spec.design
     if not des.match_sensitivity:
         return None
-    from planner.manufacturability import sensitivity_target_per_um
-
     s = sensitivity_target_per_um(des) / UM
     return (s * (1.0 - des.sensitivity_tolerance), s * (1.0 + des.sensitivity_tolerance))
 
@@ -437,8 +436,6 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
     SpecError
         A field that the planner cannot honour, with its YAML line.
     """
-    from planner.manufacturability import pair_sigma_rel
-
     spec = loaded.spec
     _check_impacter_sections(loaded)
     _check_over_limit(loaded)
