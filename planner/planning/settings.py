@@ -356,9 +356,8 @@ def _impacter_settings(spec, device, direction):
 
 def _bounds(loaded, impacters):
     """``design.bounds`` narrowed by the process rules the spec sets (the layout's
-    beam width and tip space, :func:`planner.layout.rules.narrow_bounds`)."""
-    from planner.designer import DesignBounds
-    from planner.layout.rules import RuleBoundsError, narrow_bounds
+    beam width and tip space, :func:`planner.designer.bounds.narrow_bounds`)."""
+    from planner.designer.bounds import DesignBounds, RuleBoundsError, narrow_bounds
 
     spec = loaded.spec
     b = spec.design.bounds
