@@ -265,7 +265,7 @@ def _guard_note(settings, grid, sep, positions):
 def _tolerance_note(settings, n, fit, grid, sep):
     """Why a tolerance grid cannot hold ``n`` independent impacters, and what would."""
     lo, hi = settings.band_hz
-    target = settings.fabrication.target_yield
+    target = settings.target_yield
     sigma = settings.pair_sigma_rel
     spacing = settings.resonance_separation_hz
     z = z_for(target, n - 1)

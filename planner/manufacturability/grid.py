@@ -10,7 +10,7 @@ import math
 import numpy as np
 
 from planner.assign import activity, plan_steps
-from planner.fabrication import ERRORS, NodeDesign, frequency_sensitivities
+from planner.fabrication import ERRORS, NodeDesign, Tolerances, frequency_sensitivities
 from planner.intervals import z_for
 from planner.spec import ArraySpec, LoadedSpec, resolve_steps
 
@@ -77,15 +77,13 @@ def pair_sigma_rel(spec) -> float:
     error moves two designs apart by the difference of their sensitivities, uniform over
     the spread (variance spread^2 / 6 for the difference of two uniform draws on it).
     """
-    fab = spec.fabrication
+    tol = Tolerances.from_spec(spec.fabrication)
     s, spread = predicted_sigmas(spec)
-    dev = np.array([getattr(fab, k).device for k in ERRORS])
-    die = np.array([getattr(fab, k).die for k in ERRORS])
     # the pair level: each node's mean moves by sigma / sqrt(2) and its band widens by
     # about as much again (half the halves' difference); counted as one more device sigma
-    pair = np.array([getattr(fab, k).pair for k in ERRORS])
-    return float(math.sqrt(2.0 * np.sum((s * dev) ** 2) + 2.0 * np.sum((s * pair) ** 2)
-                           + np.sum((spread * die) ** 2) / 6.0))
+    return float(math.sqrt(2.0 * np.sum((s * tol.device) ** 2)
+                           + 2.0 * np.sum((s * tol.pair) ** 2)
+                           + np.sum((spread * tol.die) ** 2) / 6.0))
 
 
 def tolerance_grid(band_hz, separation_hz, sigma_rel, z, sub=1) -> np.ndarray:
@@ -142,7 +140,7 @@ def die_shift_rel(spec) -> float:
     """Relative sigma of the common shift a die-level error gives every resonance [-]:
     sqrt(sum_i (s_i sigma_die_i)^2), the predicted sensitivities."""
     s, _ = predicted_sigmas(spec)
-    die = np.array([getattr(spec.fabrication, k).die for k in ERRORS])
+    die = Tolerances.from_spec(spec.fabrication).die
     return float(math.sqrt(np.sum((s * die) ** 2)))
 
 

@@ -25,9 +25,10 @@ from model import devices as _d
 from planner.assign import plan_steps
 from planner.config import EnvironmentConfig, ProcessConfig, SliderConfig, build_slider
 from planner.errors import SpecError
+from planner.fabrication import Tolerances
 from planner.manufacturability import channel_grid, pair_sigma_rel, sensitivity_target_per_um
 from planner.nodes import DIRECTIONS, Node, device_key
-from planner.spec import ArraySpec, FabricationSpec, LoadedSpec, Step, TrimSpec
+from planner.spec import ArraySpec, LoadedSpec, Step, TrimSpec
 from planner.units import MS, UM
 from planner.yamlio import format_loc, line_of
 
@@ -204,8 +205,13 @@ class Settings:
         Relative sigma of a lab's measured resonance [-]
         (``fabrication.measurement_noise_pct`` / 100): the as-built models' and a yield
         study's.
-    fabrication : planner.spec.FabricationSpec
-        The tolerance model (manufacturability, yield).
+    tolerances : planner.fabrication.Tolerances
+        The fabrication tolerance model: the sigma of every error at every level
+        (die, device, pair), in the errors' own units (um, %: those of the
+        sensitivities), read from ``fabrication:`` once
+        (:meth:`~planner.fabrication.Tolerances.from_spec`).
+    target_yield : float
+        The collision-free yield the plan is held to (``fabrication.target_yield``) [-].
     pair_sigma_rel : float
         Predicted relative sigma of the difference of two as-built resonances [-]
         (:func:`planner.manufacturability.pair_sigma_rel`; 0 without tolerances).
@@ -264,7 +270,8 @@ class Settings:
     sensitivity_band: tuple | None
     tone_window: float
     measurement_noise: float
-    fabrication: FabricationSpec
+    tolerances: Tolerances
+    target_yield: float
     pair_sigma_rel: float
     trim: TrimSpec
     chip_spec: ArraySpec = field(repr=False)
@@ -493,7 +500,8 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
         sensitivity_band=_sensitivity_band(spec),
         tone_window=_tone_window(spec),
         measurement_noise=spec.fabrication.measurement_noise_pct / 100.0,
-        fabrication=spec.fabrication,
+        tolerances=Tolerances.from_spec(spec.fabrication),
+        target_yield=float(spec.fabrication.target_yield),
         pair_sigma_rel=pair_sigma_rel(spec),
         trim=spec.trim or TrimSpec(),
         chip_spec=spec,
