@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from planner.errors import PlanningError
+from planner.intervals import z_for
 from planner.nodes import DIRECTIONS, Node, device_key
 from planner.separation import guard_onset_hz, position_grid
 from planner.spec import LoadedSpec, Step
@@ -263,10 +264,8 @@ def _guard_note(settings, grid, sep, positions):
 
 def _tolerance_note(settings, n, fit, grid, sep):
     """Why a tolerance grid cannot hold ``n`` independent impacters, and what would."""
-    from planner.manufacturability.grid import z_for
-
     lo, hi = settings.band_hz
-    target = settings.fabrication.target_yield
+    target = settings.target_yield
     sigma = settings.pair_sigma_rel
     spacing = settings.resonance_separation_hz
     z = z_for(target, n - 1)

@@ -99,7 +99,7 @@ class DesignConfig(_Strict):
     def design_kwargs(self) -> dict:
         """Keyword arguments of :func:`planner.designer.design_impacter` (SI units)."""
         from planner.config import build_slider
-        from planner.layout.rules import narrow_bounds
+        from planner.designer.bounds import narrow_bounds
 
         d = self.design
         return {

@@ -54,6 +54,104 @@ UM = 1e-6
 #: The five errors, in the order of their draws (columns of the normal arrays).
 ERRORS = ("line_width_um", "thickness_um", "gap_um", "youngs_modulus_pct",
           "natural_frequency_pct")
+#: The unit of each error of :data:`ERRORS`: a chip's errors, their sigmas
+#: (:class:`Tolerances`) and the sensitivities d ln nu_n / d e
+#: (:func:`frequency_sensitivities`, per um and per %) all count in these, so that a
+#: sensitivity times an error is a relative shift [-] (plan.json's keys carry them).
+ERROR_UNITS = ("um", "um", "um", "%", "%")
+
+
+@dataclass(frozen=True, eq=False)
+class Tolerances:
+    """The fabrication tolerance model as numbers: one sigma per error and level.
+
+    The spec's ``fabrication:`` section (:class:`planner.spec.FabricationSpec`, a
+    pydantic model with a field per error) turned once, by :meth:`from_spec`, into the
+    arrays every computation with the tolerances reads: a sampled chip
+    (:func:`sample_chip`), an impacter's frequency sigma
+    (:func:`natural_frequency_sigma`), the predicted scatter and the collision-free
+    yield (:mod:`planner.manufacturability`).  A plan's settings carry it
+    (``Settings.tolerances``).
+
+    Attributes
+    ----------
+    die : ndarray, shape (5,)
+        Sigma of the per-die part of each error of :data:`ERRORS`, in that order, each
+        in its unit (:data:`ERROR_UNITS`: um, um, um, %, %).
+    device : ndarray, shape (5,)
+        Sigma of the per-device part (one draw per impacter pair and per slider), same
+        order and units.
+    pair : ndarray, shape (5,)
+        Sigma of each half's own error of a pair, same order and units.
+
+    Notes
+    -----
+    The units are the errors' own, not SI: they are the coordinates in which a chip is
+    built (:func:`_impacter`) and in which the sensitivities are measured and recorded
+    (plan.json's ``manufacturability.sensitivity``, per um and per %), so the sums
+    s_i sigma_i need no conversion and give the plan's numbers to the last bit.
+
+    Examples
+    --------
+    >>> from planner.spec import FabricationSpec
+    >>> t = Tolerances.from_spec(FabricationSpec.model_validate(
+    ...     {"line_width_um": {"die": 0.05, "device": 0.02}}))
+    >>> [float(x) for x in t.die], t.zero
+    ([0.05, 0.0, 0.0, 0.0, 0.0], False)
+    """
+
+    die: np.ndarray
+    device: np.ndarray
+    pair: np.ndarray
+
+    #: the unit of each entry (:data:`ERROR_UNITS`)
+    units = ERROR_UNITS
+
+    def __post_init__(self):
+        for name in ("die", "device", "pair"):
+            a = np.array(getattr(self, name), dtype=float)
+            if a.shape != (len(ERRORS),) or not np.all(np.isfinite(a)) or np.any(a < 0):
+                raise ValueError(f"{name} must be {len(ERRORS)} finite sigmas >= 0 (in "
+                                 f"ERRORS order), {getattr(self, name)!r} was given")
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+
+    @classmethod
+    def from_spec(cls, fab: FabricationSpec) -> "Tolerances":
+        """The sigmas of a spec's ``fabrication:`` section (``fab.<error>.die`` and so on)."""
+        return cls(*(np.array([getattr(getattr(fab, k), level) for k in ERRORS])
+                     for level in ("die", "device", "pair")))
+
+    @property
+    def zero(self) -> bool:
+        """No error at all: every sigma 0."""
+        return not (np.any(self.die) or np.any(self.device) or np.any(self.pair))
+
+    def scaled(self, scale: float) -> "Tolerances":
+        """Every sigma times ``scale`` [-] (a yield study's ``--sigma-scale``)."""
+        return Tolerances(self.die * scale, self.device * scale, self.pair * scale)
+
+    def variances(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(die, device, pair) variances, shape (5,) each, the units squared."""
+        return self.die ** 2, self.device ** 2, self.pair ** 2
+
+    def __eq__(self, other):
+        if not isinstance(other, Tolerances):
+            return NotImplemented
+        return all(np.array_equal(getattr(self, k), getattr(other, k))
+                   for k in ("die", "device", "pair"))
+
+    __hash__ = None
+
+    def __repr__(self):
+        return (f"Tolerances(die={self.die.tolist()}, device={self.device.tolist()}, "
+                f"pair={self.pair.tolist()})")
+
+
+def _as_tolerances(fab) -> Tolerances:
+    """``fab`` itself when a :class:`Tolerances`, else :meth:`Tolerances.from_spec` of a
+    spec's ``fabrication:`` section."""
+    return fab if isinstance(fab, Tolerances) else Tolerances.from_spec(fab)
 
 
 @dataclass(frozen=True)
@@ -172,14 +270,15 @@ def _slider(spec: ArraySpec, device: str, dw: float, dt: float) -> Slider:
         dynamic_friction=cfg.dynamic_friction_un * UM)
 
 
+# planner.afterfab.as_built reads the sigmas through these two until it takes
+# Tolerances.from_spec(design.spec.fabrication).variances()
 def _sigmas(fab: FabricationSpec, scale: float):
-    die = np.array([getattr(fab, k).die for k in ERRORS]) * scale
-    dev = np.array([getattr(fab, k).device for k in ERRORS]) * scale
-    return die, dev
+    tol = Tolerances.from_spec(fab).scaled(scale)
+    return tol.die, tol.device
 
 
 def _pair_sigmas(fab: FabricationSpec, scale: float):
-    return np.array([getattr(fab, k).pair for k in ERRORS]) * scale
+    return Tolerances.from_spec(fab).scaled(scale).pair
 
 
 @dataclass
@@ -193,16 +292,16 @@ class Chip:
     errors: dict
 
 
-def sample_chip(design: ChipDesign, fab: FabricationSpec, rng: np.random.Generator,
-                scale: float = 1.0) -> Chip:
+def sample_chip(design: ChipDesign, fab: Tolerances | FabricationSpec,
+                rng: np.random.Generator, scale: float = 1.0) -> Chip:
     """Draw one chip from ``rng``.
 
     Parameters
     ----------
     design : ChipDesign
         The plan's nominal designs (:func:`design_from_plan`).
-    fab : FabricationSpec
-        The tolerance model.
+    fab : Tolerances or planner.spec.FabricationSpec
+        The tolerance model (a spec's section is read by :meth:`Tolerances.from_spec`).
     rng : numpy.random.Generator
         The chip's own generator (seeded from the run's seed and the chip's index).
     scale : float
@@ -214,8 +313,8 @@ def sample_chip(design: ChipDesign, fab: FabricationSpec, rng: np.random.Generat
     """
     if not (math.isfinite(scale) and scale >= 0):
         raise ValueError(f"scale must be finite and >= 0, {scale!r} was given")
-    sd_die, sd_dev = _sigmas(fab, scale)
-    sd_pair = _pair_sigmas(fab, scale)
+    tol = _as_tolerances(fab).scaled(scale)
+    sd_die, sd_dev, sd_pair = tol.die, tol.device, tol.pair
     # fixed draw order: die, then every node, then every slider (line width, thickness),
     # then every half of every node (drawn last, so that the earlier draws are those of
     # a chip without the pair level)
@@ -281,15 +380,17 @@ def frequency_sensitivities(spec: ArraySpec, node: NodeDesign, which=None) -> np
     return out
 
 
-def natural_frequency_sigma(spec: ArraySpec, node: NodeDesign, fab: FabricationSpec) -> float:
-    """Relative standard deviation of an impacter's natural frequency [-] under ``fab``.
+def natural_frequency_sigma(spec: ArraySpec, node: NodeDesign,
+                            fab: Tolerances | FabricationSpec) -> float:
+    """Relative standard deviation of an impacter's natural frequency [-] under ``fab``
+    (:class:`Tolerances`, or a spec's section).
 
     First order: sum over the error sources of (d ln nu_n / d e_i)^2 (sigma_die_i^2 +
     sigma_device_i^2), the sensitivities from :func:`frequency_sensitivities`.  A
     line-width error of 0.05 um on a 4.6 um beam moves nu_n by about 1.6 %.
     """
-    sd_die, sd_dev = _sigmas(fab, 1.0)
-    var = sd_die ** 2 + sd_dev ** 2
+    var_die, var_dev, _ = _as_tolerances(fab).variances()
+    var = var_die + var_dev
     s = frequency_sensitivities(spec, node, which=var > 0)
     return math.sqrt(float(np.sum(s * s * var)))
 

@@ -1,5 +1,8 @@
-"""The 95 % confidence interval of a yield: the Wilson score interval of a binomial
-proportion (also :func:`planner.manufacturability`'s predicted yield's)."""
+"""Yield statistics that know nothing of a plan: the 95 % confidence interval of a
+measured yield (the Wilson score interval of a binomial proportion, also
+:mod:`planner.manufacturability`'s predicted yield's) and the margin in sigmas that a
+target yield asks of many independent pairs (:func:`z_for`: the tolerance channel grid's
+and the assignment's)."""
 
 from __future__ import annotations
 
@@ -24,3 +27,19 @@ def wilson_interval(passed: int, n: int, z: float = Z95) -> list[float]:
     # exact ends at 0 and n passes (the formula leaves round-off there)
     return [0.0 if passed == 0 else max(0.0, centre - half),
             1.0 if passed == n else min(1.0, centre + half)]
+
+
+def z_for(target_yield: float, pairs: int) -> float:
+    """The normal quantile z that makes ``pairs`` independent one-sided margins of z sigma
+    all hold with probability ``target_yield``: 1 - p per pair, (1 - p)^pairs = target.
+
+    >>> round(z_for(0.95, 49), 3)
+    3.077
+    """
+    from scipy.stats import norm
+
+    if not 0.0 < target_yield < 1.0:
+        raise ValueError(f"target_yield must be in (0, 1), {target_yield!r} was given")
+    pairs = max(int(pairs), 1)
+    p = -math.expm1(math.log(target_yield) / pairs)
+    return float(norm.isf(p))

@@ -139,7 +139,7 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
 
         for line in prediction_lines(predict_from_channels(settings.chip_spec, assignment,
                                                            seed=settings.seed),
-                                     settings.fabrication.target_yield, before_designs=True):
+                                     settings.target_yield, before_designs=True):
             click.echo(line, err=True)
 
     try:
@@ -223,7 +223,7 @@ def _dry_run(loaded, seed, jobs, cache, quiet):
 
     for line in prediction_lines(predict_from_channels(settings.chip_spec, a,
                                                        seed=settings.seed),
-                                 settings.fabrication.target_yield, before_designs=True):
+                                 settings.target_yield, before_designs=True):
         click.echo(line)
     click.echo("dry run: nothing written")
 

@@ -88,9 +88,19 @@ def command(plan_path, measured_path, out_dir, seed, force, no_figures, quiet):
 
 def _report(path, res):
     """report.md: the trim section first (and the re-plan's report after it, if any)."""
+    # written above the re-plan's report.md until write_replan_outputs takes sections
+    # (then: write_replan_outputs(res.plan, tmp, sections=[_trim_section(res)]))
+    old = path.read_text() if path.exists() else ""
+    path.write_text("\n".join(_trim_section(res).render()) + "\n" + old)
+
+
+def _trim_section(res):
+    """The trim's section of report.md: what to cut, and whether the re-planned drive
+    passes on the trimmed models."""
+    from planner.markdown import Section
+
     tp = res.trims
-    lines = ["## Trim", "",
-             f"Direction {res.spec.direction} ({'plate mass removed: the resonance rises' if res.spec.direction == 'up' else 'beam freed from its anchor: the resonance falls'}), "
+    lines = [f"Direction {res.spec.direction} ({'plate mass removed: the resonance rises' if res.spec.direction == 'up' else 'beam freed from its anchor: the resonance falls'}), "
              f"range {res.spec.range_pct:g} %, precision {res.spec.precision_pct:g} % "
              "(one sigma of a cut's error).", ""]
     if tp.failures:
@@ -112,8 +122,7 @@ def _report(path, res):
                   f"{'PASSES' if tm['passed'] else 'FAILS'}**"
                   + ("" if tm["passed"] else " (" + ", ".join(
                       f"{k}: {v}" for k, v in tm["failures"].items()) + ")"), ""]
-    old = path.read_text() if path.exists() else ""
-    path.write_text("\n".join(lines) + "\n" + old)
+    return Section("Trim", lines)
 
 
 # cleandoc: click keeps the docstring's indentation when help is assigned like this

@@ -1,9 +1,19 @@
-"""Bounds of the design variables p = (A, w, l, c): the paper's (17) and the documented upper bounds."""
+"""Bounds of the design variables p = (A, w, l, c): the paper's (17), the documented upper
+bounds, and what a process's layout rules ask of them (:func:`narrow_bounds`).
+
+Two designed quantities meet a rule in the drawing (:mod:`planner.layout` draws them):
+
+- the beam width w is a POLY1 line: w >= min_line;
+- the impacter's tip is a POLY1 corner at a distance c from its slider wall measured
+  along the impacter's motion, which meets the wall at the impact angle theta (the
+  paper's Fig. 6), so the drawn space between tip and wall is c sin(theta):
+  c >= min_space / sin(theta).
+"""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from planner.units import UM
 
@@ -93,3 +103,81 @@ class DesignBounds:
                 "width_um": [self.width[0] / UM, self.width[1] / UM],
                 "length_um": [self.length[0] / UM, self.length[1] / UM],
                 "gap_um": [self.gap[0] / UM, self.gap[1] / UM]}
+
+
+class RuleBoundsError(ValueError):
+    """A process rule no design inside the designer's bounds can meet.
+
+    ``field`` is the spec field at fault, as a path tuple (``("process",
+    "min_line_um")``), for a :class:`planner.errors.SpecError` with its YAML line.
+    """
+
+    def __init__(self, field: tuple, message: str):
+        self.field = field
+        super().__init__(message)
+
+
+def narrow_bounds(bounds, process, impact_angles):
+    """The designer's bounds narrowed so that every design inside them keeps the rules
+    the spec sets.
+
+    Parameters
+    ----------
+    bounds : DesignBounds
+        The bounds from ``design.bounds`` (or the defaults).
+    process : planner.config.ProcessConfig
+        Only ``min_line_um`` and ``min_space_um`` count, and only when set: an unset
+        rule leaves the bounds as they are (the paper's (17) already keeps w >= 2 um).
+    impact_angles : iterable of float
+        The impact angle theta of every impacter the bounds serve [rad]; the smallest
+        sets the gap bound.
+
+    Returns
+    -------
+    DesignBounds
+        ``bounds`` itself when nothing narrows it.
+
+    Raises
+    ------
+    RuleBoundsError
+        A rule leaves no width or gap inside the bounds, naming the rule's field.
+
+    Examples
+    --------
+    >>> import math
+    >>> from planner.config import ProcessConfig
+    >>> b = narrow_bounds(DesignBounds(), ProcessConfig(min_space_um=2.0), [math.pi / 4])
+    >>> round(b.gap[0] / UM, 3)        # the tip clears the wall by c sin(45 deg) >= 2 um
+    2.828
+    """
+    width, gap = bounds.width, bounds.gap
+    if process.min_line_um is not None:
+        lo = max(width[0], process.min_line_um * UM)
+        if lo >= width[1]:
+            raise RuleBoundsError(
+                ("process", "min_line_um"),
+                f"{process.min_line_um:g} um leaves no beam width for the designer: the "
+                f"beams may be at most {width[1] / UM:g} um wide (design.bounds.width_um)")
+        width = (lo, width[1])
+    if process.min_space_um is not None:
+        sines = [math.sin(float(t)) for t in impact_angles]
+        if not sines:
+            raise ValueError("impact_angles is empty")
+        sine = min(sines)
+        if sine <= 0.0:
+            raise RuleBoundsError(
+                ("process", "min_space_um"),
+                "an impacter with a 0 deg impact angle moves along its slider wall, so no "
+                "gap keeps its tip a space away from it")
+        lo = max(gap[0], process.min_space_um * UM / sine)
+        if lo >= gap[1]:
+            raise RuleBoundsError(
+                ("process", "min_space_um"),
+                f"{process.min_space_um:g} um leaves no gap for the designer: a tip at "
+                f"impact angle {math.degrees(math.asin(sine)):g} deg clears its slider "
+                f"wall by c sin(theta), so c must be at least {lo / UM:.3g} um, but "
+                f"design.bounds.gap_um allows at most {gap[1] / UM:g} um")
+        gap = (lo, gap[1])
+    if width == bounds.width and gap == bounds.gap:
+        return bounds
+    return replace(bounds, width=width, gap=gap)

@@ -1,22 +1,18 @@
-"""The layout's report (markdown): what was drawn, the round trip, the pictures, the DRC."""
+"""The layout's report (markdown): what was drawn, the round trip, the pictures, the DRC,
+section by section (:class:`planner.markdown.Report`)."""
 
 from __future__ import annotations
 
 import math
 
 from planner.layout.measure import ROUND_TRIP_RTOL
+from planner.markdown import Report, Section, md_table
 from planner.units import UM
 
 #: First line of every layout report: a later run may replace a report that has it.
 HEADER = "<!-- written by vibroplan layout -->"
 #: Violations listed one by one in the report (all are in the JSON).
 LISTED = 60
-
-
-def _table(header, rows) -> list:
-    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
-    return out
 
 
 def _g(x, digits=5):
@@ -37,6 +33,18 @@ def write_report(path, *, plan, chip, rows, drc, files, gds_bytes, version) -> N
     ----------
     path : Path
         The markdown file.
+    plan, chip, rows, drc, files, gds_bytes, version :
+        As :func:`layout_report`.
+    """
+    layout_report(plan=plan, chip=chip, rows=rows, drc=drc, files=files,
+                  gds_bytes=gds_bytes, version=version).write(path)
+
+
+def layout_report(*, plan, chip, rows, drc, files, gds_bytes, version) -> Report:
+    """The layout report.
+
+    Parameters
+    ----------
     plan : planner.layout.source.LayoutPlan
     chip : planner.layout.geometry.ChipLayout
     rows : list of dict
@@ -49,20 +57,22 @@ def write_report(path, *, plan, chip, rows, drc, files, gds_bytes, version) -> N
         Size of the GDSII file.
     version : str
         vibroplan's version.
+
+    Returns
+    -------
+    planner.markdown.Report
     """
-    r = chip.rules
     spec = plan.spec
     devices = list(chip.device_origins)
-    lines = [HEADER, f"# Chip layout: {spec.name}", ""]
-    lines += [f"`{files['gds']}`: {gds_bytes / 1024:.0f} KiB GDSII (user unit 1 um, database "
-              f"unit 1 nm), written by vibroplan {version} from `{plan.path}`. Top cell "
-              f"`{chip.top}`: {len(devices)} device cells (`{devices[0]}` ... "
-              f"`{devices[-1]}`) on a {chip.pitch / UM:g} um pitch, row A at the top; in each "
-              "a slider cell (`<device>.slider`) and one cell per designed impacter pair "
-              "(`<device>.forward`, `<device>.backward`) holding two placements of its "
-              "cantilever cell (`<id>.cantilever`), one above the slider and its mirror image "
-              f"below: {len(chip.impacters)} impacter pairs. Labels (mask LABEL) give every "
-              "id with its drive tone and natural frequency.", ""]
+    lines = [f"`{files['gds']}`: {gds_bytes / 1024:.0f} KiB GDSII (user unit 1 um, database "
+             f"unit 1 nm), written by vibroplan {version} from `{plan.path}`. Top cell "
+             f"`{chip.top}`: {len(devices)} device cells (`{devices[0]}` ... "
+             f"`{devices[-1]}`) on a {chip.pitch / UM:g} um pitch, row A at the top; in each "
+             "a slider cell (`<device>.slider`) and one cell per designed impacter pair "
+             "(`<device>.forward`, `<device>.backward`) holding two placements of its "
+             "cantilever cell (`<id>.cantilever`), one above the slider and its mirror image "
+             f"below: {len(chip.impacters)} impacter pairs. Labels (mask LABEL) give every "
+             "id with its drive tone and natural frequency.", ""]
     missing = [f"{d}.{k}" for d in devices for k in ("forward", "backward")
                if f"{d}.{k}" not in chip.impacters]
     if missing:
@@ -70,9 +80,17 @@ def write_report(path, *, plan, chip, rows, drc, files, gds_bytes, version) -> N
                   f"{', '.join(missing)}.", ""]
     lines += [f"![The chip]({files['chip_png']})", "",
               f"![Device {files['device']}]({files['device_png']})", ""]
-    lines += ["## Process", "",
-              f"Rules and layers from {plan.rules_source}:", ""]
+    sections = [_process(plan, chip), _round_trip(rows), _devices(chip)]
+    if chip.trim is not None:
+        sections.append(_trim(chip))
+    sections.append(_drc(drc, files))
+    return Report(f"Chip layout: {spec.name}", lines, sections, preamble=[HEADER])
+
+
+def _process(plan, chip) -> Section:
+    r = chip.rules
     proc = plan.process
+    lines = [f"Rules and layers from {plan.rules_source}:", ""]
 
     def rule(value, given):
         text = f"{value / UM:g} um"
@@ -84,21 +102,15 @@ def write_report(path, *, plan, chip, rows, drc, files, gds_bytes, version) -> N
               f"- beams: double-V, half angle {proc.beam_angle_deg:.4g} deg between the two "
               f"legs of a V; plates POLY1 + POLY2 ({proc.mass_thickness_um:g} um), beams "
               f"POLY1 ({proc.beam_height_um:g} um).", ""]
-    lines += _table(["mask", "GDS layer", "datatype"],
-                    [(k, v[0], v[1]) for k, v in r.layers.items()]) + [""]
-    lines += _round_trip(rows)
-    lines += _devices(chip)
-    if chip.trim is not None:
-        lines += _trim(chip)
-    lines += _drc(drc, files)
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    lines += md_table(["mask", "GDS layer", "datatype"],
+                      [(k, v[0], v[1]) for k, v in r.layers.items()]) + [""]
+    return Section("Process", lines)
 
 
-def _round_trip(rows) -> list:
+def _round_trip(rows) -> Section:
     worst = max(abs(x["error"]) for x in rows)
     passed = all(x["passed"] for x in rows)
-    out = ["## Geometry round trip", "",
-           "The GDSII file read back with gdstk; every impacter's plate area A (its POLY2), "
+    out = ["The GDSII file read back with gdstk; every impacter's plate area A (its POLY2), "
            "beam width w and length l (its POLY1 legs) and gap c (its tip's space to the "
            "slider polygon over the sine of the impact angle) measured on the polygons of "
            "both cantilevers, and its natural frequency by eqs. (2)-(4) with the plan's "
@@ -114,12 +126,12 @@ def _round_trip(rows) -> list:
                       f"{x['natural_frequency_hz_plan']:.1f}",
                       _g(x["natural_frequency_hz_layout"], 7),
                       f"{100 * x['error']:+.4f}" if math.isfinite(x["error"]) else "-"))
-    out += _table(["impacter", "A [um^2] plan / layout", "w [um]", "l [um]", "c [um]",
-                   "nu_n plan [Hz]", "nu_n layout [Hz]", "error [%]"], table) + [""]
-    return out
+    out += md_table(["impacter", "A [um^2] plan / layout", "w [um]", "l [um]", "c [um]",
+                     "nu_n plan [Hz]", "nu_n layout [Hz]", "error [%]"], table) + [""]
+    return Section("Geometry round trip", out)
 
 
-def _devices(chip) -> list:
+def _devices(chip) -> Section:
     space = chip.rules.min_space
     rows, out_of = [], []
     for d, box in chip.footprints.items():
@@ -130,40 +142,41 @@ def _devices(chip) -> list:
         rows.append((d, f"{length / UM:.0f} x {width / UM:.0f}",
                      f"{(box[2] - box[0]) / UM:.0f} x {(box[3] - box[1]) / UM:.0f}",
                      "yes" if ok else "**no**"))
-    out = ["## Devices", ""]
+    out = []
     if out_of:
         out += [f"{len(out_of)} of {len(rows)} devices do not fit their "
                 f"{chip.pitch / UM:g} um pitch cell ({', '.join(out_of)}): their beams and "
                 "plates reach into their neighbours'. The designer's bounds (design.bounds) "
                 "do not limit a device's footprint; shorter beams (length_um), smaller plates "
                 "(area_um2) or a larger array.pitch_um would.", ""]
-    out += _table(["device", "slider L x W [um]", "footprint W x H [um]", "fits the pitch"],
-                  rows) + [""]
-    return out
+    out += md_table(["device", "slider L x W [um]", "footprint W x H [um]", "fits the pitch"],
+                    rows) + [""]
+    return Section("Devices", out)
 
 
-def _trim(chip) -> list:
+def _trim(chip) -> Section:
     t = chip.trim
-    out = ["## Trim tabs", ""]
     if t.direction != "up":
-        return out + [f"trim: direction {t.direction} ({100 * t.range:g} %): trimming down "
-                      "cuts into a beam, which needs no drawn feature; no tabs drawn.", ""]
-    out += [f"trim: up by {100 * t.range:g} % in {t.tabs} steps of "
-            f"{100 * ((1 + t.range) ** (1 / t.tabs) - 1):.3g} % (precision "
-            f"{100 * t.precision:g} %): {t.tabs} POLY1 + POLY2 tabs on the rear edge of every "
-            "plate (outlined on TRIM), part of the designed area A. Cutting the first k tabs "
-            f"raises nu_n by (1 + {t.range:g})^(k / {t.tabs}) (eq. (2): only the mass moves).",
-            ""]
+        return Section("Trim tabs", [
+            f"trim: direction {t.direction} ({100 * t.range:g} %): trimming down cuts into a "
+            "beam, which needs no drawn feature; no tabs drawn.", ""])
+    out = [f"trim: up by {100 * t.range:g} % in {t.tabs} steps of "
+           f"{100 * ((1 + t.range) ** (1 / t.tabs) - 1):.3g} % (precision "
+           f"{100 * t.precision:g} %): {t.tabs} POLY1 + POLY2 tabs on the rear edge of every "
+           "plate (outlined on TRIM), part of the designed area A. Cutting the first k tabs "
+           f"raises nu_n by (1 + {t.range:g})^(k / {t.tabs}) (eq. (2): only the mass moves).",
+           ""]
     rows = [(i, f"{sum(d.tabs) / UM**2:.1f}", ", ".join(f"{a / UM**2:.1f}" for a in d.tabs))
             for i, d in chip.impacters.items()]
-    return out + _table(["impacter", "tabs total [um^2]", "each, in cutting order [um^2]"],
-                        rows) + [""]
+    return Section("Trim tabs", out + md_table(
+        ["impacter", "tabs total [um^2]", "each, in cutting order [um^2]"], rows) + [""])
 
 
-def _drc(drc, files) -> list:
-    out = ["## Design-rule check", ""]
+def _drc(drc, files) -> Section:
+    out = []
     if drc is None:
-        return out + ["Not run (`vibroplan layout PLAN --out FILE --check` runs it).", ""]
+        return Section("Design-rule check",
+                       ["Not run (`vibroplan layout PLAN --out FILE --check` runs it).", ""])
     import klayout
 
     version = getattr(klayout, "__version__", "")
@@ -176,14 +189,14 @@ def _drc(drc, files) -> list:
                 "Impacters in a violation: " + (", ".join(drc.impacters) or "none") + ".", "",
                 "Devices in a violation: " + (", ".join(drc.devices) or "none") + ".", ""]
     counts = drc.counts()
-    out += _table(["rule", "limit [um]", "violations"],
-                  [(k, f"{v / UM:g}", counts.get(k, 0)) for k, v in drc.rules.items()]) + [""]
+    out += md_table(["rule", "limit [um]", "violations"],
+                    [(k, f"{v / UM:g}", counts.get(k, 0)) for k, v in drc.rules.items()]) + [""]
     if drc.violations:
         shown = drc.violations[:LISTED]
         out += [f"The first {len(shown)} violations:" if len(shown) < len(drc.violations)
                 else "The violations:", ""]
-        out += _table(["rule", "where [um]", "measured [um]", "impacters", "devices"],
-                      [(v.rule, ", ".join(f"{c / UM:.1f}" for c in v.box),
-                        _g(v.value / UM, 4), " ".join(v.impacters) or "-",
-                        " ".join(v.devices) or "-") for v in shown]) + [""]
-    return out
+        out += md_table(["rule", "where [um]", "measured [um]", "impacters", "devices"],
+                        [(v.rule, ", ".join(f"{c / UM:.1f}" for c in v.box),
+                          _g(v.value / UM, 4), " ".join(v.impacters) or "-",
+                          " ".join(v.devices) or "-") for v in shown]) + [""]
+    return Section("Design-rule check", out)

@@ -18,7 +18,8 @@ without simulating chips, the fraction of chips on which that never happens -- t
   well under a second), first order in the errors, with its Wilson interval, the
   die-only and device-only yields, the closest-pair distribution and the pairs that
   limit it;
-- :func:`tolerance_grid`: the channel grid of ``drive.channels.spacing: tolerance``.
+- :func:`tolerance_grid`: the channel grid of ``drive.channels.spacing: tolerance``, and
+  :func:`channel_grid`, every spec's channel grid.
 
 The collision rule
 ------------------
@@ -37,7 +38,7 @@ Layout of this package (each module imports only those listed above it)
 - :mod:`~planner.manufacturability.separation`: per design, once -- sensitivities and the
   separation (silent band, tone window) by simulation;
 - :mod:`~planner.manufacturability.grid`: spec level, before any design -- predicted
-  scatter, the z of a target yield, the tolerance channel grid;
+  scatter, the tolerance channel grid, every spec's channel grid;
 - :mod:`~planner.manufacturability.monte_carlo`: the collision-free yield.
 """
 
@@ -45,6 +46,7 @@ from __future__ import annotations
 
 from planner.manufacturability.grid import (
     DIE_SHIFT_SIGMAS,
+    channel_grid,
     REFERENCE_BEAM_MASS_FRACTION,
     REFERENCE_WIDTH_UM,
     die_shift_rel,
@@ -82,7 +84,7 @@ __all__ = [
     "sensitivities", "Separation", "measure_separation", "BAND_MARGIN", "EDGE_TOL_HZ",
     "RESPONDS_FRACTION", "SCAN_QUIET", "SCAN_SPAN_REL", "SCAN_STEP_MIN_HZ", "SCAN_STEP_REL",
     "predicted_sigmas", "pair_sigma_rel", "z_for", "tolerance_grid", "spec_tolerance_grid",
-    "told_apart_count", "die_shift_rel", "sensitivity_target_per_um", "DIE_SHIFT_SIGMAS",
+    "told_apart_count", "channel_grid", "die_shift_rel", "sensitivity_target_per_um", "DIE_SHIFT_SIGMAS",
     "REFERENCE_WIDTH_UM", "REFERENCE_BEAM_MASS_FRACTION",
     "YieldPrediction", "collision_free_yield", "predict_from_channels", "prediction_lines",
     "CHIPS", "LIMITING_PAIRS", "MC_CELLS",

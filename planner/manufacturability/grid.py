@@ -1,6 +1,7 @@
-"""Spec level, before any design: the scatter a tolerance model predicts, the z a target
-yield asks of each neighbouring pair, and the channel grid it sizes
-(``drive.channels.spacing: tolerance``)."""
+"""Spec level, before any design: the scatter a tolerance model predicts, the channel grid
+it sizes (``drive.channels.spacing: tolerance``, with the z margin of
+:func:`planner.intervals.z_for`), and :func:`channel_grid`, the channel grid of every
+spec (log, linear or tolerance)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,10 @@ import math
 
 import numpy as np
 
-from planner.fabrication import ERRORS, NodeDesign, frequency_sensitivities
+from planner.assign import activity, plan_steps
+from planner.fabrication import ERRORS, NodeDesign, Tolerances, frequency_sensitivities
+from planner.intervals import z_for
+from planner.spec import ArraySpec, LoadedSpec, resolve_steps
 
 #: Die-level common shifts (sigmas) the channel grid keeps from the band's ends [-].
 DIE_SHIFT_SIGMAS = 3.0
@@ -73,31 +77,13 @@ def pair_sigma_rel(spec) -> float:
     error moves two designs apart by the difference of their sensitivities, uniform over
     the spread (variance spread^2 / 6 for the difference of two uniform draws on it).
     """
-    fab = spec.fabrication
+    tol = Tolerances.from_spec(spec.fabrication)
     s, spread = predicted_sigmas(spec)
-    dev = np.array([getattr(fab, k).device for k in ERRORS])
-    die = np.array([getattr(fab, k).die for k in ERRORS])
     # the pair level: each node's mean moves by sigma / sqrt(2) and its band widens by
     # about as much again (half the halves' difference); counted as one more device sigma
-    pair = np.array([getattr(fab, k).pair for k in ERRORS])
-    return float(math.sqrt(2.0 * np.sum((s * dev) ** 2) + 2.0 * np.sum((s * pair) ** 2)
-                           + np.sum((spread * die) ** 2) / 6.0))
-
-
-def z_for(target_yield: float, pairs: int) -> float:
-    """The normal quantile z that makes ``pairs`` independent one-sided margins of z sigma
-    all hold with probability ``target_yield``: 1 - p per pair, (1 - p)^pairs = target.
-
-    >>> round(z_for(0.95, 49), 3)
-    3.077
-    """
-    from scipy.stats import norm
-
-    if not 0.0 < target_yield < 1.0:
-        raise ValueError(f"target_yield must be in (0, 1), {target_yield!r} was given")
-    pairs = max(int(pairs), 1)
-    p = -math.expm1(math.log(target_yield) / pairs)
-    return float(norm.isf(p))
+    return float(math.sqrt(2.0 * np.sum((s * tol.device) ** 2)
+                           + 2.0 * np.sum((s * tol.pair) ** 2)
+                           + np.sum((spread * tol.die) ** 2) / 6.0))
 
 
 def tolerance_grid(band_hz, separation_hz, sigma_rel, z, sub=1) -> np.ndarray:
@@ -146,9 +132,6 @@ def tolerance_grid(band_hz, separation_hz, sigma_rel, z, sub=1) -> np.ndarray:
 
 def told_apart_count(spec) -> int:
     """Impacters (channel groups) the spec's steps make distinct: the colouring's nodes."""
-    from planner.assign import activity, plan_steps
-    from planner.spec import LoadedSpec, resolve_steps
-
     loaded = LoadedSpec(spec, resolve_steps(spec), "<spec>")
     return max(len(set(activity(plan_steps(loaded, 0.01)).values())), 1)
 
@@ -157,7 +140,7 @@ def die_shift_rel(spec) -> float:
     """Relative sigma of the common shift a die-level error gives every resonance [-]:
     sqrt(sum_i (s_i sigma_die_i)^2), the predicted sensitivities."""
     s, _ = predicted_sigmas(spec)
-    die = np.array([getattr(spec.fabrication, k).die for k in ERRORS])
+    die = Tolerances.from_spec(spec.fabrication).die
     return float(math.sqrt(np.sum((s * die) ** 2)))
 
 
@@ -174,3 +157,23 @@ def spec_tolerance_grid(spec) -> np.ndarray:
     m = 1.0 + DIE_SHIFT_SIGMAS * die_shift_rel(spec)
     return tolerance_grid((lo * m, hi / m), spec.drive.channels.resonance_separation_hz,
                           pair_sigma_rel(spec), z, spec.drive.guard.separation_channels)
+
+
+def channel_grid(spec: ArraySpec) -> np.ndarray:
+    """Channel centre frequencies [Hz] inside the band, ndarray shape (count,): a ``log``
+    or ``linear`` grid of ``drive.channels.count`` channels, or the ``tolerance`` grid
+    spaced by the fabrication scatter (:func:`spec_tolerance_grid`).
+
+    >>> from planner.spec import ArraySpec
+    >>> g = channel_grid(ArraySpec.model_validate(
+    ...     {"drive": {"band_hz": [5000, 20000], "channels": {"count": 3}}}))
+    >>> [round(float(f)) for f in g]
+    [5000, 10000, 20000]
+    """
+    if spec.drive.channels.spacing == "tolerance":
+        return spec_tolerance_grid(spec)
+    lo, hi = spec.drive.band_hz
+    n = spec.drive.channels.channel_count
+    if spec.drive.channels.spacing == "log":
+        return np.geomspace(lo, hi, n)
+    return np.linspace(lo, hi, n)

@@ -7,7 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.fabrication import ERRORS
+from planner.assign import told_apart_pairs
+from planner.fabrication import ERRORS, Tolerances
+from planner.intervals import wilson_interval
 from planner.manufacturability.grid import predicted_sigmas
 
 #: Chips of the Monte Carlo by default: the 95 % interval of a yield near 0.95 is then
@@ -137,8 +139,6 @@ def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,
     errors (the line width's curvature is below 1e-4 relative at 0.05 um on 5 um
     beams; the tests hold it against chips sampled through the full equations).
     """
-    from planner.intervals import wilson_interval
-
     nu = np.asarray(nu, dtype=float)
     tone = np.asarray(tone, dtype=float)
     sens = np.asarray(sens, dtype=float)
@@ -216,10 +216,8 @@ def predict_from_channels(spec, assignment, *, chips=CHIPS, seed=0) -> YieldPred
     resonances come closer than ``drive.channels.separation_hz`` (400 Hz by default
     when the grid is not a tolerance grid).  None without tolerances.
     """
-    from planner.assign import told_apart_pairs
-
-    fab = spec.fabrication
-    if fab.zero:
+    tol = Tolerances.from_spec(spec.fabrication)
+    if tol.zero:
         return None
     nodes = sorted(assignment.frequencies)
     f = np.array([assignment.frequencies[n] for n in nodes])
@@ -229,9 +227,7 @@ def predict_from_channels(spec, assignment, *, chips=CHIPS, seed=0) -> YieldPred
     sens = s[None, :] + (rng.random((len(nodes), len(ERRORS))) - 0.5) * spread[None, :]
     sep = spec.drive.channels.resonance_separation_hz
     edge = np.full(len(nodes), float(sep))
-    return collision_free_yield([str(n) for n in nodes], f, f, sens,
-                                [getattr(fab, k).die for k in ERRORS],
-                                [getattr(fab, k).device for k in ERRORS],
+    return collision_free_yield([str(n) for n in nodes], f, f, sens, tol.die, tol.device,
                                 told_apart_pairs(assignment, nodes), silent_below=edge,
                                 silent_above=edge, chips=chips, seed=seed)
 

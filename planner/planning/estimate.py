@@ -302,7 +302,7 @@ def estimate(settings, steps, assignment, jobs=1, kernels=None) -> Estimate:
     # numba threads), and the Monte Carlo over the pairs the steps must tell apart
     from planner.assign import told_apart_pairs
 
-    chips = 0 if settings.fabrication.zero else CHIPS
+    chips = 0 if settings.tolerances.zero else CHIPS
     pairs = len(told_apart_pairs(assignment, sorted(freqs))) if chips else 0
     manufacture_s = (SEPARATION_S_PER_DESIGN * len(keys) / _speedup(jobs, len(keys))
                      + YIELD_S_PER_PAIR_CHIP * pairs * chips)

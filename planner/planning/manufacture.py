@@ -67,7 +67,7 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
         difference), ``model``.
     """
     nodes = sorted(designs, key=node_order)
-    fab = settings.fabrication
+    tol = settings.tolerances
     amps = _tone_amplitudes(steps, assignment, waveforms)
     sens, seps, measured = {}, {}, {}
     for n in nodes:
@@ -91,12 +91,12 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
             "min": float(lw.min()), "max": float(lw.max()),
             "spread": float(lw.max() / lw.min() - 1.0) if lw.min() > 0 else None},
         "separation_hz": {n.text: seps[n].to_dict() for n in nodes},
-        "target_yield": fab.target_yield,
+        "target_yield": settings.target_yield,
         "sensitivity_band_per_um": (None if settings.sensitivity_band is None else
                                     [b * 1e-6 for b in settings.sensitivity_band]),
     }
     pairs = told_apart_pairs(assignment, nodes)
-    if fab.zero:
+    if tol.zero:
         out.update(collision_free_yield=None, meets_target=None,
                    note="no fabrication tolerances in the spec (fabrication: all sigmas 0): "
                         "nothing to predict")
@@ -104,21 +104,19 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
     nu = np.array([designs[n].natural_frequency_hz for n in nodes])
     tone = np.array([assignment.frequencies[n] for n in nodes])
     s_mat = np.array([[sens[n][e] for e in ERRORS] for n in nodes])
-    sd_die = np.array([getattr(fab, e).die for e in ERRORS])
-    sd_dev = np.array([getattr(fab, e).device for e in ERRORS])
     pred = collision_free_yield(
-        [n.text for n in nodes], nu, tone, s_mat, sd_die, sd_dev, pairs,
+        [n.text for n in nodes], nu, tone, s_mat, tol.die, tol.device, pairs,
         silent_below=[(1 + BAND_MARGIN) * seps[n].silent_below_hz for n in nodes],
         silent_above=[(1 + BAND_MARGIN) * seps[n].silent_above_hz for n in nodes],
         responds_below=[seps[n].responds_below_hz for n in nodes],
         responds_above=[seps[n].responds_above_hz for n in nodes],
         chips=chips, seed=settings.seed,
-        sigma_pair=[getattr(fab, e).pair for e in ERRORS])
+        sigma_pair=tol.pair)
     out.update(
         collision_free_yield=pred.to_dict(), die_only_yield=pred.die_only,
         device_only_yield=pred.device_only, closest_pair_hz=pred.closest_pair_hz,
         limiting_pairs=pred.limiting_pairs, nominal_collisions=pred.nominal_collisions,
-        meets_target=bool(pred.value >= fab.target_yield),
+        meets_target=bool(pred.value >= settings.target_yield),
         pair_sigma_rel=settings.pair_sigma_rel,
-        z_for_target=z_for(fab.target_yield, max(len(nodes) - 1, 1)))
+        z_for_target=z_for(settings.target_yield, max(len(nodes) - 1, 1)))
     return out

@@ -22,8 +22,12 @@ RESPONSE_PEAK_SPAN = 0.04
 RESPONSE_X0_POINTS = 5
 
 
-def write_outputs(result: Plan, out_dir: Path, *, figures=True) -> float:
+def write_outputs(result: Plan, out_dir: Path, *, figures=True, sections=()) -> float:
     """Write plan.json, CSVs, waveforms, figures and report.md into ``out_dir``.
+
+    ``sections``: :class:`planner.markdown.Section` s a later command adds to report.md
+    (a re-plan's, a trim's), each where :data:`planner.planning.report.SECTIONS` puts its
+    title.
 
     Returns
     -------
@@ -61,7 +65,7 @@ def write_outputs(result: Plan, out_dir: Path, *, figures=True) -> float:
     if figures:
         _figures(result, out_dir)
     seconds = time.perf_counter() - t0
-    write_report(result, out_dir, {**result.timings, "outputs": seconds})
+    write_report(result, out_dir, {**result.timings, "outputs": seconds}, sections)
     return seconds
 
 

@@ -687,7 +687,7 @@ def _check(record: PlanRecord, source: str) -> None:
 def _check_channels(record: PlanRecord, fail) -> None:
     """Each impacter's tone on its channel of the spec's grid (a plan's assignment put
     it there; a re-plan's channel is the grid's nearest to its as-built tone)."""
-    from planner.spec import channel_grid
+    from planner.manufacturability import channel_grid
 
     grid = np.asarray(channel_grid(record.spec), dtype=float)
     for i, rec in enumerate(record.impacters):

@@ -1,7 +1,11 @@
 """report.md of a plan: what it is, whether it verifies, and why, in lab units.
 
-:func:`write_report` reads plan.json's content (``Plan.data``) and the verification
-table; :func:`md_table` and :func:`fmt` also serve the re-plan's section
+:func:`plan_report` reads plan.json's content (``Plan.data``) and the verification
+table and assembles the report from named sections (:class:`planner.markdown.Report`)
+in the order of :data:`SECTIONS`; a later command's section (a re-plan's, a trim's)
+is handed over as a :class:`~planner.markdown.Section` and takes its place there by its
+title (:func:`write_report`'s ``sections``).  :func:`md_table` and :func:`fmt` (from
+:mod:`planner.markdown`) also serve the re-plan's section
 (:func:`planner.afterfab.replan.replan_report_lines`).
 """
 
@@ -9,10 +13,30 @@ from __future__ import annotations
 
 import math
 
+from planner.markdown import Report, Section, fmt, md_table
 from planner.nodes import device_key
 from planner.planning.scenes import scene_overshoot
 from planner.planning.settings import SETTLE_S
 from planner.units import UM
+
+#: The sections of a plan's report.md, in the order they are written.  A plan writes
+#: those its content calls for; a re-plan adds "As-built re-plan" and a trim "Trim"
+#: (:func:`write_report`'s ``sections``), each in its place here.
+SECTIONS = (
+    "Trim",
+    "What the planner changed",
+    "As-built re-plan",
+    "Frequency assignment",
+    "Designs",
+    "Manufacturability",
+    "Cross-coupling",
+    "Steps",
+    "Every impacter alone",
+    "Positions asked and got",
+    "Scenes (state carried across steps)",
+    "Failures",
+    "Timings",
+)
 
 
 def drive_figure_name(step_key):
@@ -29,19 +53,6 @@ def target_scenes(scene_rows):
     for r in scene_rows:
         out.setdefault(r["scene"], []).append(r)
     return {k: v for k, v in out.items() if any(r.get("targets_m") for r in v)}
-
-
-def md_table(header, rows):
-    """Lines of a markdown table."""
-    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    return out + ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
-
-
-def fmt(x, spec):
-    """A number for a report table; '-' where there is none."""
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "-"
-    return format(x, spec)
 
 
 def _step_summary(ver):
@@ -65,38 +76,74 @@ def _moves(rec):
     return f"{len(rec['forward'])} fwd, {len(rec['backward'])} bwd"
 
 
-def write_report(result, out_dir, timings):
-    """Write ``out_dir/report.md`` of a :class:`~planner.planning.result.Plan` (its
-    figures, where they were drawn, are linked from ``out_dir/figures``);
-    ``timings``: stage -> seconds, for its last table."""
+def write_report(result, out_dir, timings, sections=()):
+    """Write ``out_dir/report.md`` of a :class:`~planner.planning.result.Plan`
+    (:func:`plan_report`)."""
+    plan_report(result, out_dir, timings, sections).write(out_dir / "report.md")
+
+
+def plan_report(result, out_dir, timings, sections=()) -> Report:
+    """The report of a :class:`~planner.planning.result.Plan`, section by section.
+
+    Parameters
+    ----------
+    result : planner.planning.result.Plan
+        The plan (or re-plan); its figures, where they were drawn, are linked from
+        ``out_dir/figures``.
+    out_dir : Path
+        Where its files are.
+    timings : dict
+        Stage -> seconds, for the last table.
+    sections : iterable of planner.markdown.Section
+        A later command's sections (a re-plan's, a trim's), each placed by its title's
+        place in :data:`SECTIONS`.
+
+    Returns
+    -------
+    planner.markdown.Report
+    """
     d, ver = result.data, result.verification
-    lines = _head(result)
-    lines += _motion_notes(d)
-    lines += _assignment_section(d["assignment"])
-    lines += _designs_section(d["impacters"])
-    lines += _manufacturability_section(d)
-    lines += ["## Cross-coupling", "",
-              "Worst response of every impacter to every tone alone, over the x0 grid "
-              "(coupling.csv).", "", "![coupling](figures/coupling.png)", ""]
     summary = _step_summary(ver)
-    lines += _steps_section(d["steps"], summary, out_dir)
-    lines += _alone_section(d["steps"], summary)
+    parts = [_motion_notes(d), _assignment_section(d["assignment"]),
+             _designs_section(d["impacters"]), _manufacturability_section(d),
+             _coupling_section(), _steps_section(d["steps"], summary, out_dir),
+             _alone_section(d["steps"], summary)]
     if d["scenes"]:
-        lines += _positions_section(d, ver)
-        lines += _scene_section(d["scenes"])
-    lines += _failures_section(ver)
-    lines += ["", "## Timings", ""]
-    lines += md_table(["stage", "seconds"], [[k, f"{v:.2f}"] for k, v in timings.items()])
-    (out_dir / "report.md").write_text("\n".join(lines) + "\n")
+        parts += [_positions_section(d, ver), _scene_section(d["scenes"])]
+    parts += [_failures_section(ver), _timings_section(timings)]
+    report = Report(_title(d), _head(result), [p for p in parts if p is not None])
+    for section in sections:
+        place(report, section)
+    return report
+
+
+def place(report: Report, section: Section) -> None:
+    """Insert ``section`` into a plan's ``report`` where :data:`SECTIONS` puts its title.
+
+    Raises
+    ------
+    ValueError
+        The title is none of :data:`SECTIONS`, or the report has that section already.
+    """
+    if section.title not in SECTIONS:
+        raise ValueError(f"a plan's report has no place for a section {section.title!r} "
+                         f"(its sections: {', '.join(SECTIONS)})")
+    rank = SECTIONS.index(section.title)
+    later = [t for t in report.titles if t in SECTIONS and SECTIONS.index(t) > rank]
+    report.insert(section, before=later[0] if later else None)
+
+
+def _title(d):
+    """``vibroplan plan: NAME``, or ``vibroplan replan: NAME`` for a re-plan's."""
+    return f"vibroplan {'replan' if d.get('replan') is not None else 'plan'}: {d['spec']['name']}"
 
 
 def _head(result):
-    """The title, the version and seed, whether the plan verifies, and its infeasible
-    designs."""
+    """Under the title: the version and seed, whether the plan verifies, and its
+    infeasible designs."""
     d = result.data
     ver = result.verification
-    lines = [f"# vibroplan plan: {d['spec']['name']}", "",
-             f"vibroplan {d['vibroplan_version']}, seed {d['seed']}.", "",
+    lines = [f"vibroplan {d['vibroplan_version']}, seed {d['seed']}.", "",
              f"**Verification: {'PASSED' if result.passed else 'FAILED'}** "
              f"({int(ver['passed'].sum())} of {len(ver)} step x device checks pass): every step "
              "re-simulated with its summed drive for its whole duration, from "
@@ -120,8 +167,7 @@ def _head(result):
 def _assignment_section(a):
     """The conflict graph, the span and the guard-rule warnings (plan.json's
     ``assignment``)."""
-    lines = ["## Frequency assignment", "",
-             f"Conflict graph: {a['graph_nodes']} channel groups, {a['graph_edges']} edges; span "
+    lines = [f"Conflict graph: {a['graph_nodes']} channel groups, {a['graph_edges']} edges; span "
              f"{a['span']} channels (lower bound {a['lower_bound']}, "
              f"{'proven optimal' if a['optimal'] else 'not proven optimal'}, {a['method']}).", "",
              "![array map](figures/array_map.png)", ""]
@@ -133,7 +179,7 @@ def _assignment_section(a):
                   "<details><summary>the first 15</summary>", ""]
         lines += [f"- {v}" for v in a["guard_violations"][:15]]
         lines += ["", f"All {len(a['guard_violations'])} are in plan.json.", "", "</details>", ""]
-    return lines
+    return Section("Frequency assignment", lines)
 
 
 def _times(value, factor):
@@ -142,8 +188,7 @@ def _times(value, factor):
 
 def _designs_section(impacters):
     """One row per designed impacter (plan.json's ``impacters``)."""
-    lines = ["## Designs", "",
-             "r_min (worst response over x0 at the impacter's own tone) and the slider speed are "
+    lines = ["r_min (worst response over x0 at the impacter's own tone) and the slider speed are "
              "the designer's short-window predictions; the verification below is the check.", ""]
     rows = []
     for r in impacters:
@@ -162,12 +207,19 @@ def _designs_section(impacters):
                        "l [um]", "gap [um]", "mass [ng]", "r_min [nN]", "m/M",
                        "speed [mm/s]", "feasible"], rows)
     lines += ["", "![response curves](figures/response_curves.png)", ""]
-    return lines
+    return Section("Designs", lines)
+
+
+def _coupling_section():
+    """The cross-coupling figure (coupling.csv)."""
+    return Section("Cross-coupling",
+                   ["Worst response of every impacter to every tone alone, over the x0 grid "
+                    "(coupling.csv).", "", "![coupling](figures/coupling.png)", ""])
 
 
 def _steps_section(steps, summary, out_dir):
     """One row per step of the scenes (plan.json's ``steps``) and their drive figures."""
-    lines = ["## Steps", ""]
+    lines = []
     rows = []
     for rec in steps:
         if rec["scene"] == "independent":
@@ -196,39 +248,38 @@ def _steps_section(steps, summary, out_dir):
         if (out_dir / "figures" / name).exists():
             lines.append(f"![{rec['scene']}/{rec['name']}](figures/{name})")
     lines.append("")
-    return lines
+    return Section("Steps", lines)
 
 
 def _alone_section(steps, summary):
     """The implicit single-impacter steps of an independently addressable array."""
-    lines = []
     independent = [rec for rec in steps if rec["scene"] == "independent"]
-    if independent:
-        lines += ["### Every impacter alone", "",
-                  f"One {independent[0]['duration_s'] * 1e3:g} ms step per impacter (the spec asks "
-                  "for every impacter to be independently addressable): its slider must move at "
-                  "the minimum speed from every initial position of its impacter, and every other "
-                  "slider stay within the idle tolerance.", ""]
-        rows = []
-        for rec in independent:
-            sm = summary[(rec["scene"], rec["name"])]
-            rows.append([rec["name"], fmt(rec["tones"][0]["frequency_hz"] / 1e3, ".2f"),
-                         fmt(sm["slowest"] * 1e3, ".2f"), _travel_range(rec),
-                         fmt(rec.get("settle_s", math.nan) * 1e3, "g"),
-                         fmt(rec.get("peak_acceleration_g", math.nan), ".0f"),
-                         fmt(sm["idle_disp"] / UM, ".3f"),
-                         f"{sm['passed']}/{sm['checks']}"])
-        lines += md_table(["impacter", "tone [kHz]", "slowest over x0 [mm/s]", "travel [um]",
-                           "dwell [ms]", "peak acceleration [g]",
-                           "largest idle displacement [um]", "checks passed"], rows)
-        lines.append("")
-    return lines
+    if not independent:
+        return None
+    lines = [f"One {independent[0]['duration_s'] * 1e3:g} ms step per impacter (the spec asks "
+             "for every impacter to be independently addressable): its slider must move at "
+             "the minimum speed from every initial position of its impacter, and every other "
+             "slider stay within the idle tolerance.", ""]
+    rows = []
+    for rec in independent:
+        sm = summary[(rec["scene"], rec["name"])]
+        rows.append([rec["name"], fmt(rec["tones"][0]["frequency_hz"] / 1e3, ".2f"),
+                     fmt(sm["slowest"] * 1e3, ".2f"), _travel_range(rec),
+                     fmt(rec.get("settle_s", math.nan) * 1e3, "g"),
+                     fmt(rec.get("peak_acceleration_g", math.nan), ".0f"),
+                     fmt(sm["idle_disp"] / UM, ".3f"),
+                     f"{sm['passed']}/{sm['checks']}"])
+    lines += md_table(["impacter", "tone [kHz]", "slowest over x0 [mm/s]", "travel [um]",
+                       "dwell [ms]", "peak acceleration [g]",
+                       "largest idle displacement [um]", "checks passed"], rows)
+    lines.append("")
+    return Section("Every impacter alone", lines, level=3)
 
 
 def _failures_section(ver):
     """Every failed step x device check, the first 60 in full."""
     fails = ver[~ver["passed"]]
-    lines = ["## Failures", ""]
+    lines = []
     if fails.empty:
         lines.append("None: every step moves the sliders it should and no other.")
     else:
@@ -236,7 +287,13 @@ def _failures_section(ver):
             lines.append(f"- {r['scene']}/{r['step']} {r['device']} ({r['expected']}): {r['cause']}")
         if len(fails) > 60:
             lines.append(f"- ... and {len(fails) - 60} more (plan.json)")
-    return lines
+    return Section("Failures", lines + [""])
+
+
+def _timings_section(timings):
+    """Seconds per stage (and the outputs')."""
+    return Section("Timings", md_table(["stage", "seconds"],
+                                       [[k, f"{v:.2f}"] for k, v in timings.items()]))
 
 
 def _designed_windows(d) -> str:
@@ -257,11 +314,10 @@ def _manufacturability_section(d):
     m = d.get("manufacturability")
     if not m or d.get("as_built") is not None:
         # a re-plan carries only its designs' separations: the prediction is the plan's
-        return []
+        return None
     lw = m["line_width_sensitivity_per_um"]
     seps = m["separation_hz"].values()
-    out = ["## Manufacturability", "",
-           f"Line-width sensitivity d ln nu_n / dw of the {len(m['sensitivity'])} designs: "
+    out = [f"Line-width sensitivity d ln nu_n / dw of the {len(m['sensitivity'])} designs: "
            f"{lw['min']:.4f}-{lw['max']:.4f} per um"
            + (f" (spread {100 * lw['spread']:.1f} %)" if lw.get("spread") is not None else "")
            + (f", matched band {m['sensitivity_band_per_um'][0]:.4f}-"
@@ -292,7 +348,8 @@ def _manufacturability_section(d):
                             [[" / ".join(p["pair"]), f"{100 * p['collision_fraction']:.2f} %",
                               f"{p['nominal_separation_hz']:.0f}"]
                              for p in m["limiting_pairs"]]) + [""]
-    return out + ["![manufacturability](figures/manufacturability.png)", ""]
+    return Section("Manufacturability",
+                   out + ["![manufacturability](figures/manufacturability.png)", ""])
 
 
 def _travel_range(rec):
@@ -375,7 +432,7 @@ def _motion_notes(d):
             lines.append(f"- design round {rnd['kept_round']} kept: {rnd['why']}")
     for rnd in d["verification"].get("motion_repairs", []):
         lines += [f"- repair round {rnd['round']}: {a}" for a in rnd["actions"]]
-    return (["## What the planner changed", ""] + lines + [""]) if lines else []
+    return Section("What the planner changed", lines + [""]) if lines else None
 
 
 def _positions_section(d, ver):
@@ -384,10 +441,9 @@ def _positions_section(d, ver):
     initial positions, and where every slider rests at the end."""
     scenes = target_scenes(d["scenes"])
     if not scenes:
-        return []
+        return None
     tol = d["verification"]["position_tolerance_m"]
-    lines = ["## Positions asked and got", "",
-             "Each targets step is a gated burst (What the planner changed); positions "
+    lines = ["Each targets step is a gated burst (What the planner changed); positions "
              "from the scene simulated with every state carried from step to step, "
              f"relative to where the scene started.  Tolerance {tol / UM:g} um "
              "(verification.position_tolerance_um); 'worst from x0': the largest error of "
@@ -432,7 +488,7 @@ def _positions_section(d, ver):
         lines += [f"**{scene}**: worst error {worst / UM:.2f} um.", ""]
         lines += md_table(header, table)
         lines += ["", f"![pattern {scene}](figures/{pattern_figure_name(scene)})", ""]
-    return lines
+    return Section("Positions asked and got", lines)
 
 
 def _err(err, tol):
@@ -444,8 +500,7 @@ def _err(err, tol):
 def _scene_section(scene_rows):
     """Slider positions after each step of each scene, the overshoot once the drive
     stops, and the impacters that hit while their step did not drive them."""
-    lines = ["## Scenes (state carried across steps)", "",
-             "Each scene from rest, every step from the state the previous one left, each "
+    lines = ["Each scene from rest, every step from the state the previous one left, each "
              "followed by its settle dwell (positions below are at the end of the dwell); after "
              f"the last dwell the drive stays off for {SETTLE_S * 1e3:g} ms more, and the "
              "overshoot is how far each slider moves then.", "",
@@ -483,4 +538,4 @@ def _scene_section(scene_rows):
                              + ", ".join(f"{dv} {z / UM:+.2f} um" for dv, z in shown[:10])
                              + (f" and {len(moved) - 10} more" if len(moved) > 10 else ""))
         lines.append("")
-    return lines
+    return Section("Scenes (state carried across steps)", lines)

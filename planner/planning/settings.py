@@ -25,8 +25,10 @@ from model import devices as _d
 from planner.assign import plan_steps
 from planner.config import EnvironmentConfig, ProcessConfig, SliderConfig, build_slider
 from planner.errors import SpecError
+from planner.fabrication import Tolerances
+from planner.manufacturability import channel_grid, pair_sigma_rel, sensitivity_target_per_um
 from planner.nodes import DIRECTIONS, Node, device_key
-from planner.spec import ArraySpec, FabricationSpec, LoadedSpec, Step, TrimSpec, channel_grid
+from planner.spec import ArraySpec, LoadedSpec, Step, TrimSpec
 from planner.units import MS, UM
 from planner.yamlio import format_loc, line_of
 
@@ -123,7 +125,7 @@ class Settings:
         The drive band [Hz].
     channel_grid_hz : tuple of float
         Every channel's frequency [Hz], ascending (``drive.channels``:
-        :func:`planner.spec.channel_grid`).
+        :func:`planner.manufacturability.channel_grid`).
     channel_spacing : str
         ``log``, ``linear`` or ``tolerance`` (``drive.channels.spacing``).
     resonance_separation_hz : float
@@ -203,8 +205,13 @@ class Settings:
         Relative sigma of a lab's measured resonance [-]
         (``fabrication.measurement_noise_pct`` / 100): the as-built models' and a yield
         study's.
-    fabrication : planner.spec.FabricationSpec
-        The tolerance model (manufacturability, yield).
+    tolerances : planner.fabrication.Tolerances
+        The fabrication tolerance model: the sigma of every error at every level
+        (die, device, pair), in the errors' own units (um, %: those of the
+        sensitivities), read from ``fabrication:`` once
+        (:meth:`~planner.fabrication.Tolerances.from_spec`).
+    target_yield : float
+        The collision-free yield the plan is held to (``fabrication.target_yield``) [-].
     pair_sigma_rel : float
         Predicted relative sigma of the difference of two as-built resonances [-]
         (:func:`planner.manufacturability.pair_sigma_rel`; 0 without tolerances).
@@ -263,7 +270,8 @@ class Settings:
     sensitivity_band: tuple | None
     tone_window: float
     measurement_noise: float
-    fabrication: FabricationSpec
+    tolerances: Tolerances
+    target_yield: float
     pair_sigma_rel: float
     trim: TrimSpec
     chip_spec: ArraySpec = field(repr=False)
@@ -355,9 +363,8 @@ def _impacter_settings(spec, device, direction):
 
 def _bounds(loaded, impacters):
     """``design.bounds`` narrowed by the process rules the spec sets (the layout's
-    beam width and tip space, :func:`planner.layout.rules.narrow_bounds`)."""
-    from planner.designer import DesignBounds
-    from planner.layout.rules import RuleBoundsError, narrow_bounds
+    beam width and tip space, :func:`planner.designer.bounds.narrow_bounds`)."""
+    from planner.designer.bounds import DesignBounds, RuleBoundsError, narrow_bounds
 
     spec = loaded.spec
     b = spec.design.bounds
@@ -379,8 +386,6 @@ def _sensitivity_band(spec):
     des = spec.design
     if not des.match_sensitivity:
         return None
-    from planner.manufacturability import sensitivity_target_per_um
-
     s = sensitivity_target_per_um(des) / UM
     return (s * (1.0 - des.sensitivity_tolerance), s * (1.0 + des.sensitivity_tolerance))
 
@@ -437,8 +442,6 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
     SpecError
         A field that the planner cannot honour, with its YAML line.
     """
-    from planner.manufacturability import pair_sigma_rel
-
     spec = loaded.spec
     _check_impacter_sections(loaded)
     _check_over_limit(loaded)
@@ -497,7 +500,8 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
         sensitivity_band=_sensitivity_band(spec),
         tone_window=_tone_window(spec),
         measurement_noise=spec.fabrication.measurement_noise_pct / 100.0,
-        fabrication=spec.fabrication,
+        tolerances=Tolerances.from_spec(spec.fabrication),
+        target_yield=float(spec.fabrication.target_yield),
         pair_sigma_rel=pair_sigma_rel(spec),
         trim=spec.trim or TrimSpec(),
         chip_spec=spec,

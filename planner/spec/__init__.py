@@ -17,17 +17,18 @@ greater than band_hz[0] (line 14)``.
 One module per job: :mod:`~planner.spec.schema` (the sections and fields, their units
 and defaults), :mod:`~planner.spec.steps` (scenes resolved to :class:`Step` s),
 :mod:`~planner.spec.load` (:func:`load_spec`: YAML in, errors on their lines, the
-embedded default spec) and :mod:`~planner.spec.channels` (the channel grid).  The
+embedded default spec) and :mod:`~planner.spec.channels` (the channels between two tones; the channel
+grid is :func:`planner.manufacturability.channel_grid`).  The
 names below are the spec's API: the CLI, the planner's stages and the tests import
 them from ``planner.spec`` (the other sections' models are in
 :mod:`~planner.spec.schema`).
 """
 
-from planner.spec.channels import channel_grid, separation_for_bandwidth
+from planner.spec.channels import separation_for_bandwidth
 from planner.spec.load import LoadedSpec, default_spec_path, load_spec
 from planner.spec.schema import ArraySpec, FabricationSpec, Tolerance, TrimSpec
 from planner.spec.steps import DEFAULT_MAX_BURST_S, Step, resolve_steps
 
 __all__ = ["DEFAULT_MAX_BURST_S", "ArraySpec", "FabricationSpec", "LoadedSpec", "Step",
-           "Tolerance", "TrimSpec", "channel_grid", "default_spec_path", "load_spec",
+           "Tolerance", "TrimSpec", "default_spec_path", "load_spec",
            "resolve_steps", "separation_for_bandwidth"]

@@ -1,30 +1,13 @@
-"""The channel grid of a spec: the frequencies tones may take inside the band.
-
-A ``log`` or ``linear`` grid of ``drive.channels.count`` channels, or a ``tolerance``
-grid spaced by the fabrication scatter (:func:`planner.manufacturability.tolerance_grid`),
-and the separation in channels that keeps two tones out of each other's response band.
-"""
+"""The channel separation of a spec: how many channels keep two tones out of each
+other's response band.  The channel grid itself (log, linear, or spaced by the
+fabrication scatter) is :func:`planner.manufacturability.channel_grid`: a tolerance grid
+needs the tolerance model, which reads the spec."""
 
 from __future__ import annotations
 
 import math
 
 from planner.spec.schema import ArraySpec
-
-
-def channel_grid(spec: ArraySpec):
-    """Channel centre frequencies [Hz] inside the band, ndarray shape (count,)."""
-    import numpy as np
-
-    if spec.drive.channels.spacing == "tolerance":
-        from planner.manufacturability import spec_tolerance_grid
-
-        return spec_tolerance_grid(spec)
-    lo, hi = spec.drive.band_hz
-    n = spec.drive.channels.channel_count
-    if spec.drive.channels.spacing == "log":
-        return np.geomspace(lo, hi, n)
-    return np.linspace(lo, hi, n)
 
 
 def separation_for_bandwidth(spec: ArraySpec, relative_halfwidth: float) -> int:

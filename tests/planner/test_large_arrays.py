@@ -14,11 +14,12 @@ from click.testing import CliRunner
 from planner.assign import assign, plan_steps
 from planner.cli import main
 from planner.errors import PlanningError
+from planner.manufacturability import channel_grid
 from planner.planning.exposure import forbidden_tones
 from planner.planning.estimate import estimate
 from planner.planning.settings import resolve_settings
 from planner.separation import check_target, position_grid, separated
-from planner.spec import channel_grid, load_spec
+from planner.spec import load_spec
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = ROOT / "configs"

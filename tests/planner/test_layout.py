@@ -44,7 +44,7 @@ def _synthetic_plan(tiny_plan_dir, folder, *, edit=None, geometry=_graded, rows=
 
     import numpy as np
 
-    from planner.spec import channel_grid
+    from planner.manufacturability import channel_grid
 
     data = json.loads((tiny_plan_dir / "plan.json").read_text(encoding="utf-8"))
     data["spec"]["array"] = {"rows": rows, "cols": cols, "pitch_um": pitch_um}

@@ -140,7 +140,7 @@ def test_tolerance_grid_widens_with_the_scatter():
 def test_spec_grid_follows_the_fabrication_section():
     """drive.channels.spacing: tolerance reads the sigmas and the target yield: a larger
     sigma or a higher target gives fewer channels in the same band."""
-    from planner.spec import channel_grid
+    from planner.manufacturability import channel_grid
 
     def spec(device, target=0.95):
         return ArraySpec.model_validate({

@@ -276,3 +276,25 @@ def test_report_tables_and_figures(tiny_plan, tmp_path):
     # the time the files took is in the report, and the plan itself is not changed
     assert seconds > 0 and "| outputs |" in report
     assert "outputs" not in tiny_plan.timings
+
+
+def test_report_is_its_sections_in_their_order(tiny_plan, tmp_path):
+    """report.md is made of named sections in the order of report.SECTIONS; a later
+    command's section is handed over whole and takes its place by its title (no text
+    spliced into a written report), and one with no place is refused by name."""
+    from planner.markdown import Section
+    from planner.planning import write_outputs
+    from planner.planning.report import SECTIONS, plan_report
+
+    report = plan_report(tiny_plan, tmp_path, {"total": 1.0})
+    assert report.title == "vibroplan plan: tiny"
+    assert report.titles == sorted(report.titles, key=SECTIONS.index)
+    assert {"Frequency assignment", "Designs", "Steps", "Failures"} <= set(report.titles)
+    headings = [line for line in report.text().splitlines() if line.startswith("## ")]
+    assert headings == [f"## {s.title}" for s in report.sections if s.level == 2]
+    extra = Section("As-built re-plan", ["moved."])
+    write_outputs(tiny_plan, tmp_path, figures=False, sections=[extra])
+    text = (tmp_path / "report.md").read_text()
+    assert text.index("## As-built re-plan\n\nmoved.\n") < text.index("## Frequency assignment")
+    with pytest.raises(ValueError, match="no place for a section 'Appendix'"):
+        plan_report(tiny_plan, tmp_path, {}, [Section("Appendix", [])])

@@ -51,7 +51,7 @@ def _sampled(s):
     # the design's process from the base spec (these rows change only the tolerances;
     # reading s.chip_spec would count as reading every field)
     spec = _settings().chip_spec
-    chip = sample_chip(ChipDesign(spec, (node,), ("A1",)), s.fabrication,
+    chip = sample_chip(ChipDesign(spec, (node,), ("A1",)), s.tolerances,
                        np.random.default_rng(0))
     return ([(h.mass, h.stiffness, h.damping, h.gap) for imp in chip.impacters.values()
              for h, _ in model.halves(imp)]
@@ -126,7 +126,7 @@ CASES = [
     ("design.sensitivity_per_um", 0.2, lambda s: s.sensitivity_band),
     ("design.beam_width_um", 6.0, lambda s: (s.bounds, s.sensitivity_band)),
     # the target sets the tolerance grid's z (and what the prediction is held to)
-    ("fabrication.target_yield", 0.9, lambda s: s.channel_grid_hz,
+    ("fabrication.target_yield", 0.9, lambda s: (s.channel_grid_hz, s.target_yield),
      [("drive.channels.spacing", "tolerance"),
       ("fabrication.line_width_um", {"die": 0.05, "device": 0.02})]),
     ("fabrication.line_width_um", {"die": 0.05}, lambda s: _sampled(s)),
@@ -150,7 +150,7 @@ CASES = [
     ("verification.max_travel_um", 50.0, lambda s: s.max_travel_m),
     ("verification.position_tolerance_um", 1.0, lambda s: s.position_tolerance_m),
     # every sigma must reach a chip the yield's Monte Carlo draws (not only the spec
-    # object it was read into: a row reading s.fabrication back would be circular)
+    # arrays it was read into: a row reading s.tolerances back would be circular)
     *[(f"fabrication.{p}.{level}", 0.01, _sampled)
       for p in ("line_width_um", "thickness_um", "gap_um", "youngs_modulus_pct",
                 "natural_frequency_pct") for level in ("die", "device", "pair")],
@@ -184,6 +184,28 @@ def test_every_field_changes_the_settings(case):
     first = first[0] if first else []
     base, changed = _settings(*first), _settings(*first, (path, value))
     assert get(changed) != get(base), path
+
+
+def test_tolerances_are_the_specs_sigmas_read_once():
+    """Settings.tolerances: every sigma of ``fabrication:`` at its level, in ERRORS order
+    and the errors' own units (those of the sensitivities and of plan.json's keys)."""
+    import numpy as np
+
+    from planner.fabrication import ERROR_UNITS, ERRORS, Tolerances
+
+    sigmas = {"line_width_um": {"die": 0.05, "device": 0.02, "pair": 0.01},
+              "youngs_modulus_pct": {"die": 1.5}, "natural_frequency_pct": {"device": 0.3}}
+    s = _settings(*((f"fabrication.{k}", v) for k, v in sigmas.items()))
+    for level in ("die", "device", "pair"):
+        want = [sigmas.get(k, {}).get(level, 0.0) for k in ERRORS]
+        assert getattr(s.tolerances, level).tolist() == want, level
+    assert s.tolerances.units == ERROR_UNITS
+    assert [k.rsplit("_", 1)[1].replace("pct", "%") for k in ERRORS] == list(ERROR_UNITS)
+    assert not s.tolerances.zero and _settings().tolerances.zero
+    assert s.tolerances == Tolerances(*(np.array(getattr(s.tolerances, level))
+                                        for level in ("die", "device", "pair")))
+    with pytest.raises(ValueError, match="die"):
+        Tolerances(np.zeros(4), np.zeros(5), np.zeros(5))
 
 
 def test_pair_and_device_overrides_stay_local():

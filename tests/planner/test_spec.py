@@ -197,7 +197,7 @@ def test_default_layout_puts_multi_tone_steps_below_their_idle_impacters():
     assert min(pos_tones) / max(rel_tones) >= 1.3
     assert min(others) / max(pos_tones) >= 1.15
     # and the choice is less severe than the colouring's mirror image
-    from planner.spec import channel_grid
+    from planner.manufacturability import channel_grid
 
     grid = channel_grid(loaded.spec)
     top = max(a.coloring.values())
