@@ -423,6 +423,12 @@ def assign(settings, steps, *, separation=None, pair_separation=None, method="au
     coloring = min(candidates,
                    key=lambda col: (_ensemble_severity(steps, groups, freq_of(col)),
                                     _ensemble_exposure(steps, groups, col)))
+    if _placement(settings) == "neighbours":
+        # tone neighbours on neighbouring devices (issue 39): a die's line-width
+        # gradient then moves the closest pairs alike
+        from planner.placement import neighbour_coloring
+
+        coloring = neighbour_coloring(graph, groups, coloring)
     best = None
     for q, o in mapping:
         freqs, chans, where = {}, {}, {}
@@ -440,6 +446,12 @@ def assign(settings, steps, *, separation=None, pair_separation=None, method="au
     return Assignment(graph, groups, dict(coloring), result.span, result.lower_bound,
                       result.optimal, result.method, result.seconds, q, o, chans, freqs, viol,
                       where, reach)
+
+
+def _placement(settings) -> str:
+    """``drive.channels.placement`` of the settings' spec (``coloring`` without one)."""
+    spec = getattr(settings, "chip_spec", None)
+    return spec.drive.channels.placement if spec is not None else "coloring"
 
 
 def _blocks(coloring, gap):

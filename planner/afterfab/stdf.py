@@ -193,6 +193,15 @@ def read_stdf(path, impacter_ids, test_map=None) -> list:
                            "names are the impacters' ids, e.g. A1.forward, or give "
                            "--test-map)")
             dies.append((int(x), int(y), part))
+    # pystdf stops quietly at a record cut short: a file that ends inside a part, or
+    # before its Master Results Record, was cut off (a copy or a test run interrupted)
+    if open_parts:
+        (head, site), _ = next(iter(open_parts.items()))
+        raise SpecError(f"the file ends inside a part (head {head}, site {site} has no PRR "
+                        f"after record {len(records)}): truncated?", source=source)
+    if not records or not isinstance(records[-1][0], V4.Mrr):
+        raise SpecError(f"the file ends after record {len(records)} without its MRR: "
+                        "truncated?", source=source)
     if not dies:
         raise SpecError("no die with a PRR in the file", source=source)
     return dies

@@ -60,7 +60,8 @@ def is_wafer_csv(path) -> bool:
                                         ignore=lambda c: True)
     except (SpecError, OSError):
         return False
-    return all(c in header for c in DIE_COLUMNS)
+    # either die column makes it a wafer's file (whose reader names the other missing)
+    return any(c in header for c in DIE_COLUMNS)
 
 
 def _die_index(text, line, column, fail) -> int:
