@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import shutil
 import subprocess
 import sys
 import time
@@ -194,10 +193,21 @@ def write(args, work, plans, curve, y, batch, times):
     agree = sum(_same(r["yield_outcome"], r["replan_outcome"]) for r in rows)
     agree_stdf = sum(r["stdf_outcome"] == r["replan_outcome"] for r in rows)
     differ = [r for r in rows if not _same(r["yield_outcome"], r["replan_outcome"])]
-    for name in ("yield", "replan_csv"):
-        src = (work / "yield" / "figures" / "wafer_map.png" if name == "yield"
-               else work / "replan_csv" / "wafer_map.png")
-        shutil.copy(src, out.parent / f"wafer_map_{'yield' if name == 'yield' else 'replan'}.png")
+    # the two maps drawn again from the files (the batch's: from its summary.csv)
+    from planner.wafer_map import plot_wafer_map
+
+    w = y["wafer"]
+    plot_wafer_map(w["dies"], w["die_size_mm"], out.parent / "wafer_map_yield.png",
+                   diameter_mm=w["diameter_mm"], edge_exclusion_mm=w["edge_exclusion_mm"],
+                   title=f"vibroplan yield: {len(w['dies'])} dies of the default plan "
+                         "on their true models")
+    plot_wafer_map([{"die_x": k[0], "die_y": k[1], "outcome": r["outcome"],
+                     "causes": [c for c in r["causes"].split("; ") if c]}
+                    for k, r in batch["csv"].items()], w["die_size_mm"],
+                   out.parent / "wafer_map_replan.png", diameter_mm=w["diameter_mm"],
+                   edge_exclusion_mm=w["edge_exclusion_mm"],
+                   title="vibroplan replan --measured wafer_1.csv --trim: the same dies "
+                         "from their measurement")
     c0, c1 = plans["coloring"]["manufacturability"], plans["neighbours"]["manufacturability"]
     lines = ["# A wafer at a time (issue 39)", "",
              f"`python benchmarks/wafer.py --work {args.work} --jobs {args.jobs} --dies "

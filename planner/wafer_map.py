@@ -19,6 +19,8 @@ COLOURS = {"as designed": "#2ca02c", "after re-plan": "#1f77b4", "after trim": "
 MAX_MAP_WAFERS = 4
 #: Dots per inch of the figures.
 DPI = 110
+#: Width of the wafer map's legend column [in].
+LEGEND_IN = 3.0
 
 
 def cause_codes(dies) -> dict:
@@ -53,8 +55,9 @@ def plot_wafer_map(dies, die_size_mm, path, *, diameter_mm=None, edge_exclusion_
     w, h = die_size_mm
     wafers = sorted({d.get("wafer", 0) for d in dies})[:MAX_MAP_WAFERS]
     codes = cause_codes(dies)
-    fig, axes = plt.subplots(1, len(wafers), figsize=(5.6 * len(wafers), 5.8),
-                             squeeze=False)
+    # room on the right for the legend (outcomes and the causes' numbers)
+    width = 5.0 * len(wafers) + LEGEND_IN
+    fig, axes = plt.subplots(1, len(wafers), figsize=(width, 5.4), squeeze=False)
     for ax, wi in zip(axes[0], wafers):
         mine = [d for d in dies if d.get("wafer", 0) == wi]
         for d in mine:
@@ -89,7 +92,8 @@ def plot_wafer_map(dies, die_size_mm, path, *, diameter_mm=None, edge_exclusion_
                        title_fontsize=8, alignment="left")
     if title:
         fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
+    fig.subplots_adjust(left=0.9 / width, right=1 - LEGEND_IN / width, bottom=0.1, top=0.88,
+                        wspace=0.25)
     fig.savefig(Path(path), dpi=DPI, bbox_inches="tight")
     plt.close(fig)
 

@@ -124,6 +124,7 @@ def replan_die(job: WaferJob, die_x: int, die_y: int, measured: dict) -> dict:
 
     from planner.afterfab.checks import check_drive
     from planner.afterfab.replan import chip_models, replan, write_replan_outputs
+    from planner.errors import PlanningError
     from planner.synthesis import LoopLengthError
 
     # one numba thread per die, as a yield study's chips: the dies are the parallelism
@@ -147,6 +148,11 @@ def replan_die(job: WaferJob, die_x: int, die_y: int, measured: dict) -> dict:
             out.update(outcome=OUTCOMES[3], causes=["drive not playable"], checks=0,
                        checks_passed=0)
             return _with_files(out, None)
+        except PlanningError as exc:
+            # this die's re-plan cannot be made (the batch goes on with the others)
+            out.update(outcome=OUTCOMES[3], causes=[f"no re-plan: {exc}"], checks=0,
+                       checks_passed=0)
+            return _with_files(out, None)
         ver = result.verification
         out.update(checks=len(ver), checks_passed=int(ver["passed"].sum()),
                    inseparable=[c["message"] for c in result.data["replan"]["inseparable"]])
@@ -159,6 +165,14 @@ def replan_die(job: WaferJob, die_x: int, die_y: int, measured: dict) -> dict:
         if job.trim and result.data["replan"]["inseparable"]:
             from planner.afterfab.trim import trim_chip, write_trim_csv
 
+            missing = [r.id for r in record.impacters if r.id not in measured]
+            if missing:
+                # a trim is chosen from every impacter's measured resonance
+                out.update(outcome=OUTCOMES[3], causes=causes + [
+                    "cannot be trimmed: not measured: " + " ".join(missing)])
+                write_replan_outputs(result, folder / "replan", figures=False)
+                _report_without_timings(folder / "replan")
+                return _with_files(out, folder)
             res = trim_chip(record, measured)
             write_trim_csv(res.rows, folder / "trim.csv")
             out["trimmed"] = list(res.trims.moved)

@@ -124,7 +124,7 @@ def test_the_die_grid_fills_the_wafer_inside_its_edge_exclusion():
 
 
 def test_the_field_is_correlated_over_its_length_and_the_gradient_is_linear():
-    from planner.spec import ArraySpec, WaferSpec
+    from planner.spec import ArraySpec
     from planner.wafer import device_positions, line_width_offsets, wafer_draws, wafer_layout
 
     spec = ArraySpec.model_validate({
