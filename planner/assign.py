@@ -31,9 +31,9 @@ import pandas as pd
 from planner.errors import PlanningError
 from planner.intervals import z_for
 from planner.nodes import DIRECTIONS, Node, device_key
+from planner.placement import colour_blocks, neighbour_coloring
 from planner.separation import guard_onset_hz, position_grid
 from planner.spec import LoadedSpec, Step
-
 
 
 def node_order(node: Node):
@@ -422,6 +422,10 @@ def assign(settings, steps, *, separation=None, pair_separation=None, method="au
     coloring = min(candidates,
                    key=lambda col: (_ensemble_severity(steps, groups, freq_of(col)),
                                     _ensemble_exposure(steps, groups, col)))
+    if _placement(settings) == "neighbours":
+        # tone neighbours on neighbouring devices (issue 39): a die's line-width
+        # gradient then moves the closest pairs alike
+        coloring = neighbour_coloring(graph, groups, coloring)
     best = None
     for q, o in mapping:
         freqs, chans, where = {}, {}, {}
@@ -441,15 +445,10 @@ def assign(settings, steps, *, separation=None, pair_separation=None, method="au
                       where, reach)
 
 
-def _blocks(coloring, gap):
-    """The colouring's groups in runs whose consecutive colours are < ``gap`` apart."""
-    order = sorted(coloring, key=lambda g: (coloring[g], g))
-    blocks = [[order[0]]]
-    for a, b in zip(order, order[1:]):
-        if coloring[b] - coloring[a] >= gap:
-            blocks.append([])
-        blocks[-1].append(b)
-    return blocks
+def _placement(settings) -> str:
+    """``drive.channels.placement`` of the settings' spec (``coloring`` without one)."""
+    spec = getattr(settings, "chip_spec", None)
+    return spec.drive.channels.placement if spec is not None else "coloring"
 
 
 #: At most this many blocks are permuted (their orders times per-block mirrors).
@@ -470,7 +469,7 @@ def _block_layouts(graph, coloring, span, attr="sep"):
     if graph.number_of_edges() == 0:
         return out
     seps = [d[attr] for _, _, d in graph.edges(data=True)]
-    blocks = _blocks(coloring, min(seps) + 1)
+    blocks = colour_blocks(coloring, min(seps) + 1)
     if not 2 <= len(blocks) <= MAX_LAYOUT_BLOCKS:
         return out
     names = sorted(coloring)

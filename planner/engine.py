@@ -174,8 +174,9 @@ def _client(jobs, scheduler):
 POLL_S = 0.2
 
 
-def _gather(client, futures, tick, address):
-    """The futures' results in order, each wait bounded (see the module docstring)."""
+def _gather(client, futures, tick, address, on_result=None):
+    """The futures' results in order, each wait bounded (see the module docstring);
+    ``on_result(index, result)`` as each arrives."""
     import time
 
     from distributed import as_completed
@@ -200,6 +201,8 @@ def _gather(client, futures, tick, address):
                                      "tasks (did it stop?)", address)
             out[index[fut.key]] = fut.result()
             left -= 1
+            if on_result is not None:
+                on_result(index[fut.key], out[index[fut.key]])
             tick()
     return out
 
@@ -214,7 +217,8 @@ def _alive(client, address):
 
 
 def run_tasks(func: Callable, shared: Any, args_list: Sequence[tuple], *, jobs: int = 1,
-              scheduler: str | None = None, progress: Callable | None = None) -> list:
+              scheduler: str | None = None, progress: Callable | None = None,
+              on_result: Callable | None = None) -> list:
     """``[func(shared, *args) for args in args_list]``, in process or on Dask.
 
     Parameters
@@ -231,6 +235,10 @@ def run_tasks(func: Callable, shared: Any, args_list: Sequence[tuple], *, jobs: 
         Address of an existing ``dask.distributed`` scheduler; overrides ``jobs``.
     progress : callable, optional
         Called with no argument after each finished task (in completion order).
+    on_result : callable, optional
+        Called as ``on_result(index, result)`` with each task's result as it finishes
+        (in completion order, in this process): a caller that keeps results as they
+        come (a batch that resumes) writes them there.
 
     Returns
     -------
@@ -250,6 +258,8 @@ def run_tasks(func: Callable, shared: Any, args_list: Sequence[tuple], *, jobs: 
         out = []
         for args in args_list:
             out.append(func(shared, *args))
+            if on_result is not None:
+                on_result(len(out) - 1, out[-1])
             tick()
         return out
     from distributed.comm.core import CommClosedError
@@ -265,7 +275,7 @@ def run_tasks(func: Callable, shared: Any, args_list: Sequence[tuple], *, jobs: 
                                      f"cluster ({type(exc).__name__})", address) from None
             futures = [client.submit(func, remote, *args, pure=False) for args in args_list]
             try:
-                return _gather(client, futures, tick, address)
+                return _gather(client, futures, tick, address, on_result)
             except (CommClosedError, asyncio.CancelledError) as exc:
                 raise SchedulerError(errno.ECONNRESET, f"the scheduler went away "
                                      f"({type(exc).__name__})", address) from None

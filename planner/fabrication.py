@@ -293,7 +293,8 @@ class Chip:
 
 
 def sample_chip(design: ChipDesign, fab: Tolerances | FabricationSpec,
-                rng: np.random.Generator, scale: float = 1.0) -> Chip:
+                rng: np.random.Generator, scale: float = 1.0,
+                line_width_offsets: dict | None = None) -> Chip:
     """Draw one chip from ``rng``.
 
     Parameters
@@ -306,6 +307,11 @@ def sample_chip(design: ChipDesign, fab: Tolerances | FabricationSpec,
         The chip's own generator (seeded from the run's seed and the chip's index).
     scale : float
         Multiplies every sigma [-], >= 0.
+    line_width_offsets : dict, optional
+        Device id -> a line width [um] added to every impacter pair and the slider of
+        that device: where the die sat on its wafer
+        (:func:`planner.wafer.line_width_offsets`); None adds nothing, and the draws
+        are the same either way.
 
     Returns
     -------
@@ -326,6 +332,8 @@ def sample_chip(design: ChipDesign, fab: Tolerances | FabricationSpec,
     impacters, sliders, bad, errors = {}, {}, [], {}
     for node, z, zh in zip(design.nodes, z_nodes, z_halves):
         err = die + sd_dev * z
+        if line_width_offsets is not None:
+            err[0] += line_width_offsets[node.device]
         errors[node.id] = [float(e) for e in err]
         try:
             if np.any(sd_pair > 0):
@@ -338,6 +346,8 @@ def sample_chip(design: ChipDesign, fab: Tolerances | FabricationSpec,
             bad.append(node.id)
     for dev, z in zip(design.devices, z_sliders):
         dw = die[0] + sd_dev[0] * z[0]
+        if line_width_offsets is not None:
+            dw += line_width_offsets[dev]
         dt = die[1] + sd_dev[1] * z[1]
         try:
             sliders[dev] = _slider(design.spec, dev, dw, dt)

@@ -207,7 +207,7 @@ def _report(data: dict, spec: ArraySpec, plan_path: str, figures: list[str],
              "## Tolerance model", "",
              "| error | per die (sigma) | per device (sigma) |", "|---|---|---|"]
     for k, v in data["tolerance"].items():
-        if isinstance(v, dict):   # the tolerances (not target_yield)
+        if isinstance(v, dict) and "die" in v:   # the tolerances (not the wafer)
             lines.append(f"| {k} | {v['die']:g} | {v['device']:g} |")
     lines += ["", "![yield](figures/yield.png)", ""]
     if "replan" in data:
@@ -259,5 +259,62 @@ def write_outputs(data: dict, spec: ArraySpec, folder: Path, plan_path: str,
     folder = Path(folder)
     (folder / "yield.json").write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
     names = _figures(data, spec, folder / "figures") if figures else []
-    (folder / "report.md").write_text(_report(data, spec, plan_path, names, timings),
-                                      encoding="utf-8")
+    text = _report(data, spec, plan_path, names, timings)
+    if "wafer" in data:
+        if figures:
+            names += _wafer_figures(data, spec, folder / "figures")
+        text += "\n".join(_wafer_lines(data, figures)) + "\n"
+    (folder / "report.md").write_text(text, encoding="utf-8")
+
+
+def _wafer_figures(data: dict, spec: ArraySpec, folder: Path) -> list[str]:
+    """The wafer map and the yield against the radius (yield.json's ``wafer``)."""
+    from planner.wafer_map import plot_wafer_map, plot_yield_by_radius
+
+    w = data["wafer"]
+    plot_wafer_map(w["dies"], w["die_size_mm"], folder / "wafer_map.png",
+                   diameter_mm=w["diameter_mm"], edge_exclusion_mm=w["edge_exclusion_mm"],
+                   title=f"{spec.name}: {data['chips']} dies, seed {data['seed']}")
+    plot_yield_by_radius(w["by_radius"], folder / "yield_radius.png",
+                         title=f"{spec.name}: yield against the die's radius")
+    return ["wafer_map.png", "yield_radius.png"]
+
+
+def _wafer_lines(data: dict, figures: bool) -> list[str]:
+    """report.md's section on the wafer: outcomes, the map, the yield by ring."""
+    from planner.yield_.dies import OUTCOMES
+
+    w = data["wafer"]
+    lines = ["## The wafer", "",
+             f"{w['dies_per_wafer']} dies of {w['die_size_mm'][0]:g} x "
+             f"{w['die_size_mm'][1]:g} mm on a wafer of {w['diameter_mm']:g} mm "
+             f"({w['edge_exclusion_mm']:g} mm edge exclusion); {data['chips']} dies sampled "
+             f"on {w['wafers']} wafer{'s' if w['wafers'] != 1 else ''} "
+             "(fabrication.wafer: the across-wafer field and the within-die gradient on "
+             "top of the die and device levels).  Each die's outcome is the first of: the "
+             "plan's drive works on it (as designed), a drive re-planned from its "
+             "measurement does (after re-plan, with --replan), trimmed and re-planned it "
+             "does (after trim, with --trim); else it fails, numbered on the map by its "
+             "first cause.  The dies as a prober measures them: wafer_<k>.csv and "
+             "wafer_<k>.stdf (`vibroplan replan PLAN --measured wafer_1.csv`).", ""]
+    lines += ["| outcome | dies | fraction |", "|---|---|---|"]
+    lines += [f"| {o} | {w['outcomes'][o]} | {w['outcomes'][o] / data['chips']:.3f} |"
+              for o in OUTCOMES]
+    lines.append("")
+    if figures:
+        lines += ["![wafer map](figures/wafer_map.png)", ""]
+    lines += ["### Yield against the radius", "",
+              "| ring [mm] | dies | " + " | ".join(OUTCOMES) + " | yield | 95 % CI |",
+              "|---|---|" + "---|" * len(OUTCOMES) + "---|---|"]
+    for r in w["by_radius"]:
+        if not r["dies"]:
+            lines.append(f"| {r['radius_from_mm']:.1f}-{r['radius_to_mm']:.1f} | 0 |"
+                         + " |" * len(OUTCOMES) + " - | - |")
+            continue
+        lines.append(f"| {r['radius_from_mm']:.1f}-{r['radius_to_mm']:.1f} | {r['dies']} | "
+                     + " | ".join(str(r["outcomes"][o]) for o in OUTCOMES)
+                     + f" | {r['yield']:.3f} | [{r['ci95'][0]:.3f}, {r['ci95'][1]:.3f}] |")
+    lines.append("")
+    if figures:
+        lines += ["![yield against the radius](figures/yield_radius.png)", ""]
+    return lines

@@ -165,13 +165,23 @@ def read_measured(path, impacter_ids, design_hz=None) -> dict:
         factor 4 of its design's, or a pair half measured alone or both whole and by
         halves.
     """
-    from planner.lab_csv import csv_number, read_csv_rows
+    from planner.lab_csv import read_csv_rows
 
-    known = set(impacter_ids)
     # calibrate writes uncertainties beside the values: accepted and left alone
     header_line, header, rows, fail = read_csv_rows(
         path, MEASURED_REQUIRED, MEASURED_OPTIONAL, what="measured.csv",
         ignore=lambda c: c.endswith("_std") or c.endswith("_std_hz"))
+    return measurements_from_rows(header_line, header, rows, fail, impacter_ids, design_hz)
+
+
+def measurements_from_rows(header_line, header, rows, fail, impacter_ids, design_hz=None):
+    """:func:`read_measured`'s checks and result for rows already read
+    (:func:`planner.lab_csv.read_csv_rows`'s ``header_line``, ``header``, ``rows`` and
+    ``fail``): one chip's rows of a wafer file too (:mod:`planner.afterfab.wafer_file`),
+    whose other columns (the die's) are left alone."""
+    from planner.lab_csv import csv_number
+
+    known = set(impacter_ids)
     whole, first_line, halves = {}, {}, {}
     for line, row in rows:
         if len(row) != len(header):

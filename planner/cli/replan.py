@@ -13,10 +13,30 @@ from planner.cli._common import EXIT_CODES_HELP, chip_inputs, handle_errors
 
 @click.command("replan")
 @click.argument("plan_path", metavar="PLAN", type=click.Path(path_type=Path))
-@click.option("--measured", "measured_path", required=True,
+@click.option("--measured", "measured_path", default=None,
               type=click.Path(dir_okay=False, path_type=Path),
               help="measured.csv: impacter,natural_frequency_hz[,quality_factor][,gap_um] "
-                   "(e.g. from `vibroplan calibrate`).")
+                   "(e.g. from `vibroplan calibrate`); or a whole wafer's file: a CSV "
+                   "with die_x,die_y in front of those columns, or a tester's STDF V4 "
+                   "file (every die re-planned in batch).")
+@click.option("--measured-dir", "measured_dir", default=None,
+              type=click.Path(file_okay=False, path_type=Path),
+              help="A wafer as a folder of one measured.csv per die, named "
+                   "die_<x>_<y>.csv (its grid indices): every die re-planned in batch.")
+@click.option("--trim", is_flag=True,
+              help="A wafer: trim the dies whose impacters no drive tells apart "
+                   "(vibroplan trim) and re-plan them.")
+@click.option("--jobs", type=int, default=None,
+              help="A wafer: local Dask worker processes, at most the cores [default: "
+                   "every core; 1 runs in this process].")
+@click.option("--scheduler", default=None, metavar="ADDRESS",
+              help="A wafer: run the dies on an existing dask.distributed scheduler "
+                   "(overrides --jobs); checked before any work.")
+@click.option("--test-map", "test_map", default=None,
+              type=click.Path(dir_okay=False, path_type=Path),
+              help="An STDF wafer: test_name,impacter[,half] CSV naming the tests that "
+                   "measure each resonance [default: the test named by the impacter's "
+                   "id, e.g. A1.forward, or A1.forward:a for a half].")
 @click.option("--windows", "windows_path", type=click.Path(dir_okay=False, path_type=Path),
               default=None,
               help="windows.csv of a tuning sweep on the chip (`vibroplan calibrate "
@@ -36,7 +56,8 @@ from planner.cli._common import EXIT_CODES_HELP, chip_inputs, handle_errors
 @click.option("--no-figures", is_flag=True, help="Skip the PNG figures (faster).")
 @click.option("--quiet", is_flag=True, help="No progress output.")
 @handle_errors
-def command(plan_path, measured_path, windows_path, out_dir, force, seed, no_figures, quiet):
+def command(plan_path, measured_path, windows_path, measured_dir, trim, jobs, scheduler, test_map,
+            out_dir, force, seed, no_figures, quiet):
     """Re-plan the drive of a fabricated chip from its measured resonances.
 
     PLAN is a `vibroplan plan` (or `vibroplan replan`) output folder or its plan.json,
@@ -72,11 +93,41 @@ def command(plan_path, measured_path, windows_path, out_dir, force, seed, no_fig
     apart are named with their as-built resonances and the separation they would
     need, and the re-plan fails (exit 1): trim one of them (vibroplan trim).
 
+    A wafer (--measured WAFER.csv with die_x,die_y columns, a tester's STDF V4 file,
+    or --measured-dir) is re-planned die by die on Dask (--jobs, --scheduler), with
+    --trim trimming the dies no drive can tell apart; OUT/ then holds dies/die_<x>_<y>/
+    (each die's drive files, trim.csv), summary.csv (one line per die: as designed,
+    after re-plan, after trim or scrapped, with the causes), report.md and
+    wafer_map.png; exit 1 when a die is scrapped.  Each die is kept as it finishes in
+    .OUT.dies/ beside OUT: run the same command again after an interruption and the
+    finished dies are read back, not redone.
+
     {EXIT}
     """
     from planner._io import output_folder
     from planner.afterfab.replan import replan, write_replan_outputs
 
+    if (measured_path is None) == (measured_dir is None):
+        raise click.UsageError("give the measurement: --measured FILE (a chip's "
+                               "measured.csv or a wafer's file) or --measured-dir DIR")
+    if measured_dir is not None or _is_wafer(measured_path):
+        from planner.cli._wafer import replan_wafer_command
+
+        if windows_path is not None:
+            raise click.UsageError("--windows is one chip's tuning sweep (vibroplan "
+                                   "calibrate --motion); a wafer is re-planned from its "
+                                   "resonances only")
+
+        return replan_wafer_command(plan_path, measured_path or measured_dir, out_dir,
+                                    trim=trim, jobs=jobs, scheduler=scheduler,
+                                    test_map=test_map, seed=seed, force=force,
+                                    quiet=quiet)
+    for flag, given in (("--trim", trim), ("--jobs", jobs is not None),
+                        ("--scheduler", scheduler), ("--test-map", test_map)):
+        if given:
+            raise click.UsageError(f"{flag} applies to a wafer (--measured with die_x,die_y "
+                                   "columns or an STDF file, or --measured-dir); one chip is "
+                                   "trimmed by `vibroplan trim`")
     plan, measured, inputs, progress = chip_inputs(plan_path, measured_path, out_dir,
                                                    command="replan", force=force, quiet=quiet,
                                                    windows_path=windows_path)
@@ -110,6 +161,12 @@ def command(plan_path, measured_path, windows_path, out_dir, force, seed, no_fig
                f"(see {out_dir}/report.md)")
     if not result.passed:
         sys.exit(1)
+
+
+def _is_wafer(path) -> bool:
+    from planner.afterfab.wafer_file import is_stdf, is_wafer_csv
+
+    return is_stdf(path) or is_wafer_csv(path)
 
 
 # cleandoc: click keeps the docstring's indentation when help is assigned like this

@@ -112,6 +112,7 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
     from planner.spec import load_spec
     from planner.yield_ import (check_chip_count, check_noise, make_payload, parse_scales,
                                 run_yield, scale_key)
+    from planner.yield_.dies import write_wafer_files
     from planner.yield_report import write_outputs
 
     scales = parse_scales(sigma_scale)
@@ -179,6 +180,8 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
             bar.close()
         result = {"plan": str(plan_file), **result}
         write_outputs(result, payload.loaded.spec, tmp, str(plan_file), timings=timings)
+        if "wafer" in result:   # each wafer's dies as a prober measures them (issue 39)
+            write_wafer_files(payload, result, tmp)
     lo, hi = result["ci95"]
     click.echo(f"yield {result['yield']:.3f} ({result['passed']}/{result['chips']} chips, "
                f"95 % CI [{lo:.3f}, {hi:.3f}], sigma scale {scale_key(result['sigma_scale'])})")

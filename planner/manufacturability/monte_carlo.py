@@ -99,7 +99,8 @@ def _collisions(nu, tone, below, above, lo, hi, g, pairs, split=None):
 def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,
                          silent_below, silent_above, responds_below=None,
                          responds_above=None, chips=CHIPS, seed=0,
-                         sigma_pair=None) -> YieldPrediction:
+                         sigma_pair=None, sigma_field_line_width=0.0, sigma_gradient=0.0,
+                         positions=None) -> YieldPrediction:
     """Monte Carlo of the collision-free yield (first order in the errors).
 
     Parameters
@@ -127,6 +128,16 @@ def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,
         halves of a pair then differ, the pair answers where either does and its tone
         must drive both (its silent band widens and its window narrows by half their
         difference).
+    sigma_field_line_width : float
+        The wafer's across-wafer line-width field at the die [um]
+        (``fabrication.wafer.line_width_field.sigma_um``): a die-level line width on
+        top of ``sigma_die``'s (the first error of :data:`planner.fabrication.ERRORS`).
+    sigma_gradient : float
+        One sigma of each component of the within-die line-width gradient [um/m]; with
+        ``positions``, impacter k's line width moves by g . positions[k], g drawn per
+        chip.
+    positions : array_like, shape (n, 2), optional
+        Every impacter's place from its die's centre [m].
 
     Returns
     -------
@@ -161,6 +172,14 @@ def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,
         sd_pair = None
     # drawn after the others: without a pair level the chips are the same
     z_half = rng.standard_normal((chips, n, 2, p)) if sd_pair is not None else None
+    # the wafer's part (issue 39), drawn last: without it the chips are the same
+    lw_wafer = None
+    if (sigma_field_line_width or sigma_gradient) and positions is not None:
+        z_wafer = rng.standard_normal((chips, 3))
+        pos = np.asarray(positions, dtype=float).reshape(n, 2)
+        # line width [um] per chip and impacter: the die's field value plus the gradient
+        lw_wafer = (float(sigma_field_line_width) * z_wafer[:, :1]
+                    + float(sigma_gradient) * (z_wafer[:, 1:] @ pos.T))
     args = (nu, tone, below, above, lo, hi)
     ok_none = ~_collisions(*args, np.ones((1, n)), pairs)[0]
     nominal = [[ids[a], ids[b]] for (a, b), ok in zip(pairs, ok_none) if not ok]
@@ -177,6 +196,8 @@ def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,
     for a in range(0, chips, step):
         b = min(chips, a + step)
         die_part = (z_die[a:b] * sd_die) @ sens.T                     # (chunk, n)
+        if lw_wafer is not None:     # a die-level part too: where the die sat
+            die_part = die_part + lw_wafer[a:b] * sens[:, 0]
         dev_part = np.einsum("cnp,np->cn", z_dev[a:b] * sd_dev, sens)
         split = None
         if z_half is not None:

@@ -50,6 +50,23 @@ def _tone_amplitudes(steps, assignment, waveforms):
     return out
 
 
+def _wafer_terms(settings, nodes) -> dict:
+    """The wafer's part of the prediction (``fabrication.wafer``, issue 39): the
+    across-wafer field's sigma (a die-level line width, shared by the die) and the
+    within-die gradient's sigma with every impacter's place in its die; nothing without
+    a wafer (the prediction is then the one before issue 39)."""
+    wafer = settings.chip_spec.fabrication.wafer
+    if wafer is None:
+        return {}
+    from planner.units import MM
+    from planner.wafer import device_positions
+
+    pos = device_positions(settings.chip_spec.array)
+    return {"sigma_field_line_width": wafer.line_width_field.sigma_um,
+            "sigma_gradient": wafer.line_width_gradient_um_per_mm / MM,
+            "positions": np.array([pos[n.device] for n in nodes])}
+
+
 def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> dict:
     """plan.json's ``manufacturability`` block for the final designs.
 
@@ -111,7 +128,7 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
         responds_below=[seps[n].responds_below_hz for n in nodes],
         responds_above=[seps[n].responds_above_hz for n in nodes],
         chips=chips, seed=settings.seed,
-        sigma_pair=tol.pair)
+        sigma_pair=tol.pair, **_wafer_terms(settings, nodes))
     out.update(
         collision_free_yield=pred.to_dict(), die_only_yield=pred.die_only,
         device_only_yield=pred.device_only, closest_pair_hz=pred.closest_pair_hz,

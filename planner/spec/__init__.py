@@ -26,9 +26,10 @@ them from ``planner.spec`` (the other sections' models are in
 
 from planner.spec.channels import separation_for_bandwidth
 from planner.spec.load import LoadedSpec, default_spec_path, load_spec
-from planner.spec.schema import ArraySpec, FabricationSpec, Tolerance, TrimSpec
+from planner.spec.schema import ArraySpec, FabricationSpec, Tolerance, TrimSpec, WaferSpec
 from planner.spec.steps import DEFAULT_MAX_BURST_S, Step, resolve_steps
 
 __all__ = ["DEFAULT_MAX_BURST_S", "ArraySpec", "FabricationSpec", "LoadedSpec", "Step",
            "Tolerance", "TrimSpec", "default_spec_path", "load_spec",
+           "WaferSpec",
            "resolve_steps", "separation_for_bandwidth"]

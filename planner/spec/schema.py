@@ -14,7 +14,7 @@ from __future__ import annotations
 import string
 from typing import Annotated, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_serializer, model_validator
 
 from planner._pydantic import Strict
 from planner.config import (
@@ -76,6 +76,22 @@ class ChannelGrid(Strict):
     spacing: Literal["log", "linear", "tolerance"] = "log"
     count: Annotated[int, Field(ge=2, le=100000)] | None = None
     separation_hz: PositiveFloat | None = None
+    #: Which impacter takes which of the colouring's channels: ``coloring`` as the
+    #: colouring gives them; ``neighbours``: within each block of channels that any of
+    #: its impacters may take (every separation still kept), the tones rise along a
+    #: serpentine walk of the devices, so that frequency neighbours sit on neighbouring
+    #: devices and a line-width gradient across the die moves them alike
+    #: (:func:`planner.placement.neighbour_coloring`, issue 39).
+    placement: Literal["coloring", "neighbours"] = "coloring"
+
+    @model_serializer(mode="wrap")
+    def _default_placement_unwritten(self, handler):
+        # a spec without placement dumps as before: plan.json and the design cache's
+        # keys of today's specs stay byte for byte what they were
+        data = handler(self)
+        if self.placement == "coloring":
+            data.pop("placement", None)
+        return data
 
     @model_validator(mode="after")
     def _count_or_tolerance(self):
@@ -253,6 +269,54 @@ class Tolerance(Strict):
         return self.die == 0.0 and self.device == 0.0 and self.pair == 0.0
 
 
+class WaferField(Strict):
+    """A smooth line-width field across the wafer (a Gaussian random field).
+
+    sigma_um : its standard deviation at any point of the wafer [um].
+    correlation_length_mm : the length over which it decorrelates [mm]: the covariance
+        of two points r apart is sigma^2 exp(-r^2 / (2 L^2)) (squared exponential).
+    """
+
+    sigma_um: NonNegFloat = 0.0
+    correlation_length_mm: PositiveFloat = 30.0
+
+
+class WaferSpec(Strict):
+    """Where a die sat on its wafer (``fabrication.wafer``, issue 39).
+
+    diameter_mm : the wafer's diameter [mm].
+    edge_exclusion_mm : the ring at the wafer's edge where no die is made [mm]: a die
+        is on the wafer when its four corners lie within diameter / 2 - exclusion.
+    die_size_mm : the die's width (along the array's columns) and height (along its
+        rows) [mm]; default the array's cols x pitch by rows x pitch.
+    line_width_field : the smooth across-wafer line-width field, drawn once per wafer
+        at every die's centre and added to the die's line width.
+    line_width_gradient_um_per_mm : one sigma of each component (x, y) of a linear
+        line-width gradient inside a die [um/mm], drawn per die: a device at (x, y)
+        from the die's centre gets g_x x + g_y y on its line width.
+
+    The die, device and pair levels of ``line_width_um`` stay, on top of these.
+    """
+
+    diameter_mm: PositiveFloat = 150.0
+    edge_exclusion_mm: NonNegFloat = 3.0
+    die_size_mm: tuple[PositiveFloat, PositiveFloat] | None = None
+    line_width_field: WaferField = WaferField()
+    line_width_gradient_um_per_mm: NonNegFloat = 0.0
+
+    @model_validator(mode="after")
+    def _exclusion_inside(self):
+        if 2 * self.edge_exclusion_mm >= self.diameter_mm:
+            raise ValueError(f"edge_exclusion_mm ({self.edge_exclusion_mm:g}) leaves no "
+                             f"wafer of diameter_mm {self.diameter_mm:g}")
+        return self
+
+    @property
+    def zero(self) -> bool:
+        return self.line_width_field.sigma_um == 0.0 and \
+            self.line_width_gradient_um_per_mm == 0.0
+
+
 class FabricationSpec(Strict):
     """The fabrication tolerance model used by ``vibroplan yield`` (docs/yield.md).
 
@@ -286,11 +350,24 @@ class FabricationSpec(Strict):
     #: overrides it) and what a design's tone window is sized for
     #: (``design.tone_window_pct``).  A swept resonance fits to 1e-4 to 1e-3.
     measurement_noise_pct: Annotated[float, Field(ge=0, le=5, allow_inf_nan=False)] = 0.05
+    #: Where a die sat on its wafer (:class:`WaferSpec`); None: every chip is a die of
+    #: its own, as before issue 39.
+    wafer: WaferSpec | None = None
+
+    @model_serializer(mode="wrap")
+    def _no_wafer_unwritten(self, handler):
+        # a spec without a wafer dumps as before: yield.json's tolerance, plan.json and
+        # the design cache's keys stay byte for byte what they were
+        data = handler(self)
+        if self.wafer is None:
+            data.pop("wafer", None)
+        return data
 
     @property
     def zero(self) -> bool:
         return all(getattr(self, k).zero for k in type(self).model_fields
-                   if isinstance(getattr(self, k), Tolerance))
+                   if isinstance(getattr(self, k), Tolerance)) and (
+            self.wafer is None or self.wafer.zero)
 
 
 class TrimSpec(Strict):

@@ -9,6 +9,7 @@ import numpy as np
 
 from planner._random import chip_seed
 from planner.fabrication import sample_chip
+from planner.wafer import line_width_offsets
 from planner.afterfab.checks import check_drive
 from planner.yield_.inputs import Payload
 
@@ -53,7 +54,9 @@ def verify_chip(payload: Payload, scale_index: int, chip_index: int, scale: floa
         numba.set_num_threads(min(payload.threads, numba.config.NUMBA_NUM_THREADS))
     t0 = time.perf_counter()
     rng = np.random.default_rng(chip_seed(payload.seed, scale, chip_index))
-    chip = sample_chip(payload.design, payload.fabrication, rng, scale)
+    chip = sample_chip(payload.design, payload.fabrication, rng, scale,
+                       line_width_offsets(payload.design.spec, payload.fabrication,
+                                          payload.seed, scale, chip_index))
     out = {"scale_index": scale_index, "chip": chip_index}
     if chip.unbuildable:
         # a node or a device (its slider) that cannot be built

@@ -118,6 +118,10 @@ def make_payload(record: PlanRecord, seed: int, fabrication: FabricationSpec | N
         if not trim:
             raise ValueError("--trim-precision needs --trim")
     fab = fabrication if fabrication is not None else record.spec.fabrication
+    if fab.wafer is not None:
+        from planner.wafer import wafer_layout
+
+        wafer_layout(record.spec.array, fab.wafer)     # no die fits: refused before any work
     if fab.zero and not allow_zero:
         raise ValueError("every fabrication tolerance is 0 (the spec has no fabrication: "
                          "section, or only zero sigmas): every chip would be the nominal one "

@@ -193,4 +193,8 @@ def yield_record(payload, chips: int, scales: list[float], nominal: dict, result
                 entry["trim"] = {k: out_scale[j][0]["trim"][k]
                                  for k in ("yield", "ci95", "passed", "rescued", "causes")}
             data["by_sigma_scale"][scale_key(s)] = entry
+    if payload.fabrication.wafer is not None:
+        from planner.yield_.dies import wafer_record
+
+        data["wafer"] = wafer_record(payload, mine)
     return data

@@ -19,6 +19,7 @@ from planner.fabrication import (
     ERRORS,
     ChipDesign,
     NodeDesign,
+    Tolerances,
     frequency_sensitivities,
     sample_chip,
 )
@@ -220,10 +221,9 @@ def test_monte_carlo_against_chips_sampled_through_the_full_equations():
         f = np.array([chip.impacters[n.id].natural_frequency for n in nodes])
         ok += all(abs(f[a] - f[b]) >= 400.0 for a, b in pairs)
     sens = np.array([frequency_sensitivities(spec, n) for n in nodes])
-    fab = spec.fabrication
+    tol = Tolerances.from_spec(spec.fabrication)
     pred = collision_free_yield([n.id for n in nodes], nu0, nu0, sens,
-                                [getattr(fab, e).die for e in ERRORS],
-                                [getattr(fab, e).device for e in ERRORS], pairs,
+                                tol.die, tol.device, pairs,
                                 silent_below=[400] * 3, silent_above=[400] * 3, chips=20000)
     from planner.yield_ import wilson_interval
 

@@ -1,0 +1,263 @@
+"""A tester's STDF V4 file of a wafer: the parametric results of every die, read
+through the maintained reader ``pystdf`` and written by a small writer of our own.
+
+A wafer prober writes one STDF (Standard Test Data Format, V4) file per wafer: per die
+a Part Information Record (PIR), its tests' Parametric Test Records (PTR: a test number,
+a name ``TEST_TXT``, a ``RESULT`` in the test's ``UNITS``) and a Part Results Record
+(PRR, with the die's ``X_COORD`` and ``Y_COORD``).  :func:`read_stdf` reads such a file
+with ``pystdf`` (an optional dependency, ``pip install vibroplan[stdf]``; GPL-licensed,
+so vibroplan does not need it unless a tester's file is read) and maps every PTR whose
+test name names an impacter to its measured resonance (:data:`DEFAULT_MAPPING`, or a
+``--test-map`` file, :func:`read_test_map`); other tests are left alone.
+
+:func:`write_stdf` writes the same records (FAR, MIR, WIR, PIR, PTR, PRR, WRR, MRR)
+with ``struct``: ``vibroplan yield`` on wafers writes each wafer's measurement as a
+tester would, and the tests read it back with ``pystdf``.  STDF's RESULT is a 4-byte
+float (R*4): a resonance keeps about 7 digits (3 mHz at 44 kHz), far below any lab's
+measurement noise.
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+from planner.errors import SpecError
+
+#: CPU_TYPE of the FAR: 2 is little-endian (x86), how this writer packs every record.
+CPU_TYPE = 2
+#: Units a resonance's PTR may give (STDF's RESULT is in the UNITS' base unit; the
+#: scaling exponent RES_SCAL only says how to print it).
+HZ_UNITS = ("", "hz", "Hz", "HZ")
+#: The separator of a pair half in a default test name: ``A1.forward:a``.
+HALF_SEP = ":"
+#: X_COORD / Y_COORD of a PRR that does not know where its die sat (STDF's invalid).
+NO_COORD = -32768
+
+
+def default_test_name(impacter: str, half: str = "") -> str:
+    """The test name a resonance is written and read under without a map: the
+    impacter's id, ``:a`` / ``:b`` appended for a half of a pair measured apart."""
+    return f"{impacter}{HALF_SEP}{half}" if half else impacter
+
+
+def read_test_map(path, impacter_ids) -> dict:
+    """A ``--test-map`` CSV: ``test_name,impacter[,half]``, one row per test that
+    measures a resonance (its RESULT in Hz).
+
+    Returns
+    -------
+    dict
+        Test name -> (impacter id, half: ``""``, ``"a"`` or ``"b"``).
+
+    Raises
+    ------
+    SpecError
+        Naming the row and column (an unknown impacter, a repeated test name, a half
+        that is not a or b).
+    """
+    from planner.lab_csv import read_csv_rows
+
+    _, header, rows, fail = read_csv_rows(path, ("test_name", "impacter"), ("half",),
+                                          what="a test map")
+    known = set(impacter_ids)
+    out, first = {}, {}
+    for line, row in rows:
+        if len(row) != len(header):
+            raise fail(line, header[min(len(row), len(header) - 1)],
+                       f"{len(row)} values where the header has {len(header)} columns")
+        v = dict(zip(header, (x.strip() for x in row)))
+        name, imp, half = v["test_name"], v["impacter"], v.get("half", "").lower()
+        if not name:
+            raise fail(line, "test_name", "empty test name")
+        if name in first:
+            raise fail(line, "test_name", f"{name!r} mapped twice (rows {first[name]} and "
+                                          f"{line})")
+        if imp not in known:
+            raise fail(line, "impacter", f"unknown impacter {imp!r}")
+        if half not in ("", "a", "b"):
+            raise fail(line, "half", f"must be a or b, {v['half']!r} was given")
+        first[name] = line
+        out[name] = (imp, half)
+    return out
+
+
+def _default_map(impacter_ids) -> dict:
+    out = {}
+    for n in impacter_ids:
+        out[default_test_name(n)] = (n, "")
+        for h in ("a", "b"):
+            out[default_test_name(n, h)] = (n, h)
+    return out
+
+
+def read_stdf(path, impacter_ids, test_map=None) -> list:
+    """The dies of a tester's STDF V4 file and their measured resonances.
+
+    Parameters
+    ----------
+    path : path
+        The STDF file (at most :data:`planner._limits.MAX_INPUT_BYTES`).
+    impacter_ids : iterable of str
+        The plan's impacters.
+    test_map : dict, optional
+        Test name -> (impacter id, half) (:func:`read_test_map`); default every
+        impacter id is its own test name (:func:`default_test_name`).
+
+    Returns
+    -------
+    list of (int, int, list)
+        ``(die_x, die_y, rows)`` in the file's order; ``rows`` are ``(record,
+        impacter, natural_frequency_hz as text, half)`` for
+        :func:`planner.afterfab.wafer_file.dies_from_rows`, ``record`` the PTR's
+        1-based record number in the file.
+
+    Raises
+    ------
+    SpecError
+        Not an STDF V4 file, a PTR without a valid result or in another unit than Hz,
+        a die without coordinates or tested twice, a die none of whose tests is
+        mapped; naming the record.
+    ModuleNotFoundError
+        ``pystdf`` is not installed (the CLI says how to install it).
+    """
+    import io
+
+    from pystdf import V4
+    from pystdf.IO import Parser
+
+    from planner._io import read_input
+
+    path = Path(path)
+    source = str(path)
+    raw = read_input(path)
+    if len(raw) < 6 or raw[2:4] != b"\x00\x0a" or raw[5] != 4:
+        raise SpecError("not an STDF V4 file (it must begin with a FAR record of "
+                        "STDF_VER 4)", source=source)
+    mapping = test_map if test_map is not None else _default_map(impacter_ids)
+    records = []
+
+    class _Sink:
+        def after_send(self, _source, data):
+            rectype, fields = data
+            records.append((rectype, fields))
+
+    parser = Parser(inp=io.BytesIO(raw))
+    parser.addSink(_Sink())
+    try:
+        parser.parse()
+    except Exception as exc:  # noqa: BLE001 - pystdf raises what struct and it raise
+        raise SpecError(f"not a readable STDF V4 file: record {len(records) + 1}: "
+                        f"{type(exc).__name__}: {exc}", source=source) from None
+    names = {}          # TEST_NUM -> TEST_TXT of its first PTR (STDF's default)
+    open_parts, dies, seen = {}, [], {}
+    for k, (rectype, fields) in enumerate(records, start=1):
+        rec = dict(zip(rectype.fieldNames, fields))
+
+        def fail(message, _k=k, _name=type(rectype).__name__.upper()):
+            return SpecError(message, path=f"record {_k} ({_name})", source=source)
+
+        if isinstance(rectype, V4.Pir):
+            open_parts[(rec["HEAD_NUM"], rec["SITE_NUM"])] = []
+        elif isinstance(rectype, V4.Ptr):
+            name = rec["TEST_TXT"] or names.get(rec["TEST_NUM"], "")
+            names.setdefault(rec["TEST_NUM"], name)
+            if name not in mapping:
+                continue
+            part = open_parts.get((rec["HEAD_NUM"], rec["SITE_NUM"]))
+            if part is None:
+                raise fail(f"test {name!r} outside a part (no PIR for head "
+                           f"{rec['HEAD_NUM']}, site {rec['SITE_NUM']} before it)")
+            flags = rec["TEST_FLG"] or 0
+            if flags & 0b10 or rec["RESULT"] is None:
+                raise fail(f"test {name!r}: its RESULT is flagged invalid (TEST_FLG bit 1)")
+            units = (rec["UNITS"] or "").strip()
+            if units not in HZ_UNITS:
+                raise fail(f"test {name!r}: UNITS {units!r}; a resonance's result is in Hz")
+            imp, half = mapping[name]
+            part.append((k, imp, repr(float(rec["RESULT"])), half))
+        elif isinstance(rectype, V4.Prr):
+            part = open_parts.pop((rec["HEAD_NUM"], rec["SITE_NUM"]), None)
+            if part is None:
+                raise fail(f"a part's results without its PIR (head {rec['HEAD_NUM']}, "
+                           f"site {rec['SITE_NUM']})")
+            x, y = rec["X_COORD"], rec["Y_COORD"]
+            if x is None or y is None or x == NO_COORD or y == NO_COORD:
+                raise fail("the die's X_COORD and Y_COORD are not given: a wafer's file "
+                           "says where each die sat")
+            if (x, y) in seen:
+                raise fail(f"die ({x}, {y}) tested twice (records {seen[(x, y)]} and {k})")
+            seen[(x, y)] = k
+            if not part:
+                raise fail(f"die ({x}, {y}): none of its tests names an impacter (test "
+                           "names are the impacters' ids, e.g. A1.forward, or give "
+                           "--test-map)")
+            dies.append((int(x), int(y), part))
+    # pystdf stops quietly at a record cut short: a file that ends inside a part, or
+    # before its Master Results Record, was cut off (a copy or a test run interrupted)
+    if open_parts:
+        (head, site), _ = next(iter(open_parts.items()))
+        raise SpecError(f"the file ends inside a part (head {head}, site {site} has no PRR "
+                        f"after record {len(records)}): truncated?", source=source)
+    if not records or not isinstance(records[-1][0], V4.Mrr):
+        raise SpecError(f"the file ends after record {len(records)} without its MRR: "
+                        "truncated?", source=source)
+    if not dies:
+        raise SpecError("no die with a PRR in the file", source=source)
+    return dies
+
+
+# --------------------------------------------------------------------------- writing
+
+def _cn(text: str) -> bytes:
+    data = text.encode("ascii")
+    if len(data) > 255:
+        raise ValueError(f"an STDF C*n string holds at most 255 characters: {text[:40]!r}...")
+    return bytes([len(data)]) + data
+
+
+def _record(typ: int, sub: int, body: bytes) -> bytes:
+    return struct.pack("<HBB", len(body), typ, sub) + body
+
+
+def write_stdf(path, dies, *, lot_id: str = "vibroplan", wafer_id: str = "1",
+               part_type: str = "") -> None:
+    """Write a wafer's measured resonances as a tester's STDF V4 file.
+
+    Parameters
+    ----------
+    path : path
+        The file.
+    dies : iterable of (int, int, dict)
+        ``(die_x, die_y, tests)``, ``tests`` test name -> result [Hz] in the order
+        written (:func:`default_test_name`); test numbers are given in the order test
+        names are first met, from 1.
+    lot_id, wafer_id, part_type : str
+        The MIR's LOT_ID and PART_TYP, the WIR's and WRR's WAFER_ID.
+
+    Every time stamp is 0: the same dies give the same bytes.
+    """
+    out = [_record(0, 10, struct.pack("<BB", CPU_TYPE, 4))]
+    out.append(_record(1, 10, struct.pack("<IIBcccHc", 0, 0, 1, b" ", b" ", b" ", 0, b" ")
+                       + _cn(lot_id) + _cn(part_type) + _cn("") + _cn("") + _cn("")))
+    out.append(_record(2, 10, struct.pack("<BBI", 1, 255, 0) + _cn(wafer_id)))
+    numbers = {}
+    count = 0
+    for x, y, tests in dies:
+        count += 1
+        out.append(_record(5, 10, struct.pack("<BB", 1, 1)))
+        for name, value in tests.items():
+            num = numbers.setdefault(name, len(numbers) + 1)
+            # OPT_FLAG 0xCE: RES_SCAL valid (0), no limits and no specification limits
+            out.append(_record(15, 10, struct.pack("<IBBBBf", num, 1, 1, 0, 0, value)
+                               + _cn(name) + _cn("")
+                               + struct.pack("<BbbbffB", 0xCE, 0, 0, 0, 0.0, 0.0, 2)
+                               + b"Hz" + _cn("") + _cn("") + _cn("")
+                               + struct.pack("<ff", 0.0, 0.0)))
+        out.append(_record(5, 20, struct.pack("<BBBHHHhhI", 1, 1, 0, len(tests), 1, 1,
+                                              int(x), int(y), 0)
+                           + _cn(f"{x},{y}") + _cn("") + b"\x00"))
+    out.append(_record(2, 20, struct.pack("<BBIIIIII", 1, 255, 0, count, 0, 0, count, 0)
+                       + _cn(wafer_id) + _cn("") + _cn("") + _cn("") + _cn("") + _cn("")))
+    out.append(_record(1, 20, struct.pack("<Ic", 0, b" ") + _cn("") + _cn("")))
+    Path(path).write_bytes(b"".join(out))

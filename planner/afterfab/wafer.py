@@ -1,0 +1,408 @@
+"""A wafer in batch: every measured die re-planned (and trimmed where needed) on Dask,
+each die's outputs kept as it finishes, a summary and a wafer map at the end
+(``vibroplan replan PLAN --measured WAFER.csv``, issue 39).
+
+Per die (:func:`replan_die`, a task of :func:`planner.engine.run_tasks`), the loop a lab
+runs on one chip, from its measurement only:
+
+1. the chip's as-built models from the measurement
+   (:func:`planner.afterfab.replan.chip_models`), and the plan's own drive checked on
+   them (stopping at its first failing step): if it passes, the die works **as
+   designed**;
+2. else the drive re-planned for the die (:func:`planner.afterfab.replan.replan`, as
+   ``vibroplan replan``): if it verifies, the die works **after re-plan**;
+3. else, with ``trim``, a die whose pairs cannot be told apart is trimmed
+   (:func:`planner.afterfab.trim.trim_chip`, as ``vibroplan trim``): if its re-plan
+   verifies on the trimmed models, it works **after trim**;
+4. else the die is **scrapped**, with the causes (those of a yield study's re-plan,
+   :data:`planner.yield_.REPLAN_CAUSES`, and ``cannot be trimmed``).
+
+The re-plan is exactly the one a yield study makes of the same measurement (the same
+settings, phases and as-built models), so a wafer sampled by ``vibroplan yield`` and
+re-planned here gets the study's re-planned drive die by die; what this batch cannot
+know is the chip's truth, which the study verifies the drive on.
+
+**Resuming.**  Each die's result and files are written, as the die finishes, into a
+work folder beside the output (``.OUT.dies/``, one ``die_<x>_<y>/`` per die, renamed
+into place whole); an interrupted run leaves it, and the next run with the same plan,
+measurement and options reads the finished dies back instead of redoing them (a run
+with other inputs starts afresh).  The output folder itself is written at the end and
+swapped in atomically (:func:`planner._io.output_folder`), and the work folder removed.
+Every output depends on the inputs only: ``--jobs 1`` and ``--jobs 2`` (or a cluster)
+write the same bytes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from planner.afterfab.wafer_file import die_name
+
+#: A die's outcomes, best first (a yield study's ``fails`` is ``scrapped`` here: the
+#: lab's word for a die nothing rescued).
+OUTCOMES = ("as designed", "after re-plan", "after trim", "scrapped")
+#: The summary's columns.
+SUMMARY_COLUMNS = ("die_x", "die_y", "outcome", "causes", "trimmed", "checks_passed",
+                   "checks", "folder")
+#: Version of the work folder's contents: a resume reads back only its own kind.
+WORK_FORMAT = 1
+#: The file of a die's work folder written last: its presence says the die finished.
+RESULT_FILE = "result.json"
+
+
+@dataclass(frozen=True)
+class WaferJob:
+    """What every die's task needs; sent to each worker once."""
+
+    record: object          # PlanRecord
+    settings: object        # Settings
+    steps: tuple
+    waveforms: dict
+    dwells: dict
+    trim: bool = False
+
+
+def make_job(record, *, trim: bool = False) -> WaferJob:
+    """The job of a plan (:func:`planner.planning.plan_file.read_plan`)."""
+    from planner.afterfab.checks import drive_of
+    from planner.planning.settings import plan_settings
+
+    steps, waveforms, dwells = drive_of(record)
+    return WaferJob(record, plan_settings(record), steps, waveforms, dwells, bool(trim))
+
+
+def _files_of(folder: Path) -> dict:
+    """Relative path -> bytes of every file under ``folder``, sorted."""
+    return {p.relative_to(folder).as_posix(): p.read_bytes()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def _report_without_timings(folder: Path) -> None:
+    """A die's report.md without its wall times (they differ run to run; a batch's
+    outputs depend on its inputs only)."""
+    report = folder / "report.md"
+    if report.exists():
+        text = report.read_text()
+        head, sep, _ = text.partition("\n## Timings\n")
+        if sep:
+            report.write_text(head.rstrip("\n") + "\n")
+
+
+def _failure_causes(plan_result) -> list:
+    """The causes of a die's failed re-plan (a yield study's words)."""
+    rp = plan_result.data["replan"]
+    causes = []
+    if rp["inseparable"]:
+        causes.append("cannot be told apart")
+    if rp["outside_band"]:
+        causes.append("outside band")
+    if not rp["inseparable"] and not plan_result.passed:
+        causes.append("fails on the measured models")
+    return causes
+
+
+def replan_die(job: WaferJob, die_x: int, die_y: int, measured: dict) -> dict:
+    """One die: its outcome, causes and output files (the module docstring).
+
+    Returns
+    -------
+    dict
+        ``die_x``, ``die_y``, ``outcome`` (:data:`OUTCOMES`), ``causes`` (list of str),
+        ``trimmed`` (impacter ids), ``checks_passed`` and ``checks`` (of the drive the
+        die is to be played with, on its as-built models; of the plan's drive, stopped
+        at its first failing step, when it works as designed), ``inseparable`` (the
+        pairs no drive tells apart, with their messages), and ``files`` (path relative
+        to the die's folder -> bytes).
+    """
+    import numba
+
+    from planner.afterfab.checks import check_drive
+    from planner.afterfab.replan import chip_models, replan, write_replan_outputs
+    from planner.errors import PlanningError
+    from planner.synthesis import LoopLengthError
+
+    # one numba thread per die, as a yield study's chips: the dies are the parallelism
+    numba.set_num_threads(1)
+    record, settings = job.record, job.settings
+    models = chip_models(record, measured)
+    got = check_drive(settings, job.steps, job.waveforms, job.dwells, models.impacters,
+                      models.sliders, first_failure=True)
+    out = {"die_x": int(die_x), "die_y": int(die_y), "trimmed": [], "inseparable": [],
+           "causes": []}
+    if got["passed"]:
+        out.update(outcome=OUTCOMES[0], checks=len(got["rows"]),
+                   checks_passed=sum(1 for r in got["rows"] if r["passed"]))
+        return _with_files(out, None)
+    with tempfile.TemporaryDirectory(prefix="vibroplan-die-") as tmp:
+        folder = Path(tmp)
+        try:
+            result = replan(record, measured, settings=settings,
+                            original=(got["steps_passed"], got["rows"]), models=models)
+        except LoopLengthError:
+            out.update(outcome=OUTCOMES[3], causes=["drive not playable"], checks=0,
+                       checks_passed=0)
+            return _with_files(out, None)
+        except PlanningError as exc:
+            # this die's re-plan cannot be made (the batch goes on with the others)
+            out.update(outcome=OUTCOMES[3], causes=[f"no re-plan: {exc}"], checks=0,
+                       checks_passed=0)
+            return _with_files(out, None)
+        ver = result.verification
+        out.update(checks=len(ver), checks_passed=int(ver["passed"].sum()),
+                   inseparable=[c["message"] for c in result.data["replan"]["inseparable"]])
+        if result.passed:
+            write_replan_outputs(result, folder, figures=False)
+            _report_without_timings(folder)
+            out["outcome"] = OUTCOMES[1]
+            return _with_files(out, folder)
+        causes = _failure_causes(result)
+        if job.trim and result.data["replan"]["inseparable"]:
+            from planner.afterfab.trim import trim_chip, write_trim_csv
+
+            missing = [r.id for r in record.impacters if r.id not in measured]
+            if missing:
+                # a trim is chosen from every impacter's measured resonance
+                out.update(outcome=OUTCOMES[3], causes=causes + [
+                    "cannot be trimmed: not measured: " + " ".join(missing)])
+                write_replan_outputs(result, folder / "replan", figures=False)
+                _report_without_timings(folder / "replan")
+                return _with_files(out, folder)
+            res = trim_chip(record, measured)
+            write_trim_csv(res.rows, folder / "trim.csv")
+            out["trimmed"] = list(res.trims.moved)
+            if res.plan is not None:
+                write_replan_outputs(res.plan, folder / "trimmed", figures=False)
+                _report_without_timings(folder / "trimmed")
+                tv = res.plan.verification
+                out.update(checks=len(tv), checks_passed=int(tv["passed"].sum()))
+            if res.passed:
+                out["outcome"] = OUTCOMES[2]
+                return _with_files(out, folder)
+            causes = (["cannot be trimmed"] if not res.trims.ok else
+                      _failure_causes(res.plan) or ["fails on the trimmed models"])
+        # the re-plan as it stands says what fails (plan.json, report.md)
+        write_replan_outputs(result, folder / "replan", figures=False)
+        _report_without_timings(folder / "replan")
+        out.update(outcome=OUTCOMES[3], causes=causes)
+        return _with_files(out, folder)
+
+
+def _with_files(out: dict, folder: Path | None) -> dict:
+    out["files"] = _files_of(folder) if folder is not None else {}
+    return out
+
+
+# --------------------------------------------------------------------------- the batch
+
+def inputs_digest(plan_path, measured_paths, options: dict) -> str:
+    """SHA-256 of what a batch's results depend on: the plan.json's bytes, every
+    measurement file's bytes (in order) and the options; a resume reads back only a
+    work folder of the same digest."""
+    from planner._io.version import version_string
+
+    h = hashlib.sha256()
+    h.update(f"format {WORK_FORMAT}\n{version_string()}\n".encode())
+    for p in [plan_path, *measured_paths]:
+        h.update(hashlib.sha256(Path(p).read_bytes()).hexdigest().encode() + b"\n")
+    h.update(json.dumps(options, sort_keys=True).encode())
+    return h.hexdigest()
+
+
+def work_folder(out_dir) -> Path:
+    """Where a batch keeps its finished dies until its output is written:
+    ``.NAME.dies`` beside the output folder ``NAME``."""
+    out = Path(out_dir).absolute()
+    return out.parent / f".{out.name}.dies"
+
+
+def _open_work(work: Path, digest: str) -> dict:
+    """The finished dies of a work folder of this digest (name -> result without files);
+    a folder of another digest, or of none, is emptied first."""
+    stamp = work / "inputs.json"
+    try:
+        same = json.loads(stamp.read_text()).get("digest") == digest
+    except (OSError, ValueError):
+        same = False
+    if not same:
+        shutil.rmtree(work, ignore_errors=True)
+        work.mkdir(parents=True)
+        stamp.write_text(json.dumps({"format": WORK_FORMAT, "digest": digest}) + "\n")
+        return {}
+    done = {}
+    for d in sorted(work.iterdir()):
+        res = d / RESULT_FILE
+        if d.is_dir() and not d.name.startswith(".") and res.is_file():
+            try:
+                done[d.name] = json.loads(res.read_text())
+            except ValueError:      # a result cut short: the die runs again
+                shutil.rmtree(d, ignore_errors=True)
+        elif d.is_dir():            # a die's folder caught mid-write by a killed run
+            shutil.rmtree(d, ignore_errors=True)
+    return done
+
+
+def _keep(work: Path, result: dict) -> dict:
+    """Write a finished die into the work folder atomically (a hidden folder renamed
+    into place whole); returns its result without its files."""
+    name = die_name(result["die_x"], result["die_y"])
+    tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=work))
+    files = result.pop("files")
+    for rel, data in files.items():
+        p = tmp / rel
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_bytes(data)
+    (tmp / RESULT_FILE).write_text(json.dumps(result, indent=2) + "\n")
+    final = work / name
+    if final.exists():
+        shutil.rmtree(final)
+    os.rename(tmp, final)
+    return result
+
+
+def replan_wafer(record, dies, out_tmp, *, plan_path, measured_paths, trim=False,
+                 jobs=1, scheduler=None, progress=None, work=None) -> list:
+    """Re-plan every die of a wafer and write the batch's outputs into ``out_tmp``.
+
+    Parameters
+    ----------
+    record : PlanRecord
+        The plan the wafer was made by.
+    dies : list of (int, int, dict)
+        ``(die_x, die_y, measured)`` (:func:`planner.afterfab.wafer_file.read_wafer`).
+    out_tmp : path
+        The output folder being written (:func:`planner._io.output_folder`'s temporary).
+    plan_path, measured_paths :
+        The inputs, whose bytes key the work folder (:func:`inputs_digest`).
+    trim : bool
+        Trim the dies whose pairs no drive tells apart.
+    jobs, scheduler :
+        As :func:`planner.engine.run_tasks`.
+    progress : callable, optional
+        ``progress(done, total, resumed)`` after each die and once at the start.
+    work : path
+        The work folder (:func:`work_folder` of the output).
+
+    Returns
+    -------
+    list of dict
+        Every die's result (without files), in ``dies``' order.
+    """
+    from planner.engine import run_tasks
+
+    work = Path(work)
+    digest = inputs_digest(plan_path, measured_paths, {"trim": bool(trim),
+                                                       "seed": record.seed})
+    done = _open_work(work, digest)
+    names = [die_name(x, y) for x, y, _ in dies]
+    todo = [(x, y, m) for (x, y, m), n in zip(dies, names) if n not in done]
+    total, resumed = len(dies), len(dies) - len(todo)
+    tick = progress or (lambda done, total, resumed: None)
+    tick(resumed, total, resumed)
+    count = {"n": resumed}
+
+    def keep(_index, result):
+        done[die_name(result["die_x"], result["die_y"])] = _keep(work, result)
+        count["n"] += 1
+        tick(count["n"], total, resumed)
+
+    if todo:
+        import numba
+
+        before = numba.get_num_threads()
+        try:
+            run_tasks(replan_die, make_job(record, trim=trim), todo, jobs=jobs,
+                      scheduler=scheduler, on_result=keep)
+        finally:
+            numba.set_num_threads(before)
+    results = [done[n] for n in names]
+    write_outputs(record, results, work, Path(out_tmp))
+    return results
+
+
+def write_outputs(record, results, work: Path, out: Path) -> None:
+    """The batch's output folder: every die's folder (``dies/die_<x>_<y>/``),
+    ``summary.csv`` (:data:`SUMMARY_COLUMNS`), ``report.md`` and ``wafer_map.png``.
+
+    The dies' folders are moved, not copied, from the work folder, last: a wafer's
+    drive files are ~2 MB and 420 files a die on the default plan, which a copy (and
+    the work folder's removal after it) would write and delete again; a run stopped
+    after the first move has only those dies to redo."""
+    lines = [",".join(SUMMARY_COLUMNS)]
+    for r in results:
+        name = die_name(r["die_x"], r["die_y"])
+        row = {**r, "causes": "; ".join(r["causes"]), "trimmed": " ".join(r["trimmed"]),
+               "folder": f"dies/{name}"}
+        lines.append(",".join(_csv_cell(row[c]) for c in SUMMARY_COLUMNS))
+    (out / "summary.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    from planner.wafer import die_size
+
+    spec = record.spec
+    wafer = spec.fabrication.wafer
+    size = (die_size(spec.array, wafer) if wafer is not None
+            else (spec.array.cols * spec.array.pitch_um * 1e-6,
+                  spec.array.rows * spec.array.pitch_um * 1e-6))
+    size_mm = (size[0] * 1e3, size[1] * 1e3)
+    from planner.wafer_map import plot_wafer_map
+
+    plot_wafer_map([{"die_x": r["die_x"], "die_y": r["die_y"], "outcome": r["outcome"],
+                     "causes": r["causes"]} for r in results], size_mm,
+                   out / "wafer_map.png",
+                   diameter_mm=wafer.diameter_mm if wafer is not None else None,
+                   edge_exclusion_mm=wafer.edge_exclusion_mm if wafer is not None else None,
+                   title=f"{spec.name}: {len(results)} dies re-planned")
+    (out / "report.md").write_text(_report(record, results), encoding="utf-8")
+    dies_dir = out / "dies"
+    dies_dir.mkdir(parents=True, exist_ok=True)
+    for r in results:
+        name = die_name(r["die_x"], r["die_y"])
+        os.rename(work / name, dies_dir / name)
+
+
+def _csv_cell(v) -> str:
+    text = str(v)
+    return f'"{text}"' if ("," in text or '"' in text) else text
+
+
+def counts(results) -> dict:
+    """Outcome -> dies, every outcome listed in order."""
+    outcomes = [r["outcome"] for r in results]
+    return {o: outcomes.count(o) for o in OUTCOMES}
+
+
+def _report(record, results) -> str:
+    n = len(results)
+    c = counts(results)
+    causes = {}
+    for r in results:
+        for k in r["causes"]:
+            causes[k] = causes.get(k, 0) + 1
+    lines = [f"# vibroplan replan: a wafer of {record.spec.name}", "",
+             f"{n} dies re-planned from their measurement, each by the loop a lab runs on a "
+             "chip: the plan's drive checked on the die's as-built models (as designed); "
+             "else its drive re-planned and verified on them (after re-plan); else, with "
+             "--trim, a die whose impacters no drive tells apart trimmed and its drive "
+             "re-planned and verified on the trimmed models (after trim); else scrapped.  "
+             "Each die's files are in dies/die_<x>_<y>/ (plan.json and waveforms/ of the "
+             "drive to play, trim.csv of what to cut; a scrapped die's re-plan in replan/ "
+             "saying what fails); one line per die in summary.csv.", "",
+             "| outcome | dies | fraction |", "|---|---|---|"]
+    lines += [f"| {o} | {c[o]} | {c[o] / n:.3f} |" for o in OUTCOMES]
+    lines += ["", "![wafer map](wafer_map.png)", ""]
+    if causes:
+        lines += ["## Why dies are scrapped", "", "| cause | dies |", "|---|---|"]
+        lines += [f"| {k} | {v} |" for k, v in sorted(causes.items(), key=lambda kv: -kv[1])]
+        lines.append("")
+    lines += ["## Every die", "", "| die (x, y) | outcome | causes | trimmed | checks |",
+              "|---|---|---|---|---|"]
+    for r in results:
+        lines.append(f"| ({r['die_x']}, {r['die_y']}) | {r['outcome']} | "
+                     f"{'; '.join(r['causes']) or '-'} | {' '.join(r['trimmed']) or '-'} | "
+                     f"{r['checks_passed']}/{r['checks']} |")
+    return "\n".join(lines) + "\n"
+

@@ -1,0 +1,79 @@
+"""``vibroplan replan`` of a whole wafer: the dies read, re-planned in batch on Dask,
+the outputs written (:mod:`planner.afterfab.wafer`)."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from planner.cli._common import check_output_folder, output_folder
+
+
+def replan_wafer_command(plan_path, measured, out_dir, *, trim, jobs, scheduler, test_map,
+                         seed, force, quiet):
+    """Read the plan and the wafer's measurement, check the outputs and the workers
+    before any work, re-plan every die (resuming a run that was interrupted) and print
+    the outcome per kind; exit 1 when a die is scrapped."""
+    from pathlib import Path
+
+    from planner._limits import check_jobs, cores
+    from planner.afterfab.stdf import read_test_map
+    from planner.afterfab.wafer import counts, replan_wafer, work_folder
+    from planner.afterfab.wafer_file import read_wafer
+    from planner.engine import check_scheduler
+    from planner.planning.plan_file import read_plan
+
+    if seed is not None:
+        raise click.UsageError("--seed applies to one chip: a wafer's dies are re-planned "
+                               "with the plan's seed (as a yield study re-plans its chips)")
+    jobs = check_jobs(cores() if jobs is None else jobs)
+    plan = read_plan(plan_path)
+    mapping = read_test_map(test_map, plan.impacter_ids) if test_map is not None else None
+    dies = read_wafer(measured, plan.impacter_ids, plan.design_natural_frequency_hz,
+                      test_map=mapping)
+    measured = Path(measured)
+    files = (sorted(p for p in measured.iterdir() if p.suffix.lower() == ".csv")
+             if measured.is_dir() else [measured])
+    inputs = [plan.path, *files] + ([test_map] if test_map is not None else [])
+    check_output_folder(out_dir, command="replan", inputs=inputs, force=force)
+    if scheduler:
+        check_scheduler(scheduler)
+    work = work_folder(out_dir)
+
+    def progress(done, total, resumed):
+        if quiet:
+            return
+        if done == resumed and resumed:
+            click.echo(f"resuming: {resumed} of {total} dies already re-planned "
+                       f"({work})", err=True)
+        elif done > resumed:
+            click.echo(f"  die {done}/{total}", err=True)
+
+    try:
+        with output_folder(out_dir, command="replan", inputs=inputs, force=force) as tmp:
+            results = replan_wafer(plan, dies, tmp, plan_path=plan.path,
+                                   measured_paths=files + ([test_map] if test_map else []),
+                                   trim=trim, jobs=jobs, scheduler=scheduler,
+                                   progress=progress, work=work)
+    except KeyboardInterrupt:
+        kept = sum(1 for p in work.glob("die_*") if (p / "result.json").is_file()) \
+            if work.is_dir() else 0
+        click.echo(f"{kept} finished dies kept in {work}: run the same command again to "
+                   "resume", err=True)
+        raise
+    import shutil
+
+    shutil.rmtree(work, ignore_errors=True)
+    c = counts(results)
+    click.echo(f"{plan.spec.name}: {len(results)} dies: " + ", ".join(
+        f"{k} {v}" for k, v in c.items()) + f"; wrote {out_dir}/ (see {out_dir}/report.md, "
+        f"{out_dir}/summary.csv)")
+    if c["scrapped"]:
+        causes = {}
+        for r in results:
+            for k in r["causes"]:
+                causes[k] = causes.get(k, 0) + 1
+        click.echo("scrapped: " + ", ".join(f"{k} ({v} dies)" for k, v in causes.items()),
+                   err=True)
+        sys.exit(1)
