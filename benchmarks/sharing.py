@@ -101,10 +101,11 @@ def _digest(path):
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
 
 
-def run_plans(code, config, work, seeds, *, jobs, tag):
+def run_plans(code, config, work, seeds, *, jobs, tag, env=None):
     """Plans of ``seeds`` started at once (one seed: alone); returns one row per plan
-    (stage times, wall time, plan.json's digest) and the foreign cores of the run."""
-    env = dict(os.environ, PYTHONPATH=str(code))
+    (stage times, wall time, plan.json's digest) and the foreign cores of the run.
+    ``env``: variables set for the plans (a threading layer, an OpenMP wait policy)."""
+    env = dict(os.environ, **(env or {}), PYTHONPATH=str(code))
     busy0, kids0, own0 = _busy_cpu_s(), _children_cpu_s(), time.process_time()
     t0 = time.perf_counter()
     procs = []
@@ -130,20 +131,20 @@ def run_plans(code, config, work, seeds, *, jobs, tag):
     return rows, foreign
 
 
-def measure(code, config, seeds, *, repeat, jobs, label, idle_cores, retries):
+def measure(code, config, seeds, *, repeat, jobs, label, idle_cores, retries, env=None):
     """Rows of one code version: every seed alone, then all of them at once, ``repeat``
     times."""
     rows = []
     with tempfile.TemporaryDirectory(prefix="sharing_") as work:
         # numba's cache of this checkout warm (not timed)
-        run_plans(code, "row_assembly", work, [seeds[0]], jobs=jobs, tag="warm")
+        run_plans(code, "row_assembly", work, [seeds[0]], jobs=jobs, tag="warm", env=env)
         for r in range(repeat):
             for mode, group in [*(("alone", [s]) for s in seeds), ("shared", list(seeds))]:
                 for attempt in range(retries + 1):
                     waited, idle = wait_idle(idle_cores)
                     load = os.getloadavg()[0]
                     got, foreign = run_plans(code, config, work, group, jobs=jobs,
-                                             tag=f"{mode}{r}")
+                                             tag=f"{mode}{r}", env=env)
                     disturbed = not idle or foreign > idle_cores
                     if not disturbed or attempt == retries:
                         break
@@ -189,6 +190,9 @@ def main(argv=None):
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--jobs", type=int, help="the plans' --jobs (default theirs: every core)")
+    ap.add_argument("--env", action="append", default=[], metavar="NAME=VALUE",
+                    help="set for the plans, named in the label (e.g. "
+                         "NUMBA_THREADING_LAYER=workqueue, OMP_WAIT_POLICY=PASSIVE)")
     ap.add_argument("--idle-cores", type=float, default=0.25,
                     help="other processes' use under which the machine counts as idle")
     ap.add_argument("--retries", type=int, default=2,
@@ -202,8 +206,10 @@ def main(argv=None):
     rows = []
     for csv in args.include:
         rows += pd.read_csv(csv).to_dict("records")
+    env = dict(e.split("=", 1) for e in args.env)
     kw = dict(repeat=args.repeat, jobs=args.jobs, idle_cores=args.idle_cores,
-              retries=args.retries)
+              retries=args.retries, env=env)
+    with_env = "".join(f" {k}={v}" for k, v in env.items())
     load0 = os.getloadavg()
     if args.before:
         tmp = Path(tempfile.mkdtemp(prefix="sharing_before_"))
@@ -211,14 +217,14 @@ def main(argv=None):
         subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(wt),
                         args.before], check=True, capture_output=True)
         try:
-            rows += measure(wt, args.config, args.seeds, label=f"before ({args.before})",
-                            **kw)
+            rows += measure(wt, args.config, args.seeds,
+                            label=f"before ({args.before}){with_env}", **kw)
         finally:
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(wt)],
                            capture_output=True)
             shutil.rmtree(tmp, ignore_errors=True)
     if not args.skip_after:
-        rows += measure(ROOT, args.config, args.seeds, label="after", **kw)
+        rows += measure(ROOT, args.config, args.seeds, label=f"after{with_env}", **kw)
     load1 = os.getloadavg()
     runs = pd.DataFrame(rows)
     table = stage_table(rows)

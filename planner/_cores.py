@@ -20,8 +20,11 @@ the others and of the thread that runs it (no reduction across runs), so plan.js
 the same on any number of threads.
 
 :func:`measured_free_cores` measures the free cores with a sampler thread (every
-:data:`SAMPLE_PERIOD_S`, the CPU time of the allowed cores minus this process's own, over
-the last :data:`SAMPLE_WINDOW_S`), so that a stage starts without waiting for a sample.
+:data:`SAMPLE_PERIOD_S`, the CPU time of the allowed cores minus that of this process and
+its worker processes, over the last :data:`SAMPLE_WINDOW_S`), so that a stage starts
+without waiting for a sample.  The plan's own workers count as its own: they have just
+finished the designs when the verification starts, and the last of them would otherwise
+look like another job's.
 """
 
 from __future__ import annotations
@@ -41,6 +44,9 @@ SAMPLE_PERIOD_S = 0.05
 #: the 10 ms ticks of the kernel's CPU accounting to resolve a tenth of a core on 2 cores,
 #: short enough that a stage starts from what the machine does now.
 SAMPLE_WINDOW_S = 0.25
+#: Seconds between two looks for this process's worker processes (a look reads every
+#: process's parent, ~4 ms on a machine of 100 processes; the plan starts its pool once).
+CHILDREN_REFRESH_S = 2.0
 #: A core counts as free when the other processes leave at least this fraction of it
 #: idle: a job's busy process takes a whole core (free 1.0 of 2 leaves one thread), stray
 #: daemons take a few percent (free 1.9 of 2 keeps two).
@@ -102,12 +108,18 @@ def stage_threads(free_cores):
         numba.set_num_threads(before)
 
 
-def _cpu_sampler(allowed):
+def _cpu_sampler(allowed, refresh_s=CHILDREN_REFRESH_S):
     """A function of no arguments giving (time [s], CPU time spent on the cores in
-    ``allowed`` [s], CPU time of this process [s]), from ``psutil``."""
+    ``allowed`` [s], {process: CPU time [s]} of this process and its descendants), from
+    ``psutil``; the descendants are looked for every ``refresh_s`` seconds."""
     import psutil
 
     me = psutil.Process()
+    found = {"at": -math.inf, "kids": {}}
+
+    def cpu(p):
+        t = p.cpu_times()
+        return t.user + t.system
 
     def sample():
         per_cpu = psutil.cpu_times(percpu=True)
@@ -118,8 +130,19 @@ def _cpu_sampler(allowed):
                 # time a core ran some process (iowait and steal are no process's)
                 busy += (c.user + c.system + getattr(c, "nice", 0.0)
                          + getattr(c, "irq", 0.0) + getattr(c, "softirq", 0.0))
-        own = me.cpu_times()
-        return time.monotonic(), busy, own.user + own.system
+        now = time.monotonic()
+        if now - found["at"] >= refresh_s:
+            kids = {}
+            for p in me.children(recursive=True):
+                with contextlib.suppress(psutil.Error):
+                    # the start time tells a reused process id from the process it was
+                    kids[(p.pid, p.create_time())] = p
+            found.update(at=now, kids=kids)
+        own = {"self": cpu(me)}
+        for key, p in found["kids"].items():
+            with contextlib.suppress(psutil.Error):   # a worker that has ended
+                own[key] = cpu(p)
+        return now, busy, own
 
     return sample
 
@@ -176,23 +199,28 @@ def free_from(first, last, n_cores):
     """Cores the other processes left free between two samples of :func:`_cpu_sampler`
     [cores], in [0, ``n_cores``]; NaN when the samples are less than a period apart.
 
+    A sample is (time [s], CPU time of the cores [s], {process: its CPU time [s]} of this
+    process and its workers).  A process seen in one sample only (started or ended
+    between them) is not counted as this run's: its time there counts as another's.
+
     Examples
     --------
-    >>> free_from((0.0, 10.0, 5.0), (1.0, 11.5, 5.9), 2)     # others used 0.6 core
+    >>> free_from((0.0, 10.0, {"self": 5.0}), (1.0, 11.5, {"self": 5.9}), 2)  # others 0.6
     1.4
     """
     dt = last[0] - first[0]
     if dt <= 0.0:
         return float("nan")
-    others = ((last[1] - first[1]) - (last[2] - first[2])) / dt
+    own = sum(t - first[2][k] for k, t in last[2].items() if k in first[2])
+    others = ((last[1] - first[1]) - own) / dt
     return min(float(n_cores), max(0.0, round(n_cores - others, 6)))
 
 
 @contextlib.contextmanager
 def measured_free_cores(*, period_s=SAMPLE_PERIOD_S, window_s=SAMPLE_WINDOW_S, sample=None):
     """Yields a function of no arguments that gives the cores of this process's affinity
-    that the other processes (this run's own worker processes included) left free over
-    the last ``window_s`` seconds [cores].
+    that the other processes (not this one nor its workers) left free over the last
+    ``window_s`` seconds [cores].
 
     Samples every ``period_s`` seconds in a daemon thread, stopped when the block ends.
     Where the CPU times cannot be read (``psutil`` refused, at the start or later), the
@@ -201,8 +229,9 @@ def measured_free_cores(*, period_s=SAMPLE_PERIOD_S, window_s=SAMPLE_WINDOW_S, s
     Parameters
     ----------
     sample : callable, optional
-        Returns (time [s], busy CPU time of the allowed cores [s], this process's CPU time
-        [s]); default from ``psutil`` (tests inject their own).
+        Returns (time [s], busy CPU time of the allowed cores [s], {process: CPU time
+        [s]} of this process and its workers); default from ``psutil`` (tests inject
+        their own).
     """
     allowed = _allowed_cores()
     try:

@@ -76,14 +76,23 @@ def test_stage_threads_without_a_probe_keeps_the_callers_count():
 
 def test_free_cores_are_the_cores_left_by_the_others():
     # 2 cores; over 2 s the cores ran 3 s of CPU, 1 s of it this process's: others 1 core
-    assert free_from((10.0, 100.0, 20.0), (12.0, 103.0, 21.0), 2) == pytest.approx(1.0)
+    assert free_from((10.0, 100.0, {"self": 20.0}), (12.0, 103.0, {"self": 21.0}),
+                     2) == pytest.approx(1.0)
     # this process alone on the machine: both cores free, whatever it used itself
-    assert free_from((0.0, 5.0, 5.0), (1.0, 7.0, 7.0), 2) == pytest.approx(2.0)
+    assert free_from((0.0, 5.0, {"self": 5.0}), (1.0, 7.0, {"self": 7.0}),
+                     2) == pytest.approx(2.0)
+    # its worker processes are its own: the plan's last design is no other job
+    assert free_from((0.0, 5.0, {"self": 1.0, 7: 3.0}), (1.0, 6.0, {"self": 1.0, 7: 4.0}),
+                     2) == pytest.approx(2.0)
+    # a process in one sample only is not counted as its own (it may be a new process
+    # with a reused id): its time counts as another's
+    assert free_from((0.0, 5.0, {"self": 1.0}), (1.0, 6.0, {"self": 1.0, 8: 1.0}),
+                     2) == pytest.approx(1.0)
     # clamped to [0, cores] (ticks of the accounting can overshoot a little)
-    assert free_from((0.0, 0.0, 0.0), (1.0, 2.3, 0.0), 2) == 0.0
-    assert free_from((0.0, 0.0, 1.0), (1.0, 0.0, 1.2), 2) == 2.0
+    assert free_from((0.0, 0.0, {"self": 0.0}), (1.0, 2.3, {"self": 0.0}), 2) == 0.0
+    assert free_from((0.0, 0.0, {"self": 1.0}), (1.0, 0.0, {"self": 1.2}), 2) == 2.0
     # one sample only: unknown
-    assert math.isnan(free_from((1.0, 2.0, 3.0), (1.0, 2.0, 3.0), 2))
+    assert math.isnan(free_from((1.0, 2.0, {}), (1.0, 2.0, {}), 2))
 
 
 def _until(cond, timeout_s=5.0):
@@ -102,7 +111,7 @@ def test_measured_free_cores_from_injected_samples():
     def sample():
         # every sample 1 s later: the cores ran 1.5 s, this process 0.5 s of it
         k = next(ticks)
-        return float(k), 1.5 * k, 0.5 * k
+        return float(k), 1.5 * k, {"self": 0.5 * k}
 
     with measured_free_cores(period_s=0.001, window_s=0.003, sample=sample) as free:
         assert _until(lambda: not math.isnan(free()))
@@ -127,7 +136,7 @@ def test_a_sampler_that_fails_later_gives_no_stale_answer():
         calls.append(1)
         if len(calls) > 3:
             raise OSError("the accounting went away")
-        return float(len(calls)), 0.0, 0.0
+        return float(len(calls)), 0.0, {}
 
     with measured_free_cores(period_s=0.001, window_s=0.01, sample=sample) as free:
         # three samples give an answer; the failed fourth leaves none (not the old one)
@@ -140,6 +149,21 @@ def test_measured_free_cores_reads_this_machine():
     with measured_free_cores(period_s=0.01, window_s=0.05) as free:
         assert _until(lambda: not math.isnan(free()))
         assert 0.0 <= free() <= len(_allowed_cores())
+
+
+def test_the_sampler_counts_this_processs_workers_as_its_own():
+    import subprocess
+    import sys
+
+    from planner._cores import _allowed_cores, _cpu_sampler
+
+    sample = _cpu_sampler(_allowed_cores(), refresh_s=0.0)
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        assert _until(lambda: any(k != "self" and k[0] == child.pid for k in sample()[2]))
+    finally:
+        child.kill()
+        child.wait()
 
 
 @needs_two_threads
