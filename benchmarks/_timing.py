@@ -11,12 +11,15 @@ from __future__ import annotations
 
 import os
 import platform
+import re
 import time
 from dataclasses import dataclass
 
 #: Default shortest run [s] and number of runs.
 MIN_TIME = 0.2
 REPEAT = 7
+#: The stage times a plan prints (``vibroplan plan``'s last lines).
+TIME_LINE = re.compile(r"^time: (.*)$", re.M)
 
 
 @dataclass(frozen=True)
@@ -87,3 +90,15 @@ def machine():
         load = (float("nan"),) * 3
     return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(),
             "load": load}
+
+
+def plan_stages(text):
+    """{stage: seconds} from the ``time:`` line of a plan's output ({} without one)."""
+    m = TIME_LINE.search(text)
+    if not m:
+        return {}
+    out = {}
+    for part in m.group(1).split(","):
+        name, value = part.strip().rsplit(" ", 2)[:2]
+        out[name] = float(value)
+    return out

@@ -32,7 +32,6 @@ from __future__ import annotations
 import argparse
 import collections
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -45,23 +44,10 @@ import pandas as pd
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(HERE))
-from _timing import machine  # noqa: E402
+from _timing import machine, plan_stages  # noqa: E402
 
 CONFIGS = {"default": None, "row_assembly": "configs/row_assembly.yaml",
            "array_7x7": "configs/array_7x7.yaml"}
-TIME_LINE = re.compile(r"^time: (.*)$", re.M)
-
-
-def _stages(text):
-    """{stage: seconds} from the plan's ``time:`` line."""
-    m = TIME_LINE.search(text)
-    if not m:
-        return {}
-    out = {}
-    for part in m.group(1).split(","):
-        name, value = part.strip().rsplit(" ", 2)[:2]
-        out[name] = float(value)
-    return out
 
 
 def _plan(code, config, work, cache, *, seed, jobs, numba_cache=None):
@@ -81,7 +67,7 @@ def _plan(code, config, work, cache, *, seed, jobs, numba_cache=None):
     text = proc.stdout + proc.stderr
     if proc.returncode not in (0, 1):
         raise RuntimeError(f"{' '.join(cmd)} exited {proc.returncode}:\n{text[-2000:]}")
-    return wall, _stages(text), proc.returncode == 0
+    return wall, plan_stages(text), proc.returncode == 0
 
 
 def measure(code, configs, *, seed, jobs, label):

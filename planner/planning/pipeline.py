@@ -9,11 +9,13 @@ dwells) -> coupling -> manufacturability -> record.  Data flows one way; every s
 
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass
 
 import pandas as pd
 
+from planner._cores import measured_free_cores, stage_threads
 from planner.assign import Assignment, assign
 from planner.errors import PlanningError
 from planner.nodes import device_key
@@ -142,9 +144,11 @@ class _Round:
 
 
 def _design_round(settings, steps, assignment, clock, tick, design_cache, draws=None,
-                  **design_kw):
+                  free_cores=None, **design_kw):
     """Drives, designs, burst sizing, gates and the per-step verification for one
-    assignment (``draws``: step key -> phase draw, :func:`synthesize_steps`)."""
+    assignment (``draws``: step key -> phase draw, :func:`synthesize_steps`;
+    ``free_cores``: the probe the verification's thread count is chosen from,
+    :func:`planner._cores.stage_threads`)."""
     # the drives depend on the frequencies only, so they come before the designs,
     # which must be silent under the summed drive of every step they sit out
     synthesized = clock.timed("drive", synthesize_steps, settings, steps, assignment,
@@ -157,28 +161,31 @@ def _design_round(settings, steps, assignment, clock, tick, design_cache, draws=
     impacters = {n: d.impacter for n, d in designs.items()}
     devices = sorted({n.device for n in impacters}, key=device_key)
     sliders = {d: settings.sliders[d] for d in devices}
-    # steps that give travel_um get their burst from the predicted speed
-    run_steps, sizing = clock.timed("verify", size_bursts, settings, steps, waveforms,
-                                    impacters, sliders)
-    # targets steps play a gated burst, found from the carried state of their scene;
-    # its tones play one after the other, so at their amplitudes as synthesised, not
-    # as lowered for the peak of their whole sum
-    played, gating = waveforms, {}
-    targeted = {st.key: synthesized[st.key] for st in run_steps if st.targets_m is not None}
-    if targeted:
-        tick("targets", total=len(targeted))
-        run_steps, played, gating = clock.timed(
-            "targets", place_targets, settings, run_steps, {**waveforms, **targeted},
-            assignment.frequencies, impacters, sliders, progress=lambda k: tick("targets", k))
-    tick("verify", total=len(steps))
-    ts = time.perf_counter()
-    ver_rows, failures = [], []
-    for rows, fails in check_steps(settings, run_steps, played, impacters, sliders,
-                                   progress=lambda k: tick("verify", k),
-                                   scheduler=design_kw.get("scheduler")):
-        ver_rows += rows
-        failures += fails
-    clock.add("verify", ts)
+    with stage_threads(free_cores):
+        # steps that give travel_um get their burst from the predicted speed
+        run_steps, sizing = clock.timed("verify", size_bursts, settings, steps, waveforms,
+                                        impacters, sliders)
+        # targets steps play a gated burst, found from the carried state of their scene;
+        # its tones play one after the other, so at their amplitudes as synthesised, not
+        # as lowered for the peak of their whole sum
+        played, gating = waveforms, {}
+        targeted = {st.key: synthesized[st.key] for st in run_steps
+                    if st.targets_m is not None}
+        if targeted:
+            tick("targets", total=len(targeted))
+            run_steps, played, gating = clock.timed(
+                "targets", place_targets, settings, run_steps, {**waveforms, **targeted},
+                assignment.frequencies, impacters, sliders,
+                progress=lambda k: tick("targets", k))
+        tick("verify", total=len(steps))
+        ts = time.perf_counter()
+        ver_rows, failures = [], []
+        for rows, fails in check_steps(settings, run_steps, played, impacters, sliders,
+                                       progress=lambda k: tick("verify", k),
+                                       scheduler=design_kw.get("scheduler")):
+            ver_rows += rows
+            failures += fails
+        clock.add("verify", ts)
     return _Round(assignment, waveforms, played, drive_notes, gating, designs, impacters,
                   sliders, run_steps, sizing, ver_rows, failures)
 
@@ -203,7 +210,7 @@ def _design_stats(designs, before):
     return out
 
 
-def _repair_rounds(settings, clock, tick, on_assignment, design_kw, first):
+def _repair_rounds(settings, clock, tick, on_assignment, design_kw, first, free_cores=None):
     """The assigner and the designer in one loop: assign, design and verify, then change
     what the failures point at and repeat, up to ``settings.repair_rounds`` times.
 
@@ -241,7 +248,7 @@ def _repair_rounds(settings, clock, tick, on_assignment, design_kw, first):
     for round_ in range(settings.repair_rounds + 1):
         got = _design_round(settings, steps, assignment, clock, tick, design_cache,
                             draws=dict(draws), reseed=dict(reseed), previous=previous,
-                            **design_kw)
+                            free_cores=free_cores, **design_kw)
         failed_rows = sum(1 for r in got.ver_rows if not r["passed"])
         infeasible = sorted(n for n, d in got.designs.items() if not d.feasible)
         entry = {"round": round_, "span": assignment.span, "failures": failed_rows,
@@ -306,7 +313,7 @@ def _repair_rounds(settings, clock, tick, on_assignment, design_kw, first):
 
 
 def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings | None = None,
-             on_assignment=None, scheduler=None, cache_dir=None) -> Plan:
+             on_assignment=None, scheduler=None, cache_dir=None, free_cores=None) -> Plan:
     """Run every stage; returns a :class:`Plan` (files are written by :func:`plan`).
 
     ``loaded``: a :class:`~planner.spec.LoadedSpec`; ``settings`` (optional) its
@@ -317,7 +324,12 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     to run the designs and the verification steps on (without it, the designs run in
     ``jobs`` local worker processes and the steps in this process).  ``cache_dir``: the
     on-disk design cache's folder (:class:`~planner.planning.design_store.DesignStore`;
-    None: designs are cached for this run only).
+    None: designs are cached for this run only).  ``free_cores``: a function of no
+    arguments giving the cores other processes leave free; the stages that run numba's
+    parallel kernels in this process (verification, scenes and coupling,
+    manufacturability) take their thread count from it when they start
+    (:func:`planner._cores.stage_threads`; default measured,
+    :func:`planner._cores.measured_free_cores`).  It changes no result, only the time.
     """
     if settings is None:
         settings = resolve_settings(loaded, seed)
@@ -325,26 +337,27 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     clock = _Clock()
     store = DesignStore(cache_dir) if cache_dir is not None else None
     jobs = max(1, int(jobs or 1))
-    with _plan_pool(jobs, scheduler) as pool:
-        # what a design can serve, the channels on it, and how far apart they must be
-        # (the stage's time includes the first assignment's)
-        _, first = clock.timed("reach", measure_reach, settings, jobs=jobs,
-                               scheduler=scheduler, pool=pool, store=store, progress=tick)
-        kept, rounds, designed = _repair_rounds(
-            settings, clock, tick, on_assignment,
-            dict(jobs=jobs, scheduler=scheduler, store=store, pool=pool), first)
-    cache = (None if store is None else
-             {"path": str(store.path), "read": store.hits, "written": store.writes,
-              "designed": designed})
-    return _finish(settings, kept, rounds, clock, scheduler, cache)
+    with (contextlib.nullcontext(free_cores) if free_cores is not None
+          else measured_free_cores()) as free:
+        with _plan_pool(jobs, scheduler) as pool:
+            # what a design can serve, the channels on it, and how far apart they must
+            # be (the stage's time includes the first assignment's)
+            _, first = clock.timed("reach", measure_reach, settings, jobs=jobs,
+                                   scheduler=scheduler, pool=pool, store=store,
+                                   progress=tick)
+            kept, rounds, designed = _repair_rounds(
+                settings, clock, tick, on_assignment,
+                dict(jobs=jobs, scheduler=scheduler, store=store, pool=pool), first, free)
+        cache = (None if store is None else
+                 {"path": str(store.path), "read": store.hits, "written": store.writes,
+                  "designed": designed})
+        return _finish(settings, kept, rounds, clock, scheduler, cache, free)
 
 
 def _plan_pool(jobs, scheduler):
     """The plan's local worker pool (None: serial, or a Dask cluster), kept over every
     repair round; its first worker compiles (or loads) the solver's kernels while this
     process assigns the channels and synthesises the drives (:mod:`model.warmup`)."""
-    import contextlib
-
     if jobs <= 1 or scheduler:
         return contextlib.nullcontext(None)
     from model.warmup import compile_kernels
@@ -353,26 +366,29 @@ def _plan_pool(jobs, scheduler):
     return warm_pool(jobs, compile_kernels)
 
 
-def _finish(settings, kept: _Round, rounds, clock, scheduler, design_cache) -> Plan:
+def _finish(settings, kept: _Round, rounds, clock, scheduler, design_cache,
+            free_cores=None) -> Plan:
     """The kept round's scenes (with the motion repair), coupling matrix,
     manufacturability and record, as a :class:`Plan` (``design_cache``: its
-    ``design_cache``)."""
+    ``design_cache``; ``free_cores``: as :func:`run_plan`'s)."""
     ts = time.perf_counter()
-    # the scenes carry every impacter's and slider's state from step to step, each step
-    # followed by its settle dwell; what they find counts in the verification, and the
-    # motion repair acts on it (shorter bursts, longer dwells)
-    (run_steps, ver_rows, failures, scene_rows, motion_repairs,
-     step_settle) = scenes_and_motion(settings, kept.run_steps, kept.played, kept.impacters,
-                                      kept.sliders, kept.ver_rows, kept.failures,
-                                      scheduler=scheduler)
-    assignment, designs = kept.assignment, kept.designs
-    tones = sorted(set(assignment.frequencies.values()))
-    coupling = coupling_matrix(kept.impacters, tones, settings, settings.single_step_s)
+    with stage_threads(free_cores):
+        # the scenes carry every impacter's and slider's state from step to step, each
+        # step followed by its settle dwell; what they find counts in the verification,
+        # and the motion repair acts on it (shorter bursts, longer dwells)
+        (run_steps, ver_rows, failures, scene_rows, motion_repairs,
+         step_settle) = scenes_and_motion(settings, kept.run_steps, kept.played,
+                                          kept.impacters, kept.sliders, kept.ver_rows,
+                                          kept.failures, scheduler=scheduler)
+        assignment, designs = kept.assignment, kept.designs
+        tones = sorted(set(assignment.frequencies.values()))
+        coupling = coupling_matrix(kept.impacters, tones, settings, settings.single_step_s)
     clock.timings["scenes_coupling"] = time.perf_counter() - ts
     # what a fabricated chip does to these designs: sensitivities, separations and the
     # predicted collision-free yield under the spec's tolerances
-    manufacturability = clock.timed("manufacturability", assess, settings, run_steps,
-                                    assignment, designs, kept.waveforms)
+    with stage_threads(free_cores):
+        manufacturability = clock.timed("manufacturability", assess, settings, run_steps,
+                                        assignment, designs, kept.waveforms)
     ver = pd.DataFrame(ver_rows)
     problems = design_problems(designs, settings, rounds)
     # an infeasible design fails the plan even if the steps happen to verify: it was
