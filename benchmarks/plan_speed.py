@@ -109,7 +109,7 @@ def profile_designs(code, tasks, *, seed):
     from planner.designer import design_impacter
     from planner.designer.runs import Ensemble
     from planner.planning.design_store import DesignStore, task_digest
-    from planner.spec import default_spec_path, load_spec
+    from planner.arrayspec import default_spec_path, load_spec
 
     with tempfile.TemporaryDirectory(prefix="plan_speed_prof_") as work:
         cache = Path(work) / "designs"

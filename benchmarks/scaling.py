@@ -67,7 +67,7 @@ def run_case(case, jobs):
     from planner.planning import run_plan
     from planner.planning.estimate import estimate
     from planner.planning.settings import resolve_settings
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
 
     numba.set_num_threads(jobs)
     loaded = load_spec(spec_text(case), source=case)

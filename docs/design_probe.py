@@ -20,7 +20,7 @@ from planner.nodes import Node
 from planner.planning.exposure import driven_ensembles, idle_ensembles, played_tones
 from planner.planning.drives import drive_of, limit_acceleration, synthesize_steps
 from planner.planning.settings import resolve_settings
-from planner.spec import load_spec
+from planner.arrayspec import load_spec
 
 
 def main():

@@ -23,7 +23,7 @@ from planner.gating import burst_peaks, gate
 from planner.planning.motion import rest_state
 from planner.planning.settings import G0, resolve_settings
 from planner.planning.targets import RAMP_S, _Simulation
-from planner.spec import ArraySpec, LoadedSpec, resolve_steps
+from planner.arrayspec import ArraySpec, LoadedSpec, resolve_steps
 from planner.synthesis import synthesize
 
 WINDOW_S = 0.03

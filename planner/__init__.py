@@ -25,8 +25,8 @@ _API = {
     "export": "planner.exporters",
     "plan": "planner.planning",
     "Plan": "planner.planning",
-    "load_spec": "planner.spec",
-    "ArraySpec": "planner.spec",
+    "load_spec": "planner.arrayspec",
+    "ArraySpec": "planner.arrayspec",
     "SpecError": "planner.errors",
 }
 

@@ -33,7 +33,7 @@ from planner.intervals import z_for
 from planner.nodes import DIRECTIONS, Node, device_key
 from planner.placement import colour_blocks, neighbour_coloring
 from planner.separation import guard_onset_hz, position_grid
-from planner.spec import LoadedSpec, Step
+from planner.arrayspec import LoadedSpec, Step
 
 
 def node_order(node: Node):
@@ -446,9 +446,9 @@ def assign(settings, steps, *, separation=None, pair_separation=None, method="au
 
 
 def _placement(settings) -> str:
-    """``drive.channels.placement`` of the settings' spec (``coloring`` without one)."""
-    spec = getattr(settings, "chip_spec", None)
-    return spec.drive.channels.placement if spec is not None else "coloring"
+    """``drive.channels.placement`` (:attr:`Settings.channel_placement`); ``coloring`` for
+    a settings-like object without one."""
+    return settings.channel_placement if hasattr(settings, "channel_placement") else "coloring"
 
 
 #: At most this many blocks are permuted (their orders times per-block mirrors).

@@ -5,7 +5,7 @@ the impacters (shared defaults in ``impacter``, per-pair overrides in ``forward`
 and ``backward``), the slider, the drive convention and simulation defaults.
 Every key carries its unit (``gap_um``, ``viscosity_mpa_s``, ``static_friction_un``);
 conversion to SI happens here and nowhere else.  The array spec
-(:mod:`planner.spec`) reuses these sections.
+(:mod:`planner.arrayspec`) reuses these sections.
 
 Example (``configs/paper_fig7.yaml``)::
 

@@ -48,7 +48,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from model import Impacter, Slider, pair_of
-from planner.spec import ArraySpec, FabricationSpec
+from planner.arrayspec import ArraySpec, FabricationSpec
 
 UM = 1e-6
 #: The five errors, in the order of their draws (columns of the normal arrays).
@@ -65,7 +65,7 @@ ERROR_UNITS = ("um", "um", "um", "%", "%")
 class Tolerances:
     """The fabrication tolerance model as numbers: one sigma per error and level.
 
-    The spec's ``fabrication:`` section (:class:`planner.spec.FabricationSpec`, a
+    The spec's ``fabrication:`` section (:class:`planner.arrayspec.FabricationSpec`, a
     pydantic model with a field per error) turned once, by :meth:`from_spec`, into the
     arrays every computation with the tolerances reads: a sampled chip
     (:func:`sample_chip`), an impacter's frequency sigma
@@ -93,7 +93,7 @@ class Tolerances:
 
     Examples
     --------
-    >>> from planner.spec import FabricationSpec
+    >>> from planner.arrayspec import FabricationSpec
     >>> t = Tolerances.from_spec(FabricationSpec.model_validate(
     ...     {"line_width_um": {"die": 0.05, "device": 0.02}}))
     >>> [float(x) for x in t.die], t.zero
@@ -270,17 +270,6 @@ def _slider(spec: ArraySpec, device: str, dw: float, dt: float) -> Slider:
         dynamic_friction=cfg.dynamic_friction_un * UM)
 
 
-# planner.afterfab.as_built reads the sigmas through these two until it takes
-# Tolerances.from_spec(design.spec.fabrication).variances()
-def _sigmas(fab: FabricationSpec, scale: float):
-    tol = Tolerances.from_spec(fab).scaled(scale)
-    return tol.die, tol.device
-
-
-def _pair_sigmas(fab: FabricationSpec, scale: float):
-    return Tolerances.from_spec(fab).scaled(scale).pair
-
-
 @dataclass
 class Chip:
     """One sampled chip: as-built impacters (node id -> Impacter), sliders (device ->
@@ -301,7 +290,7 @@ def sample_chip(design: ChipDesign, fab: Tolerances | FabricationSpec,
     ----------
     design : ChipDesign
         The plan's nominal designs (:func:`design_from_plan`).
-    fab : Tolerances or planner.spec.FabricationSpec
+    fab : Tolerances or planner.arrayspec.FabricationSpec
         The tolerance model (a spec's section is read by :meth:`Tolerances.from_spec`).
     rng : numpy.random.Generator
         The chip's own generator (seeded from the run's seed and the chip's index).
@@ -372,7 +361,7 @@ def frequency_sensitivities(spec: ArraySpec, node: NodeDesign, which=None) -> np
 
     Examples
     --------
-    >>> from planner.spec import ArraySpec
+    >>> from planner.arrayspec import ArraySpec
     >>> node = NodeDesign("A1.forward", "A1", "forward", 3e-8, 5e-6, 4e-4, 4e-6, 0.785, 0.5)
     >>> [round(float(x), 4) for x in frequency_sensitivities(ArraySpec(), node)]
     [0.2876, 0.0, 0.0, 0.005, 0.01]

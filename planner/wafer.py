@@ -93,7 +93,7 @@ class WaferLayout:
 
 def die_size(array, wafer) -> tuple[float, float]:
     """A die's width and height [m]: ``wafer.die_size_mm``, else the array's cols x pitch
-    by rows x pitch (``array`` an :class:`~planner.spec.schema.ArrayConfig`)."""
+    by rows x pitch (``array`` an :class:`~planner.arrayspec.schema.ArrayConfig`)."""
     if wafer.die_size_mm is not None:
         return wafer.die_size_mm[0] * MM, wafer.die_size_mm[1] * MM
     return array.cols * array.pitch_um * UM, array.rows * array.pitch_um * UM
@@ -101,8 +101,8 @@ def die_size(array, wafer) -> tuple[float, float]:
 
 @functools.lru_cache(maxsize=16)
 def wafer_layout(array, wafer) -> WaferLayout:
-    """The dies of a wafer ``wafer`` (:class:`~planner.spec.WaferSpec`) of dies holding
-    ``array`` (the spec's :class:`~planner.spec.schema.ArrayConfig`).
+    """The dies of a wafer ``wafer`` (:class:`~planner.arrayspec.WaferSpec`) of dies holding
+    ``array`` (the spec's :class:`~planner.arrayspec.schema.ArrayConfig`).
 
     Raises
     ------
@@ -112,7 +112,7 @@ def wafer_layout(array, wafer) -> WaferLayout:
 
     Examples
     --------
-    >>> from planner.spec import ArraySpec, WaferSpec
+    >>> from planner.arrayspec import ArraySpec, WaferSpec
     >>> spec = ArraySpec.model_validate({"array": {"rows": 5, "cols": 5, "pitch_um": 2000.0}})
     >>> wafer_layout(spec.array, WaferSpec(diameter_mm=100.0)).count
     49

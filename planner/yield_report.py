@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from planner.nodes import Node
-from planner.spec import ArraySpec
+from planner.arrayspec import ArraySpec
 from planner.yield_ import scale_key
 
 

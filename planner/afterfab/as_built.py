@@ -43,8 +43,15 @@ import numpy as np
 from scipy import optimize
 
 import model
-from planner.fabrication import (ERRORS, ChipDesign, _impacter, _pair_sigmas, _sigmas,
-                                 _slider, frequency_sensitivities, nominal_impacter)
+from planner.fabrication import (
+    ERRORS,
+    ChipDesign,
+    Tolerances,
+    _impacter,
+    _slider,
+    frequency_sensitivities,
+    nominal_impacter,
+)
 
 #: Relative sigma of a measured resonance when the lab gives none [%]: a swept
 #: resonance fit to 1e-4 to 1e-3 (:mod:`planner.calibrate`, 1-2 % noise).
@@ -118,8 +125,7 @@ def symmetric(imp):
 
 def _variances(design: ChipDesign):
     """(die, device, pair) variances of the five errors (their units squared)."""
-    die, dev = _sigmas(design.spec.fabrication, 1.0)
-    return die ** 2, dev ** 2, _pair_sigmas(design.spec.fabrication, 1.0) ** 2
+    return Tolerances.from_spec(design.spec.fabrication).variances()
 
 
 def infer_errors(design: ChipDesign, measured: dict, noise_pct=DEFAULT_NOISE_PCT):

@@ -20,7 +20,7 @@ import numpy as np
 from planner.afterfab.separations import Separations
 from planner.planning.plan_file import PlanRecord
 from planner.planning.result import Plan
-from planner.spec import TrimSpec
+from planner.arrayspec import TrimSpec
 
 #: Relative tolerance of "already separable": a move smaller than this is no move [-].
 MOVE_TOL = 1e-9
@@ -432,7 +432,7 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
     seed : int, optional
         Seeds the trims' errors and the drive's phases (default: the plan's).
     spec : TrimSpec, optional
-        Default: the plan's ``trim:`` section, else :class:`planner.spec.TrimSpec`'s
+        Default: the plan's ``trim:`` section, else :class:`planner.arrayspec.TrimSpec`'s
         defaults.
     """
     from planner.afterfab.checks import check_drive

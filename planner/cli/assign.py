@@ -34,7 +34,7 @@ def command(spec, out, plot, method, time_limit, force):
     """
     from planner.assign import assign, verify_assignment
     from planner.planning.settings import resolve_settings
-    from planner.spec import default_spec_path, load_spec
+    from planner.arrayspec import default_spec_path, load_spec
 
     path = Path(spec) if spec else default_spec_path()
     check_output_files("assign", [("--out", out), ("--plot", plot)], inputs=[path],

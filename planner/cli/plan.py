@@ -101,7 +101,7 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
     from planner.engine import check_scheduler
     from planner.planning import plan
     from planner.planning.design_store import default_cache_dir
-    from planner.spec import default_spec_path, load_spec
+    from planner.arrayspec import default_spec_path, load_spec
 
     if no_cache and cache_dir is not None:
         raise click.UsageError("--cache-dir and --no-cache exclude each other")

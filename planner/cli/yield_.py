@@ -109,7 +109,7 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
     from planner._limits import check_jobs
     from planner.engine import check_scheduler
     from planner.planning.plan_file import read_plan
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
     from planner.yield_ import (check_chip_count, check_noise, make_payload, parse_scales,
                                 run_yield, scale_key)
     from planner.yield_.dies import write_wafer_files

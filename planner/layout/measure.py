@@ -243,7 +243,7 @@ def round_trip(spec, design, measured: MeasuredChip) -> list:
 
     Parameters
     ----------
-    spec : planner.spec.ArraySpec
+    spec : planner.arrayspec.ArraySpec
         The plan's spec (its process and environment make eqs. (2)-(4)).
     design : planner.fabrication.ChipDesign
         The plan's designs.

@@ -24,7 +24,7 @@ class LayoutPlan:
     ----------
     path : Path
         Its plan.json.
-    spec : planner.spec.ArraySpec
+    spec : planner.arrayspec.ArraySpec
         Its spec (process, environment, array, sliders).
     design : planner.fabrication.ChipDesign
         Its designed impacters (geometry in SI; a re-planned plan's designs, not its
@@ -77,7 +77,7 @@ def read_layout_plan(plan_path, rules_spec=None) -> LayoutPlan:
     from planner.fabrication import design_from_plan
     from planner.planning.plan_file import read_plan
     from planner.planning.settings import resolve_settings
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
 
     record = read_plan(plan_path)
     path, spec = record.path, record.spec

@@ -12,7 +12,7 @@ import numpy as np
 from planner.assign import activity, plan_steps
 from planner.fabrication import ERRORS, NodeDesign, Tolerances, frequency_sensitivities
 from planner.intervals import z_for
-from planner.spec import ArraySpec, LoadedSpec, resolve_steps
+from planner.arrayspec import ArraySpec, LoadedSpec, resolve_steps
 
 #: Die-level common shifts (sigmas) the channel grid keeps from the band's ends [-].
 DIE_SHIFT_SIGMAS = 3.0
@@ -164,7 +164,7 @@ def channel_grid(spec: ArraySpec) -> np.ndarray:
     or ``linear`` grid of ``drive.channels.count`` channels, or the ``tolerance`` grid
     spaced by the fabrication scatter (:func:`spec_tolerance_grid`).
 
-    >>> from planner.spec import ArraySpec
+    >>> from planner.arrayspec import ArraySpec
     >>> g = channel_grid(ArraySpec.model_validate(
     ...     {"drive": {"band_hz": [5000, 20000], "channels": {"count": 3}}}))
     >>> [round(float(f)) for f in g]

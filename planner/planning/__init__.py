@@ -39,7 +39,7 @@ from planner.planning.outputs import write_outputs
 from planner.planning.pipeline import run_plan
 from planner.planning.result import Plan
 from planner.planning.settings import Settings, resolve_settings
-from planner.spec import LoadedSpec, default_spec_path, load_spec
+from planner.arrayspec import LoadedSpec, default_spec_path, load_spec
 
 __all__ = ["Plan", "Settings", "plan", "resolve_settings", "run_plan", "step_tones",
            "write_outputs"]

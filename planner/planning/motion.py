@@ -22,7 +22,7 @@ A step with ``travel_um`` gets the burst that moves its slowest driven slider th
 every driven device is simulated under the step's summed drive from rest for
 :data:`PROBE_S`; the slowest mean speed v_min gives duration = travel / v_min, rounded
 up to :data:`BURST_QUANTUM_S` and bounded to [:data:`MIN_BURST_S`, the step's
-``duration_ms`` or :data:`planner.spec.DEFAULT_MAX_BURST_S`].  Faster sliders of the
+``duration_ms`` or :data:`planner.arrayspec.DEFAULT_MAX_BURST_S`].  Faster sliders of the
 same step travel further; ``verification.max_travel_um`` bounds them.
 """
 
@@ -245,7 +245,7 @@ def size_bursts(settings, steps, waveforms, impacters, sliders):
         ``notes``: step key -> {"probe_speeds_m_s": ..., "sized_s": ...} of each sized
         step.
     """
-    from planner.spec import DEFAULT_MAX_BURST_S
+    from planner.arrayspec import DEFAULT_MAX_BURST_S
 
     out, notes = [], {}
     for st in steps:

@@ -316,7 +316,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
              on_assignment=None, scheduler=None, cache_dir=None, free_cores=None) -> Plan:
     """Run every stage; returns a :class:`Plan` (files are written by :func:`plan`).
 
-    ``loaded``: a :class:`~planner.spec.LoadedSpec`; ``settings`` (optional) its
+    ``loaded``: a :class:`~planner.arrayspec.LoadedSpec`; ``settings`` (optional) its
     already resolved :class:`Settings`.  ``jobs``: worker processes for the designs
     (default 1).  ``on_assignment(settings, steps, assignment)`` is called once, after
     the first assignment and before any design (the CLI prints the work left and a

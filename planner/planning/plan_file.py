@@ -13,7 +13,7 @@ Validated once, here, with the key named on any fault (:class:`PlanFileError`, a
 - the JSON itself, and ``format_version`` (plans from before format versions are
   format 1; another version is refused);
 - every declared key present with its type (no bool or string read as a number, no NaN);
-- the spec, as an :class:`~planner.spec.ArraySpec` with its steps resolved;
+- the spec, as an :class:`~planner.arrayspec.ArraySpec` with its steps resolved;
 - numbers that contradict each other: an impacter's ``natural_frequency_hz`` against its
   ``mass_kg`` and ``stiffness_n_per_m`` (nu = sqrt(k/m) / 2 pi); its mass, stiffness and
   damping against its ``geometry`` through the fabrication equations
@@ -41,8 +41,8 @@ from pydantic import ConfigDict, Field, TypeAdapter, ValidationError
 
 from planner.errors import SpecError
 from planner.nodes import DIRECTIONS, Node
-from planner.spec import ArraySpec, LoadedSpec, Step, resolve_steps
-from planner.spec.load import check_sections
+from planner.arrayspec import ArraySpec, LoadedSpec, Step, resolve_steps
+from planner.arrayspec.load import check_sections
 from planner.yamlio import format_loc, validate
 
 #: The plan.json format this version writes and reads (``format_version``).  Raise it

@@ -28,7 +28,7 @@ from planner.errors import SpecError
 from planner.fabrication import Tolerances
 from planner.manufacturability import channel_grid, pair_sigma_rel, sensitivity_target_per_um
 from planner.nodes import DIRECTIONS, Node, device_key
-from planner.spec import ArraySpec, LoadedSpec, Step, TrimSpec
+from planner.arrayspec import ArraySpec, LoadedSpec, Step, TrimSpec
 from planner.units import MS, UM
 from planner.yamlio import format_loc, line_of
 
@@ -128,6 +128,10 @@ class Settings:
         :func:`planner.manufacturability.channel_grid`).
     channel_spacing : str
         ``log``, ``linear`` or ``tolerance`` (``drive.channels.spacing``).
+    channel_placement : str
+        ``coloring`` (the colouring's order) or ``neighbours`` (tone neighbours on
+        neighbouring devices, :func:`planner.placement.neighbour_coloring`;
+        ``drive.channels.placement``).
     resonance_separation_hz : float
         How close two resonances may come and still be told apart on a tolerance grid
         [Hz] (``drive.channels.separation_hz``).
@@ -215,9 +219,9 @@ class Settings:
     pair_sigma_rel : float
         Predicted relative sigma of the difference of two as-built resonances [-]
         (:func:`planner.manufacturability.pair_sigma_rel`; 0 without tolerances).
-    trim : planner.spec.TrimSpec
+    trim : planner.arrayspec.TrimSpec
         How a fabricated chip is trimmed (``trim:``, else its defaults).
-    chip_spec : planner.spec.ArraySpec
+    chip_spec : planner.arrayspec.ArraySpec
         The validated spec as the fabrication equations take it
         (:mod:`planner.fabrication`, :mod:`planner.manufacturability`: process,
         environment, design and tolerances together), for the models of an as-built
@@ -235,6 +239,7 @@ class Settings:
     band_hz: tuple[float, float]
     channel_grid_hz: tuple[float, ...]
     channel_spacing: str
+    channel_placement: str
     resonance_separation_hz: float
     all_independent: bool
     power_m2_s3: float
@@ -433,7 +438,7 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
     Parameters
     ----------
     loaded : LoadedSpec
-        From :func:`planner.spec.load_spec`.
+        From :func:`planner.arrayspec.load_spec`.
     seed : int, optional
         Overrides ``design.seed``: the plan's one seed (:attr:`Settings.seed`).
 
@@ -461,6 +466,7 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
         band_hz=(float(drive.band_hz[0]), float(drive.band_hz[1])),
         channel_grid_hz=tuple(float(f) for f in channel_grid(spec)),
         channel_spacing=drive.channels.spacing,
+        channel_placement=drive.channels.placement,
         resonance_separation_hz=float(drive.channels.resonance_separation_hz),
         all_independent=bool(spec.all_independent),
         power_m2_s3=drive.power_m2_s3,

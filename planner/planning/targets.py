@@ -44,7 +44,7 @@ From the state the scene is in when the step starts (the carried state of
 dwell, since a slider moves on while its tone fades out:
 
 1. **probe**: each tone alone, from the carried state, for the longest a tone may play
-   (the step's ``duration_ms``, else :data:`planner.spec.DEFAULT_MAX_BURST_S`), its
+   (the step's ``duration_ms``, else :data:`planner.arrayspec.DEFAULT_MAX_BURST_S`), its
    slider's travel recorded every :data:`PROBE_CHUNK_S` (until it has gone its move).
    A slider that does not travel its move in that time cannot reach its target:
    :class:`~planner.errors.PlanningError` naming the device, the travel it made and the
@@ -199,7 +199,7 @@ def search_gates(settings, step, waveform, frequencies, impacters, sliders, stat
         "acceleration_scale": the factor the limits took, "peak_displacement_m",
         "peak_acceleration_m_s2"}.
     """
-    from planner.spec import DEFAULT_MAX_BURST_S
+    from planner.arrayspec import DEFAULT_MAX_BURST_S
 
     start = {d: sl_states.get(d, (0.0, 0.0))[0] for d in sliders}
     moves = {d: (t - start[d] if step.relative_to == "scene_start" else t)

@@ -115,7 +115,7 @@ def trim_chip_on(payload: Payload, settings, scale: float, chip_index: int, chip
     from planner.afterfab.drive import must_differ
     from planner.afterfab.separations import separations_of
     from planner.afterfab.trim import trim_models, trim_sequence, trimmed_resonances
-    from planner.spec import TrimSpec
+    from planner.arrayspec import TrimSpec
 
     last = replanned.get("tuned", replanned)
     if last["passed"] or not replanned["collisions"]:

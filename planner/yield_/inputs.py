@@ -11,7 +11,7 @@ from planner.fabrication import ChipDesign, design_from_plan
 from planner.nodes import Node
 from planner.afterfab.checks import drive_of
 from planner.planning.plan_file import PlanRecord
-from planner.spec import FabricationSpec, LoadedSpec
+from planner.arrayspec import FabricationSpec, LoadedSpec
 
 #: Memory one chip's task and result hold until the end of a run [bytes]: its result
 #: (a few hundred bytes, a few KB with --replan) and, on Dask, the scheduler's and the

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 
-from planner.spec import TrimSpec
+from planner.arrayspec import TrimSpec
 from planner.afterfab.checks import KINDS
 from planner.yield_.chip import REPLAN_CAUSES
 from planner.intervals import wilson_interval

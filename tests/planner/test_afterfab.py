@@ -280,7 +280,7 @@ def test_trim_passes_measure_again_until_the_chip_separates(close):
     from planner.afterfab.drive import inseparable, must_differ
     from planner.afterfab.separations import separations_of
     from planner.afterfab.trim import trim_sequence
-    from planner.spec import TrimSpec
+    from planner.arrayspec import TrimSpec
 
     rec, settings, _ = close
     seps = separations_of(rec, settings)

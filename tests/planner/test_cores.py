@@ -172,7 +172,7 @@ def test_plan_json_is_the_same_on_one_thread_and_on_all(monkeypatch):
     probe gives when they start, and the plan does not depend on it."""
     import planner.planning.pipeline as pipeline
     from planner.planning import run_plan
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
 
     seen = []
 

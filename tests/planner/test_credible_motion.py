@@ -29,7 +29,7 @@ scenes:
 @pytest.fixture(scope="module")
 def travel_plan():
     from planner.planning import run_plan
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
 
     return run_plan(load_spec(TRAVEL))
 
@@ -90,7 +90,7 @@ def test_drive_peaks_are_true_peaks(travel_plan):
 
 def test_acceleration_limit_lowers_the_amplitudes_and_says_so(travel_plan, tmp_path):
     from planner.planning import run_plan, write_outputs
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
 
     peaks = {st["name"]: st["peak_acceleration_m_s2"] / 9.80665
              for st in travel_plan.data["steps"]}
@@ -114,7 +114,7 @@ def test_acceleration_limit_lowers_the_amplitudes_and_says_so(travel_plan, tmp_p
 
 def test_travel_over_limit_is_a_failure_and_repair_shortens_the_burst():
     from planner.planning import run_plan
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
 
     # a 40 ms push against a 5 um limit: the first verification fails on travel; the
     # repair shortens the burst and says so
@@ -146,7 +146,7 @@ def test_carried_state_failure_counts_in_the_verification():
     from planner.planning.scenes import scene_failures, simulate_scenes
     from planner.planning.settings import SINGLE_STEP_S, resolve_settings
     from planner.planning.verify import CARRIED_IDLE, UNSETTLED
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
     from planner.synthesis import synthesize
     import dataclasses
 
@@ -205,7 +205,7 @@ def test_dwell_repair_lengthens_the_previous_steps_dwell():
     from planner.planning.repair import repair_motion
     from planner.planning.settings import resolve_settings
     from planner.planning.verify import CARRIED_IDLE, Failure
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
 
     loaded = load_spec(TRAVEL)
     settings = resolve_settings(loaded)
@@ -225,7 +225,7 @@ def test_dwell_repair_lengthens_the_previous_steps_dwell():
 
 def test_seed_reaches_the_designs():
     from planner.planning.settings import resolve_settings
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
 
     loaded = load_spec(TRAVEL)
     assert resolve_settings(loaded).seed == 0
@@ -237,7 +237,7 @@ def test_seed_reaches_the_designs():
 def test_spec_keys_are_validated():
     from planner.errors import SpecError
     from planner.planning.settings import resolve_settings
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
 
     with pytest.raises(SpecError, match="duration_ms, travel_um or targets_um"):
         load_spec(TRAVEL.replace("travel_um: 20,", ""))
@@ -335,7 +335,7 @@ def test_repair_redesigns_a_too_slow_impacter_alone():
     from planner.planning.settings import resolve_settings
     from planner.planning.verify import TOO_SLOW, Failure
     from planner.assign import assign
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
 
     settings = resolve_settings(load_spec(TRAVEL), 0)
     steps = settings.steps
@@ -419,7 +419,7 @@ def test_designs_are_silent_at_the_tones_as_played():
     from planner.planning.exposure import design_offenders, forbidden_tones, played_tones
     from planner.planning.drives import synthesize_steps
     from planner.planning.settings import resolve_settings
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
 
     settings = resolve_settings(load_spec(TRAVEL), 0)
     steps = settings.steps
@@ -449,7 +449,7 @@ def test_repair_redesigns_an_idle_responder_once_then_widens():
     from planner.planning.repair import reseed_idle, widen_separations
     from planner.planning.settings import resolve_settings
     from planner.planning.verify import IDLE_RESPONSE, TOO_SLOW, Failure
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
 
     settings = resolve_settings(load_spec(TRAVEL), 0)
     steps = settings.steps

@@ -19,7 +19,7 @@ from planner.planning.exposure import forbidden_tones
 from planner.planning.estimate import estimate
 from planner.planning.settings import resolve_settings
 from planner.separation import check_target, position_grid, separated
-from planner.spec import load_spec
+from planner.arrayspec import load_spec
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = ROOT / "configs"

@@ -40,7 +40,7 @@ def _synthetic_plan(tiny_plan_dir, folder, *, edit=None, geometry=_graded, rows=
     device order) gets ``geometry(i)`` = (A um^2, w um, l um, c um); its m, k, b and
     nu_n follow from eqs. (2)-(4)."""
     from planner.fabrication import NodeDesign, nominal_impacter
-    from planner.spec import ArraySpec
+    from planner.arrayspec import ArraySpec
 
     import numpy as np
 
@@ -129,7 +129,7 @@ def test_50_impacters_reproduce_the_plan(chip):
     (eqs. (2)-(4) here, straight from model.Impacter) within 0.5 % of plan.json's."""
     from planner.layout.measure import measure
     from planner.layout.rules import LayoutRules
-    from planner.spec import ArraySpec
+    from planner.arrayspec import ArraySpec
 
     spec = ArraySpec.model_validate(chip["data"]["spec"])
     p = spec.process
@@ -231,7 +231,7 @@ def test_trim_tabs_raise_the_frequency_by_the_range(tiny_plan_dir, tmp_path):
     """trim: up 10 % in steps of at most 2.5 %: four tabs per plate, part of the
     designed area; cutting them all raises nu_n by 10 % through eq. (2)."""
     from planner.layout.rules import LayoutRules
-    from planner.spec import ArraySpec
+    from planner.arrayspec import ArraySpec
 
     def add_trim(spec):
         spec["trim"] = {"range_pct": 10.0, "direction": "up", "precision_pct": 2.5}

@@ -93,7 +93,7 @@ def test_a_moved_tone_redesigns_what_it_touches_and_keeps_the_rest(tmp_path):
     from planner.planning.drives import limit_acceleration, synthesize_steps
     from planner.planning.reach import measure_reach
     from planner.planning.settings import resolve_settings
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
     from tests.planner.test_pipeline import TINY
 
     settings = resolve_settings(load_spec(TINY))
@@ -132,7 +132,7 @@ def test_move_groups_moves_only_the_movers():
     position; every other channel stays."""
     from planner.planning.settings import resolve_settings
     from planner.reassign import move_groups
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
 
     spec = LOW_BAND.replace("[3000, 12000]", "[5000, 14000]").replace(
         "independent: false", "independent: true")

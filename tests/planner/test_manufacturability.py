@@ -31,7 +31,7 @@ from planner.manufacturability import (
     tolerance_grid,
     z_for,
 )
-from planner.spec import ArraySpec, FabricationSpec
+from planner.arrayspec import ArraySpec, FabricationSpec
 
 AIR = EnvironmentConfig(viscosity_mpa_s=0.0179)
 ANGLE, E = math.pi / 4, 0.5
@@ -345,7 +345,7 @@ def test_plan_records_its_manufacturability(tmp_path):
 ])
 def test_contradicting_design_for_yield_fields_are_refused_with_their_line(section, message):
     from planner.errors import SpecError
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
 
     text = yaml.safe_dump({"name": "t", "array": {"rows": 1, "cols": 2}, **section})
     with pytest.raises(SpecError) as err:

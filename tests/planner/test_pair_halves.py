@@ -11,7 +11,7 @@ from model import Drive, Impacter, PairHalves, Slider, pair_of
 from planner.fabrication import ChipDesign, NodeDesign, sample_chip
 from planner.nodes import Node
 from planner.planning.verify import device_motion, pair_responses
-from planner.spec import ArraySpec
+from planner.arrayspec import ArraySpec
 
 #: The paper's Fig. 7 device (5.2 kHz in 10 mTorr) and a slider of Table I.
 IMP = Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6).with_natural_frequency(5200.0)

@@ -19,7 +19,7 @@ IMPACTER_KEYS = {"id", "device", "direction", "channel", "frequency_hz", "mass_k
 @pytest.fixture(scope="module")
 def tiny_plan():
     from planner.planning import run_plan
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
 
     return run_plan(load_spec(TINY))
 
@@ -85,7 +85,7 @@ def test_verification_is_real_simulation(tiny_plan):
 
 def test_same_seed_same_plan_json():
     from planner.planning import run_plan
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
 
     a = run_plan(load_spec(TINY), seed=3).data
     b = run_plan(load_spec(TINY), seed=3).data
@@ -162,7 +162,7 @@ def test_ctrl_c_mid_run_leaves_no_output(tmp_path):
 
 def test_row_assembly_config_shares_channels_and_verifies():
     from planner.planning import run_plan
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
 
     root = Path(__file__).resolve().parents[2]
     res = run_plan(load_spec(root / "configs" / "row_assembly.yaml"), jobs=1)
@@ -223,7 +223,7 @@ def test_scene_counts_the_overshoot_after_the_drive_stops():
     from planner.planning.scenes import SETTLE_NAME, simulate_scenes
     from planner.planning.settings import SETTLE_S, SINGLE_STEP_S
     from planner.planning.settings import resolve_settings
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
     from planner.synthesis import synthesize
 
     loaded = load_spec(ONE)

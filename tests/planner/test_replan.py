@@ -185,7 +185,7 @@ def test_a_weakened_multi_tone_step_splits_into_runs_that_keep_the_scale(plan_da
     from planner.planning.plan_file import plan_record
     from planner.afterfab.drive import split_step, weakened
     from planner.planning.settings import resolve_settings
-    from planner.spec import Step
+    from planner.arrayspec import Step
 
     record = plan_record(plan_data)
     settings = resolve_settings(record.loaded)
@@ -405,7 +405,7 @@ def test_synthesis_takes_given_phases_per_impacter(plan):
     them (a shared tone its first impacter's); a step missing one optimises its own."""
     from planner.planning.drives import synthesize_steps
     from planner.planning.settings import resolve_settings
-    from planner.spec import Step
+    from planner.arrayspec import Step
 
     settings = resolve_settings(plan.loaded)
     both = Step("s", "both", 0, 0.005, ("A1",), ("A2",))
@@ -430,7 +430,7 @@ def test_tones_closer_than_the_loop_resolution_play_as_one(plan):
     rest keep theirs."""
     from planner.planning.drives import MERGE_HZ, merged_tones, synthesize_steps
     from planner.planning.settings import resolve_settings
-    from planner.spec import Step
+    from planner.arrayspec import Step
     from planner.synthesis import synthesize
 
     # one step of row_assembly's re-plan under the 5 x 5 tolerances (its chip 4)

@@ -12,7 +12,7 @@ from planner.design_config import DesignConfig
 from planner.errors import SpecError
 from planner.nodes import Node
 from planner.planning.settings import resolve_settings
-from planner.spec import load_spec
+from planner.arrayspec import load_spec
 
 BASE = {"name": "t", "array": {"rows": 1, "cols": 2},
         "environment": {"viscosity_mpa_s": 0.0179},
@@ -105,6 +105,7 @@ CASES = [
     ("drive.max_acceleration_g", 500.0, lambda s: s.max_acceleration_m_s2),
     ("drive.channels.spacing", "linear", lambda s: (s.channel_spacing, s.channel_grid_hz)),
     ("drive.channels.count", 100, lambda s: s.channel_grid_hz),
+    ("drive.channels.placement", "neighbours", lambda s: s.channel_placement),
     ("drive.channels.separation_hz", 600.0,
      lambda s: (s.resonance_separation_hz, s.channel_grid_hz),
      [("drive.channels.spacing", "tolerance"),
@@ -292,7 +293,7 @@ def test_unset_rules_leave_the_default_bounds_alone():
 
 
 def _default_spec_text():
-    from planner.spec import default_spec_path
+    from planner.arrayspec import default_spec_path
 
     return default_spec_path().read_text(encoding="utf-8")
 
@@ -358,6 +359,10 @@ def test_two_masks_on_one_layer_are_refused():
 LAYOUT_ONLY = {
     "process.layers": "planner/layout (the GDS layer of each mask)",
     "process.anchor_enclosure_um": "planner/layout (the anchors' overlap)",
+    # where a die sat: read with the as-built models (chip_spec) by the manufacturability
+    # prediction and the yield's sampler only; tests/planner/test_wafer.py
+    # (test_the_gradient_costs_far_tone_neighbours_yield, test_a_yield_on_wafers_maps_every_die)
+    "fabrication.wafer": "the as-built models: manufacturability and yield on wafers",
 }
 #: Fields a plan refuses, each with the test that shows the refusal and its line.
 REFUSED = {
@@ -396,7 +401,7 @@ def test_every_spec_field_has_a_case():
     covered by either."""
     import re
 
-    from planner.spec import ArraySpec
+    from planner.arrayspec import ArraySpec
 
     covered = {re.sub(r"^devices\.[A-Z]+\d+\.", "device.", c[0]) for c in CASES}
     missing = []

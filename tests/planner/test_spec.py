@@ -10,7 +10,7 @@ from planner.cli import main
 from planner.errors import SpecError
 from planner.nodes import Node
 from planner.planning.settings import resolve_settings
-from planner.spec import default_spec_path, load_spec, separation_for_bandwidth
+from planner.arrayspec import default_spec_path, load_spec, separation_for_bandwidth
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from planner.errors import PlanningError, SpecError
-from planner.spec import load_spec
+from planner.arrayspec import load_spec
 from planner.units import UM
 from tests.planner.test_pipeline import TINY
 

@@ -100,7 +100,7 @@ def _summary(folder: Path) -> dict:
 # ------------------------------------------------------------------ 1. where a die sat
 
 def test_the_die_grid_fills_the_wafer_inside_its_edge_exclusion():
-    from planner.spec import ArraySpec, WaferSpec
+    from planner.arrayspec import ArraySpec, WaferSpec
     from planner.wafer import wafer_layout
 
     spec = ArraySpec.model_validate({"array": {"rows": 5, "cols": 5, "pitch_um": 2000.0}})
@@ -124,7 +124,7 @@ def test_the_die_grid_fills_the_wafer_inside_its_edge_exclusion():
 
 
 def test_the_field_is_correlated_over_its_length_and_the_gradient_is_linear():
-    from planner.spec import ArraySpec
+    from planner.arrayspec import ArraySpec
     from planner.wafer import device_positions, line_width_offsets, wafer_draws, wafer_layout
 
     spec = ArraySpec.model_validate({
@@ -239,7 +239,7 @@ def test_the_wafer_file_holds_what_the_yield_measured(tiny_plan_dir, wafer_yield
     normals of the chip's own seed), read back through the wafer reader."""
     from planner.afterfab.wafer_file import read_wafer
     from planner.planning.plan_file import read_plan
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
     from planner.yield_ import make_payload, measured_frequencies
     from planner.yield_.dies import die_measurements
 
@@ -535,7 +535,7 @@ drive:
 def _assignment(placement):
     from planner.assign import assign, plan_steps
     from planner.planning.settings import resolve_settings
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
 
     loaded = load_spec(INDEPENDENT % placement)
     settings = resolve_settings(loaded, 0)

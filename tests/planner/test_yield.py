@@ -84,7 +84,7 @@ def test_chip_results_depend_on_seed_and_index_only(tiny_plan_dir):
     """A chip's outcome is a function of (seed, scale, chip index): verifying chips in
     another order, or fewer of them, gives each the same result."""
     from planner.planning.plan_file import read_plan
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
     from planner.yield_ import make_payload, verify_chip
 
     import dataclasses
@@ -118,7 +118,7 @@ def test_failure_rates_count_the_impacters_each_chip_implicates(tiny_plan_dir):
     implicated that impacter (a Node inside, its text in the file)."""
     from planner.nodes import Node
     from planner.planning.plan_file import read_plan
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
     from planner.yield_ import make_payload, run_yield, verify_chip
 
     payload = make_payload(read_plan(tiny_plan_dir), 5, load_spec(HUGE).spec.fabrication)
@@ -134,7 +134,7 @@ def test_failure_rates_count_the_impacters_each_chip_implicates(tiny_plan_dir):
 def test_failure_rates_land_on_their_devices_cells():
     """The report's array figure puts each impacter's rate on its own device's cell,
     two-digit columns included."""
-    from planner.spec import load_spec
+    from planner.arrayspec import load_spec
     from planner.yield_report import _grid
 
     spec = load_spec("name: wide\narray: {rows: 2, cols: 11}\n").spec
@@ -149,7 +149,7 @@ def test_failure_rates_land_on_their_devices_cells():
 def test_as_built_geometry_follows_the_documented_mapping(tiny_plan_dir):
     from planner.fabrication import ERRORS, _impacter, sample_chip
     from planner.planning.plan_file import read_plan
-    from planner.spec import FabricationSpec
+    from planner.arrayspec import FabricationSpec
     from planner.yield_ import make_payload
 
     data = json.loads((tiny_plan_dir / "plan.json").read_text())

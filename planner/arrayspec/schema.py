@@ -5,8 +5,8 @@ sections of an array spec (:class:`ArraySpec`): the array's grid, the device def
 and per-device overrides, the drive, the designer, the verification, the fabrication
 tolerances, the trim and the scenes' steps.  A field's unit is in its name; its
 default is in the model.  Checks that need the whole spec (device ids, a step's
-targets against the largest travel) are :mod:`planner.spec.steps`'s; reading the YAML
-and placing an error on its line is :mod:`planner.spec.load`'s.
+targets against the largest travel) are :mod:`planner.arrayspec.steps`'s; reading the YAML
+and placing an error on its line is :mod:`planner.arrayspec.load`'s.
 """
 
 from __future__ import annotations

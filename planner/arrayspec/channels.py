@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 
-from planner.spec.schema import ArraySpec
+from planner.arrayspec.schema import ArraySpec
 
 
 def separation_for_bandwidth(spec: ArraySpec, relative_halfwidth: float) -> int:

@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from planner.errors import SpecError
-from planner.spec.schema import ArraySpec
+from planner.arrayspec.schema import ArraySpec
 from planner.yamlio import format_loc, line_of
 
 #: Longest burst [s] of a ``travel_um`` step without ``duration_ms``.

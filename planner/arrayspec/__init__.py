@@ -14,20 +14,20 @@ letter (``B`` = B1 ... B5), a column number as text (``"3"`` = A3 ... E3), or ``
 Validation names the field and the YAML line: ``drive.band_hz: band_hz[1] must be
 greater than band_hz[0] (line 14)``.
 
-One module per job: :mod:`~planner.spec.schema` (the sections and fields, their units
-and defaults), :mod:`~planner.spec.steps` (scenes resolved to :class:`Step` s),
-:mod:`~planner.spec.load` (:func:`load_spec`: YAML in, errors on their lines, the
-embedded default spec) and :mod:`~planner.spec.channels` (the channels between two tones; the channel
+One module per job: :mod:`~planner.arrayspec.schema` (the sections and fields, their units
+and defaults), :mod:`~planner.arrayspec.steps` (scenes resolved to :class:`Step` s),
+:mod:`~planner.arrayspec.load` (:func:`load_spec`: YAML in, errors on their lines, the
+embedded default spec) and :mod:`~planner.arrayspec.channels` (the channels between two tones; the channel
 grid is :func:`planner.manufacturability.channel_grid`).  The
 names below are the spec's API: the CLI, the planner's stages and the tests import
-them from ``planner.spec`` (the other sections' models are in
-:mod:`~planner.spec.schema`).
+them from ``planner.arrayspec`` (the other sections' models are in
+:mod:`~planner.arrayspec.schema`).
 """
 
-from planner.spec.channels import separation_for_bandwidth
-from planner.spec.load import LoadedSpec, default_spec_path, load_spec
-from planner.spec.schema import ArraySpec, FabricationSpec, Tolerance, TrimSpec, WaferSpec
-from planner.spec.steps import DEFAULT_MAX_BURST_S, Step, resolve_steps
+from planner.arrayspec.channels import separation_for_bandwidth
+from planner.arrayspec.load import LoadedSpec, default_spec_path, load_spec
+from planner.arrayspec.schema import ArraySpec, FabricationSpec, Tolerance, TrimSpec, WaferSpec
+from planner.arrayspec.steps import DEFAULT_MAX_BURST_S, Step, resolve_steps
 
 __all__ = ["DEFAULT_MAX_BURST_S", "ArraySpec", "FabricationSpec", "LoadedSpec", "Step",
            "Tolerance", "TrimSpec", "default_spec_path", "load_spec",

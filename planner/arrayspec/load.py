@@ -2,7 +2,7 @@
 
 :func:`load_spec` reads the YAML (a file or text), refuses a key with the wrong unit
 suffix with a hint (``band_khz``: use ``band_hz``), validates it against the schema
-(:mod:`planner.spec.schema`) and resolves its steps (:mod:`planner.spec.steps`); every
+(:mod:`planner.arrayspec.schema`) and resolves its steps (:mod:`planner.arrayspec.steps`); every
 error names the field's path and its YAML line.  :func:`default_spec_path` is the
 embedded default spec.
 """
@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from planner.errors import SpecError
-from planner.spec.schema import ArraySpec
-from planner.spec.steps import Step, resolve_steps
+from planner.arrayspec.schema import ArraySpec
+from planner.arrayspec.steps import Step, resolve_steps
 from planner.yamlio import check_kind, format_loc, line_of, load_yaml, validate
 
 
