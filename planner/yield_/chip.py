@@ -67,8 +67,11 @@ def verify_chip(payload: Payload, scale_index: int, chip_index: int,
                  if n.text == x or n.device == x}
         replan = trim = seconds = None
         if payload.replan:
-            replan = ReplanOutcome(passed=False, measured_passed=False,
-                                   causes=("unbuildable",), failures={"unbuildable": 1})
+            fields = dict(passed=False, measured_passed=False, causes=("unbuildable",),
+                          failures={"unbuildable": 1})
+            # nothing to sweep on a chip that cannot be built: tuned, it fails as it is
+            replan = ReplanOutcome(**fields, tuned=TuneOutcome(**fields) if payload.tune
+                                   else None)
             if payload.trim:
                 trim = TrimOutcome(passed=False, trimmed=(), passes=None,
                                    causes=("unbuildable",), failures={"unbuildable": 1})
@@ -243,9 +246,10 @@ def _replan_and_check(payload, settings, measured, impacters, sliders, original,
     except LoopLengthError:
         # this chip's tones fit no loop the synthesis may play: the chip fails (with
         # that cause), the study goes on
-        return ReplanOutcome(passed=False, measured_passed=False,
-                             causes=("drive not playable",), failures={}, split_steps=(),
-                             tones_moved=0)
+        fields = dict(passed=False, measured_passed=False, causes=("drive not playable",),
+                      failures={}, split_steps=(), tones_moved=0)
+        # no drive to tune: tuned, the chip fails as it is
+        return ReplanOutcome(**fields, tuned=TuneOutcome(**fields) if payload.tune else None)
     rp = plan.data["replan"]
     collisions = tuple(Collision.from_inseparable(c) for c in rp["inseparable"])
     if collisions:      # no drive can pass: not simulated on the true models

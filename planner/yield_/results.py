@@ -109,10 +109,11 @@ class TuneOutcome(_DriveOutcome):
         Pairs no drive tells apart (no sweep separates them: the re-plan's own).
     outside_band : tuple of str
         Impacter ids whose tone fell beyond ``drive.band_hz``.
-    split_steps : tuple of str
-        Step keys played as sub-steps, sorted.
-    tones_moved : int
-        Impacters whose tone the re-plan moved from the plan's [-].
+    split_steps : tuple of str or None
+        Step keys played as sub-steps, sorted; None for a chip that cannot be built.
+    tones_moved : int or None
+        Impacters whose tone the re-plan moved from the plan's [-]; None as
+        ``split_steps``.
     windows : int
         Impacters whose tone was moved to its working window's middle [-] (0: the
         re-plan stands as it was).
@@ -152,8 +153,9 @@ class ReplanOutcome(_DriveOutcome):
         Impacters whose tone the re-plan moved from the plan's [-]; None as
         ``split_steps``.
     tuned : TuneOutcome or None
-        With ``--tune``, the re-planned chip tuned; None without it, or when there was
-        no re-planned drive to tune (the chip cannot be built, its tones fit no loop).
+        With ``--tune``, the re-planned chip tuned (a chip with nothing to tune -- it
+        cannot be built, its pairs collide, its tones fit no loop -- fails tuned as it
+        failed re-planned, ``windows`` 0); None without ``--tune``.
     """
 
     tuned: TuneOutcome | None = None

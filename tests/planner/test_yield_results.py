@@ -5,6 +5,7 @@ yield.json is made of), and every type pickles (a Dask worker sends its chips ba
 from __future__ import annotations
 
 import dataclasses
+import json
 import pickle
 
 import pytest
@@ -134,7 +135,36 @@ def test_verified_chips_round_trip(tiny_plan_dir, tmp_path):
         if "unbuildable" in c.failures:
             assert "tones_moved" not in d["replan"] and "passes" not in d["trim"]
             assert set(d["seconds"]) == {"nominal", "replan"}
+            # nothing to tune: tuned, it fails as it is (yield --tune counts it)
+            assert d["replan"]["tuned"] == {
+                "passed": False, "measured_passed": False, "causes": ["unbuildable"],
+                "failures": {"unbuildable": 1}, "collisions": [], "outside_band": [],
+                "windows": 0}
         else:
             assert d["replan"]["tuned"]["windows"] == c.replan.tuned.windows
             assert {"split_steps", "tones_moved", "tuned"} <= set(d["replan"])
             assert set(d["seconds"]) == {"nominal", "replan", "trim"}
+
+
+def test_tune_counts_the_chips_it_has_nothing_to_tune(tiny_plan_dir, tmp_path):
+    """yield --replan --tune with a chip that cannot be built: the run completes (it
+    stopped on a KeyError when a chip had no tuned re-plan) and the tune block counts
+    that chip as failing, for the reason it cannot be re-planned."""
+    from click.testing import CliRunner
+
+    from planner.cli import main
+
+    spec = tmp_path / "broken.yaml"
+    spec.write_text(BROKEN)
+    out = tmp_path / "y"
+    res = CliRunner().invoke(main, ["yield", str(tiny_plan_dir), "--chips", "6", "--seed",
+                                    "3", "--spec", str(spec), "--replan", "--tune", "--trim",
+                                    "--out", str(out), "--quiet"])
+    assert res.exit_code == 0, res.output
+    d = json.loads((out / "yield.json").read_text())
+    assert d["failures"].get("unbuildable", 0) >= 1
+    broken = [c for c in d["replan"]["per_chip"] if "unbuildable" in c["causes"]]
+    assert broken and all(c["tuned_passed"] is False and c["tuned_causes"] == ["unbuildable"]
+                          and c["tuned_windows"] == 0 for c in broken)
+    assert d["tune"]["causes"]["unbuildable"] == len(broken)
+    assert {c["chip"] for c in broken} <= set(d["tune"]["failed_chips"])
