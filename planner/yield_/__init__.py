@@ -50,6 +50,10 @@ Layout of this package (each module imports only those listed below it); the out
   and causes, and the content of ``yield.json``.
 - :mod:`~planner.yield_.chip`: :func:`verify_chip`, the per-chip worker, with the
   measurement, re-plan and trim of a chip.
+- :mod:`~planner.yield_.results`: what a chip's worker returns, as declared types
+  (:class:`ChipResult`, with its :class:`ReplanOutcome`, :class:`TuneOutcome`,
+  :class:`TrimOutcome`, :class:`Collision` and :class:`Seconds`), each with the
+  ``to_dict()`` of its plain-dict form.
 - :func:`check_drive` (:mod:`planner.afterfab.checks`): every check of a drive on one
   chip's models, by kind, with the impacters implicated.
 - :mod:`~planner.yield_.inputs`: :class:`Payload` and :func:`make_payload` (what the
@@ -63,11 +67,14 @@ from planner.yield_.chip import (REPLAN_CAUSES, measured_frequencies, replan_chi
                                  trim_chip_on, verify_chip)
 from planner.yield_.inputs import (Payload, check_chip_count, check_noise, make_payload,
                                    parse_scales)
+from planner.yield_.results import (ChipResult, Collision, ReplanOutcome, Seconds,
+                                    TrimOutcome, TuneOutcome)
 from planner.yield_.run import run_yield
 from planner.intervals import Z95, wilson_interval
 from planner.yield_.statistics import scale_key
 
-__all__ = ["CARRIED", "CARRIED_KINDS", "KINDS", "REPLAN_CAUSES", "Z95", "Payload",
+__all__ = ["CARRIED", "CARRIED_KINDS", "KINDS", "REPLAN_CAUSES", "Z95", "ChipResult",
+           "Collision", "Payload", "ReplanOutcome", "Seconds", "TrimOutcome", "TuneOutcome",
            "check_chip_count", "check_drive", "check_noise", "make_payload",
            "measured_frequencies", "parse_scales", "replan_chip_on", "run_yield", "scale_key",
            "trim_chip_on", "verify_chip", "wilson_interval"]

@@ -12,6 +12,8 @@ from planner.fabrication import sample_chip
 from planner.wafer import line_width_offsets
 from planner.afterfab.checks import check_drive
 from planner.yield_.inputs import Payload
+from planner.yield_.results import (ChipResult, Collision, ReplanOutcome, Seconds,
+                                    TrimOutcome, TuneOutcome)
 
 #: Why a re-plan failed, in the order reports list them (a chip may have several):
 #: two impacters the spec must tell apart can no longer be (the re-plan's unresolved
@@ -32,18 +34,20 @@ REPLAN_CAUSES = ("cannot be told apart", "outside band", "fails on the measured 
 TUNE_CENTRE = 0.25
 
 
-def verify_chip(payload: Payload, scale_index: int, chip_index: int, scale: float) -> dict:
+def verify_chip(payload: Payload, scale_index: int, chip_index: int,
+                scale: float) -> ChipResult:
     """Sample chip ``chip_index`` at sigma scale ``scale`` and run every check on it.
 
     Returns
     -------
-    dict
+    ChipResult
         ``passed``, ``carried_passed`` (equal to ``passed``: the carried-state check is
-        part of the pass), ``failures`` (kind -> failing rows), ``nodes`` (the
+        part of the pass), ``failures`` (kind -> failed checks), ``nodes`` (the
         impacter pairs implicated in a failure: sorted :class:`~planner.nodes.Node`),
         ``scale_index``, ``chip``; with
         ``payload.replan`` also ``replan`` (see :func:`replan_chip_on`) and
-        ``seconds`` (wall time of the nominal checks and of the re-plan [s]).
+        ``seconds`` (wall time of the nominal checks and of the re-plan [s]); with
+        ``payload.trim`` also ``trim`` (see :func:`trim_chip_on`).
     """
     import time
 
@@ -57,43 +61,49 @@ def verify_chip(payload: Payload, scale_index: int, chip_index: int, scale: floa
     chip = sample_chip(payload.design, payload.fabrication, rng, scale,
                        line_width_offsets(payload.design.spec, payload.fabrication,
                                           payload.seed, scale, chip_index))
-    out = {"scale_index": scale_index, "chip": chip_index}
     if chip.unbuildable:
         # a node or a device (its slider) that cannot be built
         nodes = {n for n in payload.nodes for x in chip.unbuildable
                  if n.text == x or n.device == x}
-        out.update(passed=False, carried_passed=False,
-                   failures={"unbuildable": len(chip.unbuildable)}, nodes=sorted(nodes))
+        replan = trim = seconds = None
         if payload.replan:
-            out["replan"] = {"passed": False, "measured_passed": False,
-                             "causes": ["unbuildable"], "failures": {"unbuildable": 1},
-                             "collisions": [], "outside_band": []}
+            fields = dict(passed=False, measured_passed=False, causes=("unbuildable",),
+                          failures={"unbuildable": 1})
+            # nothing to sweep on a chip that cannot be built: tuned, it fails as it is
+            replan = ReplanOutcome(**fields, tuned=TuneOutcome(**fields) if payload.tune
+                                   else None)
             if payload.trim:
-                out["trim"] = {"passed": False, "trimmed": [], "causes": ["unbuildable"],
-                               "failures": {"unbuildable": 1}}
-            out["seconds"] = {"nominal": time.perf_counter() - t0, "replan": 0.0}
-        return out
+                trim = TrimOutcome(passed=False, trimmed=(), passes=None,
+                                   causes=("unbuildable",), failures={"unbuildable": 1})
+            seconds = Seconds(nominal=time.perf_counter() - t0, replan=0.0)
+        return ChipResult(scale_index=scale_index, chip=chip_index, passed=False,
+                          carried_passed=False,
+                          failures={"unbuildable": len(chip.unbuildable)},
+                          nodes=tuple(sorted(nodes)), replan=replan, trim=trim,
+                          seconds=seconds)
     settings = payload.settings
     # re-planning, the plan's own drive is only a reference: its checks stop at the
     # first failing step (a chip the die moved fails the first one it plays)
     got = check_drive(settings, payload.loaded.steps, payload.waveforms, payload.dwells,
                       chip.impacters, chip.sliders, first_failure=payload.replan)
-    out.update(passed=got["passed"], carried_passed=got["passed"],
-               failures=got["failures"], nodes=sorted(got["nodes"]))
+    replan = trim = seconds = None
     if payload.replan:
         t1 = time.perf_counter()
-        out["replan"] = replan_chip_on(payload, settings, scale, chip_index, chip, got)
-        out["seconds"] = {"nominal": t1 - t0, "replan": time.perf_counter() - t1}
+        replan = replan_chip_on(payload, settings, scale, chip_index, chip, got)
+        t2 = time.perf_counter()
+        trim_s = None
         if payload.trim:
-            t2 = time.perf_counter()
-            out["trim"] = trim_chip_on(payload, settings, scale, chip_index, chip, got,
-                                       out["replan"])
-            out["seconds"]["trim"] = time.perf_counter() - t2
-    return out
+            trim = trim_chip_on(payload, settings, scale, chip_index, chip, got, replan)
+            trim_s = time.perf_counter() - t2
+        seconds = Seconds(nominal=t1 - t0, replan=t2 - t1, trim=trim_s)
+    return ChipResult(scale_index=scale_index, chip=chip_index, passed=got["passed"],
+                      carried_passed=got["passed"], failures=got["failures"],
+                      nodes=tuple(sorted(got["nodes"])), replan=replan, trim=trim,
+                      seconds=seconds)
 
 
 def trim_chip_on(payload: Payload, settings, scale: float, chip_index: int, chip,
-                 nominal: dict, replanned: dict) -> dict:
+                 nominal: dict, replanned: ReplanOutcome) -> TrimOutcome:
     """Trim a chip the re-plan could not rescue because two of its impacters cannot be
     told apart: the trim sequence a lab runs (:func:`planner.afterfab.trim.trim_sequence`:
     measure, trim, measure again, up to ``trim.passes`` times, each cut off its target
@@ -106,21 +116,21 @@ def trim_chip_on(payload: Payload, settings, scale: float, chip_index: int, chip
 
     Returns
     -------
-    dict
+    TrimOutcome
         ``passed``, ``trimmed`` (impacters trimmed), ``passes`` (trim passes made),
-        ``causes`` (``cannot be trimmed`` naming the moves beyond the range, or the
-        re-plan's causes after the trims), ``failures`` (kind -> failed checks on the
-        trimmed true models).
+        ``causes`` (``cannot be trimmed``, with ``beyond_range`` naming the moves beyond
+        the range, or the re-plan's causes after the trims), ``failures`` (kind ->
+        failed checks on the trimmed true models).
     """
     from planner.afterfab.drive import must_differ
     from planner.afterfab.separations import separations_of
     from planner.afterfab.trim import trim_models, trim_sequence, trimmed_resonances
     from planner.arrayspec import TrimSpec
 
-    last = replanned.get("tuned", replanned)
-    if last["passed"] or not replanned["collisions"]:
-        return {**{k: last[k] for k in ("passed", "causes", "failures")}, "trimmed": [],
-                "passes": 0}
+    last = replanned.final
+    if last.passed or not replanned.collisions:
+        return TrimOutcome(passed=last.passed, trimmed=(), passes=0, causes=last.causes,
+                           failures=last.failures)
     spec = payload.record.spec.trim or TrimSpec()
     precision = (spec.precision_pct if payload.trim_precision_pct is None
                  else payload.trim_precision_pct)
@@ -141,9 +151,9 @@ def trim_chip_on(payload: Payload, settings, scale: float, chip_index: int, chip
                         must_differ(settings.steps), spec, cut=cut,
                         measure_again=measure_again, precision_pct=precision)
     if out.scrapped:
-        return {"passed": False, "trimmed": list(out.moved), "passes": len(out.passes),
-                "failures": {}, "causes": ["cannot be trimmed"],
-                "beyond_range": [f["impacter"] for f in out.scrapped]}
+        return TrimOutcome(passed=False, trimmed=tuple(out.moved), passes=len(out.passes),
+                           causes=("cannot be trimmed",), failures={},
+                           beyond_range=tuple(f["impacter"] for f in out.scrapped))
     # the re-plan's models: the chip as first measured, with the trims the measurements
     # saw applied
     from planner.afterfab.replan import chip_models
@@ -154,9 +164,9 @@ def trim_chip_on(payload: Payload, settings, scale: float, chip_index: int, chip
     got = _replan_and_check(payload, settings, out.measured, state["true"], chip.sliders,
                             (nominal["steps_passed"], nominal["rows"]), remeasure=out.moved,
                             models=models, tune_seq=seq[2 + 2 * spec.passes])
-    got = got.get("tuned", got)
-    return {"passed": got["passed"], "trimmed": list(out.moved), "passes": len(out.passes),
-            "causes": got["causes"], "failures": got["failures"]}
+    got = got.final
+    return TrimOutcome(passed=got.passed, trimmed=tuple(out.moved), passes=len(out.passes),
+                       causes=got.causes, failures=got.failures)
 
 
 def measured_frequencies(payload: Payload, scale: float, chip_index: int, chip) -> dict:
@@ -181,7 +191,7 @@ def _measure(payload: Payload, impacters: dict, seq) -> dict:
 
 
 def replan_chip_on(payload: Payload, settings, scale: float, chip_index: int, chip,
-                   nominal: dict) -> dict:
+                   nominal: dict) -> ReplanOutcome:
     """Measure a sampled chip, re-plan its drive, verify it on the chip's true models.
 
     Parameters
@@ -202,14 +212,14 @@ def replan_chip_on(payload: Payload, settings, scale: float, chip_index: int, ch
 
     Returns
     -------
-    dict
+    ReplanOutcome
         ``passed`` (the re-planned drive passes every check on the true models),
         ``measured_passed`` (the re-plan verified on the models it was made from),
         ``causes`` (:data:`REPLAN_CAUSES` that apply when it fails), ``failures``
         (kind -> failed checks on the true models), ``collisions`` (pairs no drive tells
-        apart: ``pair``, their measured resonances ``as_built_hz``, ``apart_hz`` and the
-        ``needs_hz`` they would need), ``outside_band`` (impacters whose tone fell
-        beyond the band), ``split_steps`` (steps played as sub-steps), ``tones_moved``.
+        apart: :class:`~planner.yield_.results.Collision`), ``outside_band`` (impacters
+        whose tone fell beyond the band), ``split_steps`` (steps played as sub-steps),
+        ``tones_moved``; with ``payload.tune`` also ``tuned``.
     """
     seq = chip_seed(payload.seed, scale, chip_index).spawn(2)
     measured = _measure(payload, chip.impacters, seq[0])
@@ -236,28 +246,30 @@ def _replan_and_check(payload, settings, measured, impacters, sliders, original,
     except LoopLengthError:
         # this chip's tones fit no loop the synthesis may play: the chip fails (with
         # that cause), the study goes on
-        return {"passed": False, "measured_passed": False, "causes": ["drive not playable"],
-                "failures": {}, "collisions": [], "outside_band": [], "split_steps": [],
-                "tones_moved": 0}
+        fields = dict(passed=False, measured_passed=False, causes=("drive not playable",),
+                      failures={}, split_steps=(), tones_moved=0)
+        # no drive to tune: tuned, the chip fails as it is
+        return ReplanOutcome(**fields, tuned=TuneOutcome(**fields) if payload.tune else None)
     rp = plan.data["replan"]
-    collisions = [{k: c[k] for k in ("pair", "as_built_hz", "apart_hz", "needs_hz")}
-                  for c in rp["inseparable"]]
+    collisions = tuple(Collision.from_inseparable(c) for c in rp["inseparable"])
     if collisions:      # no drive can pass: not simulated on the true models
-        out = {"passed": False, "measured_passed": False,
-               "causes": ["cannot be told apart"], "failures": {}, "collisions": collisions,
-               "outside_band": list(rp["outside_band"]),
-               "split_steps": sorted(rp["split_steps"]), "tones_moved": len(rp["moved"])}
-        if payload.tune:        # no sweep tells a colliding pair apart
-            out["tuned"] = {**out, "windows": 0}
-        return out
+        fields = dict(passed=False, measured_passed=False, causes=("cannot be told apart",),
+                      failures={}, collisions=collisions,
+                      outside_band=tuple(rp["outside_band"]),
+                      split_steps=tuple(sorted(rp["split_steps"])),
+                      tones_moved=len(rp["moved"]))
+        # no sweep tells a colliding pair apart
+        tuned = TuneOutcome(**fields, windows=0) if payload.tune else None
+        return ReplanOutcome(**fields, tuned=tuned)
     # the re-planned drive as it plays, checked on the chip's true models in memory
     got = check_drive(settings, plan.run_steps, plan.waveforms, plan.dwells, impacters,
                       sliders)
     out = _checked(ok, rp, got, collisions)
-    if payload.tune:
-        out["tuned"] = _tune_and_check(payload, settings, measured, impacters, sliders,
-                                       original, remeasure, models, plan, out, tune_seq)
-    return out
+    if not payload.tune:
+        return ReplanOutcome(**out)
+    return ReplanOutcome(**out, tuned=_tune_and_check(
+        payload, settings, measured, impacters, sliders, original, remeasure, models, plan,
+        out, tune_seq))
 
 
 def _tune_and_check(payload, settings, measured, impacters, sliders, original, remeasure,
@@ -273,7 +285,7 @@ def _tune_and_check(payload, settings, measured, impacters, sliders, original, r
 
     Returns
     -------
-    dict
+    TuneOutcome
         As the re-plan's (``passed``, ``measured_passed``, ``causes``, ``failures``) plus
         ``windows`` (impacters whose tone moved to its window's middle).
     """
@@ -289,7 +301,7 @@ def _tune_and_check(payload, settings, measured, impacters, sliders, original, r
     windows = {n: w for n, w in windows_of(fitted, keep_flagged=True).items()
                if abs(tones[n] - 0.5 * (w[0] + w[1])) > TUNE_CENTRE * (w[1] - w[0])}
     if not windows:
-        return {**first, "windows": 0}
+        return TuneOutcome(**first, windows=0)
     tuned = {n: (m.with_window(windows[n]) if n in windows else m)
              for n, m in measured.items()}
     ok, again = replan_chip(payload.record, tuned, settings=settings, original=original,
@@ -297,14 +309,13 @@ def _tune_and_check(payload, settings, measured, impacters, sliders, original, r
     rp = again.data["replan"]
     got = check_drive(settings, again.run_steps, again.waveforms, again.dwells, impacters,
                       sliders)
-    out = _checked(ok, rp, got, [])
-    out["windows"] = len(windows)
-    return out
+    return TuneOutcome(**_checked(ok, rp, got, ()), windows=len(windows))
 
 
-def _checked(ok, rp, got, collisions):
+def _checked(ok, rp, got, collisions) -> dict:
     """A re-plan's result as yield.json counts it: passed on the true models or not, and
-    why (:data:`REPLAN_CAUSES`)."""
+    why (:data:`REPLAN_CAUSES`); the fields of a :class:`ReplanOutcome` or
+    :class:`TuneOutcome` (the checks of a drive that was simulated)."""
     causes = []
     if not got["passed"]:
         if rp["outside_band"]:
@@ -315,9 +326,9 @@ def _checked(ok, rp, got, collisions):
             causes.append("carried state")
         else:
             causes.append("fails only on the true models")
-    return {"passed": got["passed"], "measured_passed": bool(ok), "causes": causes,
-            "failures": got["failures"], "collisions": collisions,
-            "outside_band": list(rp["outside_band"]),
-            "split_steps": sorted(rp["split_steps"]),
+    return {"passed": got["passed"], "measured_passed": bool(ok), "causes": tuple(causes),
+            "failures": got["failures"], "collisions": tuple(collisions),
+            "outside_band": tuple(rp["outside_band"]),
+            "split_steps": tuple(sorted(rp["split_steps"])),
             "tones_moved": sum(1 for m in rp["moved"]
                                if m["frequency_hz"] != m["original_frequency_hz"])}

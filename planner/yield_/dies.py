@@ -19,6 +19,7 @@ from planner.intervals import wilson_interval
 from planner.wafer import die_place, line_width_offsets, wafer_layout
 from planner.yield_.chip import measured_frequencies
 from planner.yield_.inputs import Payload
+from planner.yield_.results import ChipResult
 
 #: A die's outcomes, best first: the plan's drive works on it; a drive re-planned from
 #: its measurement does; trimmed and re-planned it does; nothing the study ran does.
@@ -28,23 +29,24 @@ OUTCOMES = ("as designed", "after re-plan", "after trim", "fails")
 RADIUS_RINGS = 5
 
 
-def chip_outcome(result: dict) -> tuple[str, list]:
+def chip_outcome(result: ChipResult) -> tuple[str, list]:
     """``(outcome, causes)`` of one chip's result (:func:`planner.yield_.verify_chip`):
     the first of :data:`OUTCOMES` it reaches, and for ``fails`` the causes of the last
     stage run (the trim's, the re-plan's, or the failing checks of the plan's drive, in
     the order of :data:`planner.afterfab.checks.KINDS`)."""
-    if result["passed"]:
+    replan, trim = result.replan, result.trim
+    if result.passed:
         return OUTCOMES[0], []
-    if "replan" in result and result["replan"]["passed"]:
+    if replan is not None and replan.passed:
         return OUTCOMES[1], []
-    if "trim" in result and result["trim"]["passed"]:
+    if trim is not None and trim.passed:
         return OUTCOMES[2], []
-    if "trim" in result:
-        return OUTCOMES[3], list(result["trim"]["causes"])
-    if "replan" in result:
-        return OUTCOMES[3], list(result["replan"]["causes"])
+    if trim is not None:
+        return OUTCOMES[3], list(trim.causes)
+    if replan is not None:
+        return OUTCOMES[3], list(replan.causes)
     rank = {k: i for i, k in enumerate(KINDS)}
-    return OUTCOMES[3], sorted(result["failures"], key=lambda k: (rank.get(k, 99), k))
+    return OUTCOMES[3], sorted(result.failures, key=lambda k: (rank.get(k, 99), k))
 
 
 def outcome_counts(outcomes) -> dict:
@@ -61,15 +63,15 @@ def wafer_record(payload: Payload, results: list) -> dict:
     ----------
     payload : Payload
         The run's payload (its ``fabrication.wafer`` and the plan's array).
-    results : list of dict
+    results : list of ChipResult
         The headline scale's chips (:func:`planner.yield_.verify_chip`), any order.
     """
     spec, wafer = payload.design.spec, payload.fabrication.wafer
     layout = wafer_layout(spec.array, wafer)
     dies = []
-    for r in sorted(results, key=lambda r: r["chip"]):
+    for r in sorted(results, key=lambda r: r.chip):
         outcome, causes = chip_outcome(r)
-        dies.append({"chip": r["chip"], **die_place(spec.array, wafer, r["chip"]),
+        dies.append({"chip": r.chip, **die_place(spec.array, wafer, r.chip),
                      "outcome": outcome, "causes": causes})
     radius = np.array([d["radius_mm"] for d in dies])
     top = float(layout.die_radius.max() / 1e-3)

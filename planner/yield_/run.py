@@ -52,7 +52,8 @@ def run_yield(payload: Payload, chips: int, *, scales=(1.0,), jobs: int = 1,
         numba.set_num_threads(before)
     if timings is not None:
         timings["wall_s"] = time.perf_counter() - t_start
-        timings["nominal_s"] = [r["seconds"]["nominal"] for r in results if "seconds" in r]
-        timings["replan_s"] = [r["seconds"]["replan"] for r in results
-                               if "seconds" in r and "unbuildable" not in r["failures"]]
+        timed = [r for r in results if r.seconds is not None]
+        timings["nominal_s"] = [r.seconds.nominal for r in timed]
+        timings["replan_s"] = [r.seconds.replan for r in timed
+                               if "unbuildable" not in r.failures]
     return yield_record(payload, chips, scales, results[0], results[1:])

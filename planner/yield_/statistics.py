@@ -8,6 +8,7 @@ import json
 from planner.arrayspec import TrimSpec
 from planner.afterfab.checks import KINDS
 from planner.yield_.chip import REPLAN_CAUSES
+from planner.yield_.results import ChipResult
 from planner.intervals import wilson_interval
 
 
@@ -34,18 +35,19 @@ def _tally(lists, order) -> dict:
 
 
 def _summary(results, chips):
-    passed = sum(r["passed"] for r in results)
-    failures = _tally((r["failures"] for r in results), KINDS)
-    both = sum(r.get("carried_passed", r["passed"]) for r in results)
+    """The yields and tallies of one scale's chips (:class:`ChipResult`)."""
+    passed = sum(r.passed for r in results)
+    failures = _tally((r.failures for r in results), KINDS)
+    both = sum(r.carried_passed for r in results)
     out = {"chips": chips, "passed": passed, "yield": passed / chips,
            "ci95": wilson_interval(passed, chips), "failures": failures,
            "carried_state": {"passed": both, "yield": both / chips,
                              "ci95": wilson_interval(both, chips)}}
-    if results and "replan" in results[0]:
+    if results and results[0].replan is not None:
         out["replan"] = _replan_summary(results, chips)
-        if "tuned" in results[0]["replan"]:
+        if results[0].replan.tuned is not None:
             out["tune"] = _tune_summary(results, chips)
-    if results and "trim" in results[0]:
+    if results and results[0].trim is not None:
         out["trim"] = _trim_summary(results, chips)
     return out
 
@@ -53,59 +55,60 @@ def _summary(results, chips):
 def _trim_summary(results, chips):
     """The yield with trims: chips the re-plan passed, or that a trim and a re-plan of
     the trimmed chip rescued."""
-    ok = sum(r["trim"]["passed"] for r in results)
-    failed = [r["trim"] for r in results if not r["trim"]["passed"]]
+    ok = sum(r.trim.passed for r in results)
+    failed = [r.trim for r in results if not r.trim.passed]
     return {"chips": chips, "passed": ok, "yield": ok / chips,
             "ci95": wilson_interval(ok, chips),
-            "trimmed": sum(1 for r in results if r["trim"]["trimmed"]),
-            "rescued": sum(1 for r in results
-                           if r["trim"]["passed"] and not r["replan"]["passed"]),
-            "causes": _tally((t["causes"] for t in failed),
+            "trimmed": sum(1 for r in results if r.trim.trimmed),
+            "rescued": sum(1 for r in results if r.trim.passed and not r.replan.passed),
+            "causes": _tally((t.causes for t in failed),
                              REPLAN_CAUSES + ("cannot be trimmed",)),
-            "failures": _tally((t["failures"] for t in failed), KINDS)}
+            "failures": _tally((t.failures for t in failed), KINDS)}
 
 
 def _replan_summary(results, chips):
     """The re-plan's yield, its failure causes and the chips it rescued or lost."""
-    ok = sum(r["replan"]["passed"] for r in results)
+    ok = sum(r.replan.passed for r in results)
     return {"chips": chips, "passed": ok, "yield": ok / chips,
             "ci95": wilson_interval(ok, chips),
-            "rescued": sum(1 for r in results if r["replan"]["passed"] and not r["passed"]),
-            "lost": sum(1 for r in results if r["passed"] and not r["replan"]["passed"]),
-            "measured_passed": sum(r["replan"]["measured_passed"] for r in results),
-            "causes": _tally((r["replan"]["causes"] for r in results), REPLAN_CAUSES),
-            "failures": _tally((r["replan"]["failures"] for r in results), KINDS)}
+            "rescued": sum(1 for r in results if r.replan.passed and not r.passed),
+            "lost": sum(1 for r in results if r.passed and not r.replan.passed),
+            "measured_passed": sum(r.replan.measured_passed for r in results),
+            "causes": _tally((r.replan.causes for r in results), REPLAN_CAUSES),
+            "failures": _tally((r.replan.failures for r in results), KINDS)}
 
 
 def _tune_summary(results, chips):
     """The yield with the re-planned chips tuned on the chip (:mod:`planner.afterfab.tune`)."""
-    tuned = [r["replan"]["tuned"] for r in results]
-    ok = sum(t["passed"] for t in tuned)
+    tuned = [r.replan.tuned for r in results]
+    ok = sum(t.passed for t in tuned)
     return {"chips": chips, "passed": ok, "yield": ok / chips,
             "ci95": wilson_interval(ok, chips),
             "rescued": sum(1 for r, t in zip(results, tuned)
-                           if t["passed"] and not r["replan"]["passed"]),
+                           if t.passed and not r.replan.passed),
             "lost": sum(1 for r, t in zip(results, tuned)
-                        if r["replan"]["passed"] and not t["passed"]),
-            "causes": _tally((t["causes"] for t in tuned), REPLAN_CAUSES),
-            "failures": _tally((t["failures"] for t in tuned), KINDS)}
+                        if r.replan.passed and not t.passed),
+            "causes": _tally((t.causes for t in tuned), REPLAN_CAUSES),
+            "failures": _tally((t.failures for t in tuned), KINDS)}
 
 
-def _chip_record(r) -> dict:
+def _chip_record(r: ChipResult) -> dict:
     """One chip's line of yield.json's ``replan.per_chip``."""
-    rp = r["replan"]
-    return {"chip": r["chip"], "nominal_passed": r["passed"], "replan_passed": rp["passed"],
-            "measured_passed": rp["measured_passed"], "causes": rp["causes"],
-            "failures": _ordered(rp["failures"], KINDS), "collisions": rp["collisions"],
-            "outside_band": rp["outside_band"], "split_steps": rp.get("split_steps", []),
-            "tones_moved": rp.get("tones_moved", 0),
-            **({"tuned_passed": rp["tuned"]["passed"], "tuned_causes": rp["tuned"]["causes"],
-                "tuned_windows": rp["tuned"].get("windows", 0)} if "tuned" in rp else {}),
-            **({"trim_passed": r["trim"]["passed"], "trimmed": r["trim"]["trimmed"],
-                "trim_causes": r["trim"]["causes"]} if "trim" in r else {})}
+    rp, tu, tr = r.replan, r.replan.tuned, r.trim
+    return {"chip": r.chip, "nominal_passed": r.passed, "replan_passed": rp.passed,
+            "measured_passed": rp.measured_passed, "causes": list(rp.causes),
+            "failures": _ordered(rp.failures, KINDS),
+            "collisions": [c.to_dict() for c in rp.collisions],
+            "outside_band": list(rp.outside_band),
+            "split_steps": list(rp.split_steps or ()), "tones_moved": rp.tones_moved or 0,
+            **({"tuned_passed": tu.passed, "tuned_causes": list(tu.causes),
+                "tuned_windows": tu.windows} if tu is not None else {}),
+            **({"trim_passed": tr.passed, "trimmed": list(tr.trimmed),
+                "trim_causes": list(tr.causes)} if tr is not None else {})}
 
 
-def yield_record(payload, chips: int, scales: list[float], nominal: dict, results: list) -> dict:
+def yield_record(payload, chips: int, scales: list[float], nominal: ChipResult,
+                 results: list) -> dict:
     """The content of ``yield.json`` (docs/yield.md) from the chips' results.
 
     Parameters
@@ -117,20 +120,20 @@ def yield_record(payload, chips: int, scales: list[float], nominal: dict, result
     scales : list of float
         The sigma scales, in the order given; the one of 1 (else the first) is the
         headline's.
-    nominal : dict
+    nominal : ChipResult
         :func:`planner.yield_.verify_chip`'s result of the nominal chip.
-    results : list of dict
+    results : list of ChipResult
         Those of every other chip, of every scale.
     """
     main = scales.index(1.0) if 1.0 in scales else 0
     out_scale = {}
     for j, s in enumerate(scales):
-        mine = [r for r in results if r["scale_index"] == j]
+        mine = [r for r in results if r.scale_index == j]
         out_scale[j] = (_summary(mine, chips), mine)
     summary, mine = out_scale[main]
     counts = dict.fromkeys(payload.nodes, 0)
     for r in mine:
-        for n in r["nodes"]:
+        for n in r.nodes:
             counts[n] += 1
     data = {
         "chips": chips, "passed": summary["passed"], "yield": summary["yield"],
@@ -140,9 +143,9 @@ def yield_record(payload, chips: int, scales: list[float], nominal: dict, result
         "failures": summary["failures"],
         "impacters": {n.text: counts[n] / chips for n in counts},
         "carried_state": summary["carried_state"],
-        "nominal": {"passed": nominal["passed"], "failures": nominal["failures"],
-                    "carried_passed": nominal["carried_passed"]},
-        "failed_chips": [r["chip"] for r in mine if not r["passed"]],
+        "nominal": {"passed": nominal.passed, "failures": nominal.failures,
+                    "carried_passed": nominal.carried_passed},
+        "failed_chips": [r.chip for r in mine if not r.passed],
     }
     if payload.replan:
         rp = summary["replan"]
@@ -155,7 +158,7 @@ def yield_record(payload, chips: int, scales: list[float], nominal: dict, result
             "measured_passed": rp["measured_passed"],
             "causes": rp["causes"], "failures": rp["failures"],
             "nominal": _chip_record(nominal),
-            "failed_chips": [r["chip"] for r in mine if not r["replan"]["passed"]],
+            "failed_chips": [r.chip for r in mine if not r.replan.passed],
             "per_chip": [_chip_record(r) for r in mine],
         }
     if payload.tune:
@@ -165,7 +168,7 @@ def yield_record(payload, chips: int, scales: list[float], nominal: dict, result
             "speed_noise_pct": payload.tune_noise_pct,
             **{k: tu[k] for k in ("chips", "passed", "yield", "ci95", "rescued", "lost",
                                   "causes", "failures")},
-            "failed_chips": [r["chip"] for r in mine if not r["replan"]["tuned"]["passed"]],
+            "failed_chips": [r.chip for r in mine if not r.replan.tuned.passed],
         }
     if payload.trim:
         tr = summary["trim"]
@@ -176,7 +179,7 @@ def yield_record(payload, chips: int, scales: list[float], nominal: dict, result
                                                 else TrimSpec().precision_pct)),
             **{k: tr[k] for k in ("chips", "passed", "yield", "ci95", "trimmed", "rescued",
                                   "causes", "failures")},
-            "failed_chips": [r["chip"] for r in mine if not r["trim"]["passed"]],
+            "failed_chips": [r.chip for r in mine if not r.trim.passed],
         }
     if len(scales) > 1 or scales != [1.0]:
         keys = ("yield", "ci95", "passed", "failures", "carried_state")

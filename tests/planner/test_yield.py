@@ -124,11 +124,11 @@ def test_failure_rates_count_the_impacters_each_chip_implicates(tiny_plan_dir):
     payload = make_payload(read_plan(tiny_plan_dir), 5, load_spec(HUGE).spec.fabrication)
     chips = [verify_chip(payload, 0, i, 1.0) for i in range(4)]
     data = run_yield(payload, 4)
-    assert any(c["nodes"] for c in chips), "the huge tolerance must fail some impacter"
-    assert all(isinstance(n, Node) for c in chips for n in c["nodes"])
+    assert any(c.nodes for c in chips), "the huge tolerance must fail some impacter"
+    assert all(isinstance(n, Node) for c in chips for n in c.nodes)
     assert data["impacters"] == {
-        n.text: sum(n in c["nodes"] for c in chips) / 4 for n in payload.nodes}
-    assert data["failed_chips"] == [c["chip"] for c in chips if not c["passed"]]
+        n.text: sum(n in c.nodes for c in chips) / 4 for n in payload.nodes}
+    assert data["failed_chips"] == [c.chip for c in chips if not c.passed]
 
 
 def test_failure_rates_land_on_their_devices_cells():
