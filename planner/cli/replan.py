@@ -164,8 +164,15 @@ def command(plan_path, measured_path, windows_path, measured_dir, trim, jobs, sc
 
 
 def _is_wafer(path) -> bool:
+    """Whether ``path`` is a wafer's file; only a regular file is looked into (a FIFO
+    would block the sniff: the chip's reader refuses it with exit 2)."""
     from planner.afterfab.wafer_file import is_stdf, is_wafer_csv
 
+    try:
+        if not Path(path).is_file():
+            return False
+    except OSError:
+        return False
     return is_stdf(path) or is_wafer_csv(path)
 
 

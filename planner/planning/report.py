@@ -395,10 +395,15 @@ def _motion_notes(d):
             text += f" (a design serves {rng[0]:.0f}-{rng[1]:.0f} Hz at the speed floor)"
         wide = [f"x{p['ratio']:.3g} at {p['tone_hz'] / 1e3:.3g} kHz" for p in reach["probes"]
                 if p["ratio"] is not None and p["ratio"] > p["packed_ratio"]]
-        if wide:
+        if wide and not reach.get("relaxed_separations"):
             text += ("; neighbours kept further apart than the grid packs them: "
                      + ", ".join(wide))
         lines.append(text)
+    if reach and reach.get("relaxed_separations"):
+        lines.append("- reach: what a probe design asked (a wider spacing, or no tone told "
+                     "apart near it) did not fit the band: every reachable channel was "
+                     "offered at the grid's packed spacing, and the loop below moves a "
+                     "design that fails there")
     for rnd in d["verification"].get("repair_rounds", []):
         # a design round that failed checks and what the next round changed
         r = rnd["round"]

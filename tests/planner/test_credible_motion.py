@@ -482,11 +482,11 @@ def test_report_says_which_impacters_a_design_round_redesigned(travel_plan):
     from planner.planning.report import _motion_notes
 
     d = copy.deepcopy(travel_plan.data)
-    assert not any("design round" in line for line in _motion_notes(d))
+    assert not any("design round" in line for line in _motion_notes(d).lines)
     d["verification"]["repair_rounds"] = [
         {"round": 0, "span": 10, "failures": 2, "redesigned_slow": ["A1.forward"],
          "redesigned_idle": ["A2.forward"]},
         {"round": 1, "span": 10, "failures": 0}]
-    text = "\n".join(_motion_notes(d))
+    text = "\n".join(_motion_notes(d).lines)
     assert "design round 0: re-designed from further seeds (too slow in a step): A1.forward" in text
     assert "(answered a step it sits out): A2.forward" in text
