@@ -28,7 +28,7 @@ import pandas as pd
 from scipy.optimize import least_squares
 
 from model.devices import MIN_FREQUENCY
-from planner.lab_csv import csv_number, read_csv_rows
+from planner.lab_csv import csv_number, read_csv_rows, row_values
 from planner.units import UM
 
 #: Columns of a sweep file: required, then optional.
@@ -517,10 +517,7 @@ def read_sweep(path) -> pd.DataFrame:
                                                     what="a sweep")
     records = []
     for line, row in rows:
-        if len(row) != len(header):
-            raise fail(line, header[min(len(row), len(header) - 1)],
-                       f"{len(row)} values where the header has {len(header)} columns")
-        values = dict(zip(header, (v.strip() for v in row)))
+        values = row_values(header, line, row, fail)
         if not values["impacter"]:
             raise fail(line, "impacter", "empty impacter name")
         rec = {"impacter": values["impacter"], "line": line}

@@ -113,6 +113,16 @@ def read_csv_rows(path, required, optional=(), *, what="the file", ignore=None):
     return header_line, header, lines[1:], fail
 
 
+def row_values(header, line, row, fail, *, strip=True) -> dict:
+    """One CSV row as ``{column: text}`` (each value stripped unless ``strip`` is false);
+    a row of another length than the header is ``fail(line, column, message)`` naming
+    the first column it lacks or the last it overruns."""
+    if len(row) != len(header):
+        raise fail(line, header[min(len(row), len(header) - 1)],
+                   f"{len(row)} values where the header has {len(header)} columns")
+    return dict(zip(header, (v.strip() for v in row) if strip else row))
+
+
 def _csv_rows(fh):
     """(1-based line, fields) of each non-blank, non-comment row of a CSV file."""
     reader = csv.reader(fh)

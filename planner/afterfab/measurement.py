@@ -179,15 +179,12 @@ def measurements_from_rows(header_line, header, rows, fail, impacter_ids, design
     (:func:`planner.lab_csv.read_csv_rows`'s ``header_line``, ``header``, ``rows`` and
     ``fail``): one chip's rows of a wafer file too (:mod:`planner.afterfab.wafer_file`),
     whose other columns (the die's) are left alone."""
-    from planner.lab_csv import csv_number
+    from planner.lab_csv import csv_number, row_values
 
     known = set(impacter_ids)
     whole, first_line, halves = {}, {}, {}
     for line, row in rows:
-        if len(row) != len(header):
-            raise fail(line, header[min(len(row), len(header) - 1)],
-                       f"{len(row)} values where the header has {len(header)} columns")
-        values = dict(zip(header, (v.strip() for v in row)))
+        values = row_values(header, line, row, fail)
         name = values["impacter"]
         if not name:
             raise fail(line, "impacter", "empty impacter name")

@@ -56,17 +56,14 @@ def read_test_map(path, impacter_ids) -> dict:
         Naming the row and column (an unknown impacter, a repeated test name, a half
         that is not a or b).
     """
-    from planner.lab_csv import read_csv_rows
+    from planner.lab_csv import read_csv_rows, row_values
 
     _, header, rows, fail = read_csv_rows(path, ("test_name", "impacter"), ("half",),
                                           what="a test map")
     known = set(impacter_ids)
     out, first = {}, {}
     for line, row in rows:
-        if len(row) != len(header):
-            raise fail(line, header[min(len(row), len(header) - 1)],
-                       f"{len(row)} values where the header has {len(header)} columns")
-        v = dict(zip(header, (x.strip() for x in row)))
+        v = row_values(header, line, row, fail)
         name, imp, half = v["test_name"], v["impacter"], v.get("half", "").lower()
         if not name:
             raise fail(line, "test_name", "empty test name")

@@ -293,16 +293,13 @@ def read_motion(path) -> list:
         a number that is not finite, a tone <= 10 Hz, or an impacter with fewer than
         :data:`MIN_TONES` distinct tones.
     """
-    from planner.lab_csv import csv_number, read_csv_rows
+    from planner.lab_csv import csv_number, read_csv_rows, row_values
 
     header_line, header, rows, fail = read_csv_rows(path, MOTION_COLUMNS,
                                                     what="a motion sweep")
     out, lines = [], {}
     for line, row in rows:
-        if len(row) != len(header):
-            raise fail(line, header[min(len(row), len(header) - 1)],
-                       f"{len(row)} values where the header has {len(header)} columns")
-        values = dict(zip(header, (v.strip() for v in row)))
+        values = row_values(header, line, row, fail)
         name = values["impacter"]
         if not name:
             raise fail(line, "impacter", "empty impacter name")
@@ -361,17 +358,14 @@ def read_windows(path, impacter_ids, tones_hz=None) -> dict:
     flagged : dict
         Impacter id -> the status of a window calibrate flagged.
     """
-    from planner.lab_csv import csv_number, read_csv_rows
+    from planner.lab_csv import csv_number, read_csv_rows, row_values
 
     known = set(impacter_ids)
     optional = tuple(c for c in WINDOW_COLUMNS if c not in WINDOW_REQUIRED)
     _, header, rows, fail = read_csv_rows(path, WINDOW_REQUIRED, optional, what="windows.csv")
     out, first, flagged = {}, {}, {}
     for line, row in rows:
-        if len(row) != len(header):
-            raise fail(line, header[min(len(row), len(header) - 1)],
-                       f"{len(row)} values where the header has {len(header)} columns")
-        values = dict(zip(header, (v.strip() for v in row)))
+        values = row_values(header, line, row, fail)
         name = values["impacter"]
         if name not in known:
             raise fail(line, "impacter", f"unknown impacter {name!r} (the plan has: "

@@ -87,17 +87,14 @@ def read_wafer_csv(path, impacter_ids, design_hz=None) -> list:
         ``FILE: row N, column C: ...`` as measured.csv's reader, and for a die index
         that is not an integer.
     """
-    from planner.lab_csv import read_csv_rows
+    from planner.lab_csv import read_csv_rows, row_values
 
     header_line, header, rows, fail = read_csv_rows(
         path, DIE_COLUMNS + MEASURED_REQUIRED, MEASURED_OPTIONAL, what="a wafer's CSV",
         ignore=lambda c: c.endswith("_std") or c.endswith("_std_hz"))
     groups = {}
     for line, row in rows:
-        if len(row) != len(header):
-            raise fail(line, header[min(len(row), len(header) - 1)],
-                       f"{len(row)} values where the header has {len(header)} columns")
-        values = dict(zip(header, row))
+        values = row_values(header, line, row, fail, strip=False)
         key = tuple(_die_index(values[c], line, c, fail) for c in DIE_COLUMNS)
         groups.setdefault(key, []).append((line, row))
     if not groups:
