@@ -69,7 +69,7 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
                     forbidden_drives=(), max_mass_ratio=None, contact="paper",
                     robust_shift=None, target_drives=(), sensitivity=None,
                     speed_window=None, speed_x0_points=None, min_speed=None,
-                    tone_window=0.0, direction=1.0):
+                    tone_window=0.0, direction=1.0, family=()):
     """Design one impacter by the paper's max-min problem, eqs. (13)-(18).
 
     Maximise the worst response over initial positions at ``frequency`` subject to
@@ -180,6 +180,14 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         the tone, so that a tone moved by a measurement's error still drives it.  0:
         the tone alone (the paper's problem).
 
+    family : sequence of ((A, w, l, c), frequency), optional
+        Designs of the same spec at other tones [m, Hz]: each, scaled to ``frequency``
+        (the same A, width or line-width sensitivity, nu_n / tone and gap over its
+        linear amplitude at its tone), joins the first round's Sobol samples as a
+        start of the annealing chains.  With matched sensitivities the designs of a spec
+        are close to one family scaled in frequency, so a good neighbour is a good start;
+        the search still explores as without it.
+
     Returns
     -------
     DesignResult
@@ -218,7 +226,8 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
                        target_ensembles=a.targets, sensitivity=a.sensitivity,
                        tone_window=a.tone_window)
     report = _progress_hook(progress)
-    ev, chk, status, history, rounds = _search(problem, a.rng, a.budget, report)
+    starts = [problem.z_of(g, f) for g, f in family]
+    ev, chk, status, history, rounds = _search(problem, a.rng, a.budget, report, starts)
     return _result(a, problem, ev, chk, status, history, rounds, report, slider=a.slider,
                    speed_window=speed_window, speed_x0_points=speed_x0_points,
                    seed=seed, t_start=t_start, direction=direction)
@@ -350,7 +359,7 @@ def _checked_inputs(frequency, forbidden, process, environment, bounds, window, 
                    tone_window=tone_window)
 
 
-def _search(problem, rng, budget, report):
+def _search(problem, rng, budget, report, family=()):
     """Search and re-check; returns (evaluation, re-check, status, history, rounds) of
     the design chosen: the first re-checked design that passes both checks, else the
     best on the fine grid, else the least violating ("infeasible")."""
@@ -365,7 +374,7 @@ def _search(problem, rng, budget, report):
 
     history = []          # (evaluation, re-check) of every archived design re-checked
     with problem.kernel_scope():
-        rounds = _search_and_recheck(problem, rng, budget, tick, history)
+        rounds = _search_and_recheck(problem, rng, budget, tick, history, family)
     # the first re-checked design that passes both checks (the search stops there)
     chosen = next(((ev, c) for ev, c in history if c["fine_ok"] and c["long_ok"]), None)
     status = "ok"

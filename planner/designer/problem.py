@@ -12,6 +12,7 @@ import numba
 import numpy as np
 
 from model import SolverWarning, responses
+from model.bounds import silence_bound
 from planner.designer.runs import (
     PARALLEL_MIN_RUNS,
     Ensemble,
@@ -32,6 +33,9 @@ JUMP_REL = 0.15
 NATURAL_RATIO = (0.4, 1.4)
 #: The long re-check window, as a multiple of the design window [-].
 LONG_WINDOW_FACTOR = 10.0
+#: Answer a check of silence by :func:`model.bounds.silence_bound` where it proves r = 0
+#: (from every x0, over any window) instead of simulating it; off only to compare.
+SILENCE_BOUND = True
 #: Two designs closer than this in z (max norm) are one design in the archive [-].
 ARCHIVE_SEPARATION = 0.02
 #: Search range of the gap c as a multiple kappa of the impacter's linear steady-state
@@ -177,6 +181,8 @@ class _Problem:
         self.tone_amplitude = float(drive.amplitudes[0])
         self.evals = {}      # geometry -> _Eval (on the current grids)
         self.runs = {}       # (geometry, f, window, stop, u bytes) -> (r, status)
+        self.bound_cache = {}  # (geometry, f) -> proven silent by the closed-form bound
+        self.bounded = 0     # checks the bound answered (no simulation)
         self.impacters = {}  # geometry -> model.Impacter (validation costs as much as a run)
         # whether the search's objective counts the target ensembles too: it starts
         # without them (on the default plan they lowered r_min in 2 of ~400 evaluations,
@@ -228,6 +234,27 @@ class _Problem:
                                  / math.log(self.sensitivity[1] / self.sensitivity[0])))
         return (float(area), float(width), float(length), float(gap)), zz
 
+    def z_of(self, geometry, frequency):
+        """z of a design (A, w, l, c) made for the tone ``frequency`` [Hz], scaled to this
+        problem's tone: the same A, width (or line-width sensitivity), nu_n / tone and gap
+        over its linear amplitude at its tone (a member of the spec's design family,
+        clipped into the search box)."""
+        area, width, length, gap = (float(v) for v in geometry)
+        nu_n = self.line_width.natural_frequency(area, width, length)
+        kappa = gap / self.linear_amplitude(area, width, length, frequency)
+        z = np.empty(4)
+        z[0] = (math.log(area) - self.lo[0]) / (self.hi[0] - self.lo[0])
+        z[1] = (math.log(width) - self.lo[1]) / (self.hi[1] - self.lo[1]) if (
+            self.hi[1] > self.lo[1]) else 0.0
+        if self.sensitivity is not None:
+            s_lo, s_hi = self.sensitivity
+            s = self.line_width.sensitivity(area, width, length)
+            z[1] = (math.log(s / s_lo) / math.log(s_hi / s_lo)) if s_hi > s_lo else 0.0
+        z[2] = ((math.log(nu_n / frequency * self.frequency) - self.lo[2])
+                / (self.hi[2] - self.lo[2]))
+        z[3] = (math.log(kappa) - self.lo[3]) / (self.hi[3] - self.lo[3])
+        return np.clip(z, 0.0, 1.0)
+
     def _shape(self, area, width, nu_n, target):
         """(A, w, l) for natural frequency ``nu_n``: l from nu_n, or with a sensitivity
         ``target`` [1/m] the width (the area, when the width is fixed) solved for it."""
@@ -264,16 +291,21 @@ class _Problem:
                 return area, width, length
         return area, width, length
 
-    def linear_amplitude(self, area, width, length):
-        """X [m]: steady-state amplitude of eq. (1) without the wall at the target tone,
-        for (A, w, l) by eqs. (2)-(4) in closed form."""
+    def linear_amplitude(self, area, width, length, frequency=None):
+        """X [m]: steady-state amplitude of eq. (1) without the wall at the target tone
+        (or at ``frequency`` [Hz]), for (A, w, l) by eqs. (2)-(4) in closed form."""
         lw = self.line_width
         m = lw.mass(area, width, length)
         k = lw.k_coef * (width / length) ** 3
         wn = math.sqrt(k / m)
-        r = 2.0 * math.pi * self.frequency / wn
+        amplitude = self.tone_amplitude
+        if frequency is None:
+            frequency = self.frequency
+        else:
+            amplitude = float(self.tones.drive(frequency).amplitudes[0])
+        r = 2.0 * math.pi * frequency / wn
         zeta = self.damping_per_area * area / (2.0 * m * wn)
-        return self.tone_amplitude * r * r / math.hypot(1.0 - r * r, 2.0 * zeta * r)
+        return amplitude * r * r / math.hypot(1.0 - r * r, 2.0 * zeta * r)
 
     def sensitivity_miss(self, geometry):
         """|ln(S / band)| of ``geometry``'s line-width sensitivity outside the band, 0 inside."""
@@ -321,6 +353,10 @@ class _Problem:
         :meth:`kernel_scope`)."""
         key = (geometry, _freq_key(frequency), float(window), bool(stop), u.tobytes())
         hit = self.runs.get(key)
+        if hit is None and SILENCE_BOUND and not self._at_target(frequency) and self.bounded_silent(
+                geometry, frequency):
+            # a closed-form bound proves r = 0 from every x0 over any window: no runs
+            hit = self.runs[key] = (np.zeros(u.size), np.zeros(u.size, dtype=np.int64))
         if hit is None:
             imp = self.impacter(geometry)
             self._threads_for(u.size)
@@ -340,13 +376,35 @@ class _Problem:
             else:
                 # at the target the variant that responds least counts (all must be
                 # driven); anywhere else the one that responds most (all must be silent)
-                target = (any(frequency is e for e in self.target_ensembles)
-                          or (not isinstance(frequency, Ensemble)
-                              and (_freq_key(frequency) == _freq_key(self.frequency)
-                                   or _freq_key(frequency) in self._window_keys)))
+                target = self._at_target(frequency)
                 hit = ((np.min(rs, axis=0) if target else np.max(rs, axis=0)),
                        np.max(statuses, axis=0))
             self.runs[key] = hit
+        return hit
+
+    def _at_target(self, frequency):
+        """Whether ``frequency`` is the target, an edge of its window or a target
+        ensemble (where the design must respond) rather than a check of silence."""
+        return (any(frequency is e for e in self.target_ensembles)
+                or (not isinstance(frequency, Ensemble)
+                    and (_freq_key(frequency) == _freq_key(self.frequency)
+                         or _freq_key(frequency) in self._window_keys)))
+
+    def bounded_silent(self, geometry, frequency):
+        """Whether :func:`model.bounds.silence_bound` proves ``geometry`` silent under
+        ``frequency`` (a tone or an :class:`Ensemble`) for every natural-frequency
+        variant it is checked for (cached; counted in ``bounded``)."""
+        key = (geometry, _freq_key(frequency))
+        hit = self.bound_cache.get(key)
+        if hit is None:
+            drive = frequency.drive if isinstance(frequency, Ensemble) else self.tones.drive(
+                frequency)
+            hit = all(
+                silence_bound(self.impacter(geometry) if scale == 1.0
+                              else self.variant(geometry, scale), drive).silent
+                for scale in self.nu_scales(geometry))
+            self.bound_cache[key] = hit
+            self.bounded += int(hit)
         return hit
 
     def nu_scales(self, geometry):

@@ -86,12 +86,13 @@ def _distinct(evals, count, separation=0.1):
     return out
 
 
-def _search(problem, rng, budget, tick, starts=None):
+def _search(problem, rng, budget, tick, starts=None, family=()):
     """Annealing chains and the SQP polish.
 
-    The first round seeds its chains with scrambled-Sobol samples; a resumed round
-    (``starts``: z of the previous round's archive) re-evaluates those on the grown
-    grids and anneals shorter chains from them.
+    The first round seeds its chains with scrambled-Sobol samples, and the ``family``
+    (z of designs of the same spec at other tones, scaled to this one) beside them; a
+    resumed round (``starts``: z of the previous round's archive) re-evaluates those on
+    the grown grids and anneals shorter chains from them.
     """
     if starts is None:
         samples = stats.qmc.Sobol(4, scramble=True, seed=rng).random(budget.initial)
@@ -102,6 +103,7 @@ def _search(problem, rng, budget, tick, starts=None):
             k = max(1, round(1.0 / budget.area_face))
             samples[k - 1::k, 0] = 1.0
         pool = [problem.evaluate(z) for z in samples]
+        pool += [problem.evaluate(z) for z in family]
         steps = budget.anneal_steps
     else:
         pool = [problem.evaluate(z) for z in starts]
@@ -190,17 +192,18 @@ def _sparse(u, count=8):
     return u[np.linspace(0, u.size - 1, count).round().astype(int)]
 
 
-def _search_and_recheck(problem, rng, budget, tick, history):
+def _search_and_recheck(problem, rng, budget, tick, history, family=()):
     """Search; re-check the archive on a finer grid and a longer window; where every
     archived design fails, add the failing x0 (and any forbidden frequency the search
     skipped) to the optimiser's problem and resume (exchange method).
 
-    Appends (evaluation, re-check) of every re-checked design to ``history`` and stops
-    at the first that passes both checks.  Returns the number of rounds run.
+    ``family``: z of related designs the first round's chains may start from.  Appends
+    (evaluation, re-check) of every re-checked design to ``history`` and stops at the
+    first that passes both checks.  Returns the number of rounds run.
     """
     starts = None
     for round_ in range(budget.rounds):
-        _search(problem, rng, budget, tick, starts)
+        _search(problem, rng, budget, tick, starts, family if round_ == 0 else ())
         if starts is None:
             # no feasible design on the optimiser's grid: the feasible region may be
             # small (a narrow band of (nu_n, c)); search again with more samples

@@ -7,6 +7,8 @@ out as a forbidden drive; designs sharing all their inputs are designed once.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from planner.planning.drives import drive_of
@@ -45,6 +47,29 @@ SPEED_MARGIN = 1.75
 #: the lower edge.  A design must respond there from every x0 (its feasibility); a speed
 #: at the edges is what the retries aim for.
 WINDOW_SPEED_MARGIN = 1.25
+
+
+#: Members of the design family each design starts from: the reach probes' designs
+#: nearest its tone in log frequency (:func:`family_for`).
+FAMILY_SIZE = 3
+
+
+def family_for(family, tone, size=FAMILY_SIZE):
+    """The ``size`` members of ``family`` (((A, w, l, c), tone) each) nearest ``tone``
+    [Hz] in log frequency, by tone: the starts a design at ``tone`` is given
+    (:func:`planner.designer.design_impacter`'s ``family``)."""
+    near = sorted(family, key=lambda d: (abs(math.log(d[1] / tone)), d[1]))[:size]
+    return tuple(sorted(near, key=lambda d: d[1]))
+
+
+#: A retry that brings a feasible design's speed score (:func:`_speed_score`) up by less
+#: than this fraction gained nothing ...
+RETRY_GAIN = 0.02
+#: ... and after this many such tries in a row the design stops retrying: measured on the
+#: default plan's top tones (49.7 and 51.1 kHz), 8 feasible tries at 0.15-0.23 mm/s,
+#: none with its window edges at 1.25 x the floor: the tone allows no more, and the
+#: retries cost 14 s each there.
+RETRY_STALL = 2
 
 
 def _fast_enough(res, min_speed, margin):
@@ -91,7 +116,7 @@ def _design_task(kwargs, min_speed, infeasible_tries=INFEASIBLE_TRIES, margin=SP
         kept = _recheck_kept(kwargs, keep, min_speed)
         if kept.feasible:
             return kept
-    best, hard = None, 0
+    best, hard, stalled = None, 0, 0
     # BLAS on one thread wherever this runs (main process, pool or Dask worker): the SQP's
     # last digits depend on its thread count, the plan must not
     with single_thread_blas():
@@ -103,14 +128,36 @@ def _design_task(kwargs, min_speed, infeasible_tries=INFEASIBLE_TRIES, margin=SP
                 kw["budget"] = widened(kwargs.get("budget", "full"), hard)
             res = design_impacter(**kw)
             hard += _hard(res)
-            rank = (bool(res.feasible), not _hard(res), float(res.predicted_slider_speed_m_s))
-            if best is None or rank > best[0]:
+            rank = (bool(res.feasible), not _hard(res), _speed_score(res, min_speed, margin),
+                    float(res.predicted_slider_speed_m_s))
+            if best is None or rank[:3] > best[0][:3]:
+                stalled = 0 if best is None or rank[:2] > best[0][:2] or (
+                    rank[2] > (1.0 + RETRY_GAIN) * best[0][2]) else stalled + 1
                 best = (rank, res)
+            else:
+                stalled += 1
             if res.feasible and _fast_enough(res, min_speed, margin):
                 break
             if hard >= infeasible_tries and not best[0][0]:
                 break
+            if best[0][0] and stalled >= RETRY_STALL:
+                # feasible, and the last tries gained nothing: the tone allows about this
+                # much speed (the best is kept; a verification that finds it too slow
+                # re-designs it from further seeds, planning.repair.reseed_slow)
+                break
     return best[1]
+
+
+def _speed_score(res, min_speed, margin):
+    """How close a design comes to needing no retry: the lesser of its speed at its tone
+    over ``margin`` x the floor and its window edges' over :data:`WINDOW_SPEED_MARGIN` x
+    (1 or more: fast enough, :func:`_fast_enough`)."""
+    if not min_speed:
+        return 1.0
+    at_tone = res.checks.get("speed_at_tone_m_s", res.predicted_slider_speed_m_s)
+    edges = min(res.checks.get("speed_at_window_edges_m_s") or [at_tone])
+    return min(at_tone / (margin * min_speed),
+               edges / (min(margin, WINDOW_SPEED_MARGIN) * min_speed))
 
 
 def _recheck_kept(kwargs, keep, min_speed):
@@ -214,6 +261,10 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
     """
     from planner.designer import Ensemble
 
+    # the spec's design family: the reach probes' designs (planning.reach), where the
+    # assignment was made on a measured reach
+    reach = getattr(assignment, "reach", None)
+    family = reach.family if reach is not None else ()
     forbidden = (forbidden_tones(steps, assignment.frequencies) if waveforms is None else
                  played_tones(steps, assignment.frequencies, waveforms))
     none = {n: () for n in assignment.frequencies}
@@ -246,6 +297,8 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
                 forbidden_drives=[Ensemble(drive_of(waveforms[k]), k) for k in ensembles[n]],
                 target_drives=[Ensemble(drive_of(waveforms[k]), k) for k in targets[n]],
                 **settings.design_kwargs(n))
+            if family:
+                tasks[key]["family"] = family_for(family, assignment.frequencies[n])
             tasks[key]["_stream"] = offset
             if keep is not None:
                 tasks[key]["_keep"] = keep
@@ -261,7 +314,8 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
             if "_keep" in shown:
                 shown["_keep"] = {**shown["_keep"], "previous": key[-1]}
             digests[key] = task_digest(shown, min_speed, DESIGN_RETRIES,
-                                       INFEASIBLE_TRIES, SPEED_MARGIN, WINDOW_SPEED_MARGIN)
+                                       INFEASIBLE_TRIES, SPEED_MARGIN, WINDOW_SPEED_MARGIN,
+                                       RETRY_GAIN, RETRY_STALL)
             res = store.get(digests[key])
             if res is not None:
                 cache[key] = res

@@ -62,6 +62,12 @@ RATIO_BISECTIONS = 1
 #: Hard-infeasible tries of a separation probe beyond the packed ratio (one: those
 #: rungs measure where a design stops answering, not whether a hard target is met).
 WIDE_RUNG_TRIES = 1
+#: The seed of every probe design, whatever the plan's: the reach is a property of the
+#: spec (process, environment, bounds, band, floor), not of the seed, so every seed of a
+#: spec reads the same probes from the design cache and pays for them once.
+REACH_SEED = 0
+#: The shape of a probe's result in the design cache (2: with its design, the family).
+PROBE_FORMAT = 2
 #: Most tries of one probe design (the plan's designs take up to 1 + DESIGN_RETRIES
 #: while they are only too slow; a probe asks whether a design exists, and stops at
 #: its first feasible one).
@@ -89,6 +95,10 @@ class Probe:
         The predicted slider speed of the best design found there [m/s].
     tried : tuple of (float, bool, str)
         Every rung: neighbour ratio (0: alone), feasible, why not.
+    design : tuple or None
+        ((A, w, l, c) [m], tone [Hz]) of the fastest feasible design found with
+        neighbours, a member of the spec's design family (:attr:`Reach.family`); None
+        when none was feasible.
     """
 
     channel: int
@@ -98,6 +108,7 @@ class Probe:
     reachable: bool
     speed_m_s: float
     tried: tuple = ()
+    design: tuple | None = None
 
     @property
     def hopeless(self) -> bool:
@@ -156,6 +167,13 @@ class Reach:
     #: and the assignment offers every reachable channel at the grid's packed spacing
     #: instead (:func:`measure_reach`); the plan's loop moves a design that then fails
     relaxed: bool = False
+
+    @property
+    def family(self) -> tuple:
+        """((A, w, l, c), tone) of every probe's feasible design, by tone: the spec's
+        design family, which the plan's designs start from (:func:`planner.planning.designs.family_for`)."""
+        return tuple(sorted((p.design for p in self.probes if p.design is not None),
+                            key=lambda d: d[1]))
 
     @property
     def constrained(self) -> bool:
@@ -288,33 +306,41 @@ def _why(res) -> str:
 
 
 def _rung(shared, tone, neighbours, tries):
-    """(feasible, speed [m/s], why) of a design at ``tone`` [Hz] silent at
+    """(feasible, speed [m/s], why, design) of a design at ``tone`` [Hz] silent at
     ``neighbours`` [Hz]: at most :data:`PROBE_TRIES` of the planner's tries (``tries``
-    of them hard-infeasible), stopping at the first feasible one."""
+    of them hard-infeasible), stopping at the first feasible one; ``design`` is its
+    ((A, w, l, c), tone) when feasible, else None."""
     base, floor = shared
     res = _design_task({**base, "frequency": float(tone), "forbidden": tuple(neighbours)},
                        floor, infeasible_tries=tries, margin=1.0, max_tries=PROBE_TRIES)
-    return bool(res.feasible), float(res.predicted_slider_speed_m_s), _why(res)
+    g = res.geometry
+    design = (((float(g.area), float(g.width), float(g.length), float(g.gap)), float(tone))
+              if res.feasible else None)
+    return bool(res.feasible), float(res.predicted_slider_speed_m_s), _why(res), design
 
 
 def _tone(shared, tone, packed, packed_neighbours):
     """One probe (see the module docstring): returns (ratio or None, reachable, speed
-    [m/s], tried), ``tried`` every rung as (ratio, feasible, why), ratio 0 alone."""
+    [m/s], tried, design), ``tried`` every rung as (ratio, feasible, why), ratio 0
+    alone; ``design`` the fastest feasible design with neighbours (or None)."""
     tried = []
     best = [0.0]
+    family = [0.0, None]
 
     def at(ratio, neighbours, tries):
-        ok, v, why = _rung(shared, tone, neighbours, tries)
+        ok, v, why, design = _rung(shared, tone, neighbours, tries)
         tried.append((ratio, ok, why))
         best[0] = max(best[0], v)
+        if design is not None and ratio > 0 and v > family[0]:
+            family[:] = [v, design]
         return ok
 
     if at(packed, packed_neighbours, INFEASIBLE_TRIES):
-        return packed, True, best[0], tuple(tried)
+        return packed, True, best[0], tuple(tried), family[1]
     if packed >= RATIO_LIMIT or not at(RATIO_LIMIT, (tone / RATIO_LIMIT, tone * RATIO_LIMIT),
                                        WIDE_RUNG_TRIES):
         alone = at(0.0, (), 1)
-        return None, alone, best[0], tuple(tried)
+        return None, alone, best[0], tuple(tried), family[1]
     lo, hi, k = packed, RATIO_LIMIT, 1
     while True:
         rung = 1.0 + 2.0 ** k * (packed - 1.0)
@@ -330,15 +356,15 @@ def _tone(shared, tone, packed, packed_neighbours):
             hi = mid
         else:
             lo = mid
-    return hi, True, best[0], tuple(tried)
+    return hi, True, best[0], tuple(tried), family[1]
 
 
 def _served(shared, tone, neighbours):
     """(reachable, speed): a design with ``neighbours``, or else alone, is feasible."""
-    ok, v, _ = _rung(shared, tone, neighbours, 1)
+    ok, v, _, _ = _rung(shared, tone, neighbours, 1)
     if ok:
         return True, v
-    ok, w, _ = _rung(shared, tone, (), 1)
+    ok, w, _, _ = _rung(shared, tone, (), 1)
     return ok, max(v, w)
 
 
@@ -433,7 +459,6 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
         The steps cannot fit the channels a design can serve with the spacing it needs
         (the message names the reachable tones, the spacing and what would widen them).
     """
-    from planner.assign import assign
     from model.warmup import numba_cache_state
     from planner.separation import position_grid
 
@@ -454,14 +479,15 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
     need = np.ones(grid.size)
     probes, all_edges = [], []
     for node in kinds:
-        shared = (settings.design_kwargs(node), floor)
+        shared = ({**settings.design_kwargs(node), "seed": REACH_SEED}, floor)
         tick("reach", total=len(probes_at))
         found = _cached_run(shared, [("tone", float(grid[c]), r, nb)
                                      for c, (r, nb) in zip(probes_at, packed)],
                             store, ran, jobs, scheduler, pool,
                             on_done=lambda i, res: tick("reach", i))
-        mine = [Probe(c, float(grid[c]), r, ratio, ok, speed, tried)
-                for c, (r, _), (ratio, ok, speed, tried) in zip(probes_at, packed, found)]
+        mine = [Probe(c, float(grid[c]), r, ratio, ok, speed, tried, design)
+                for c, (r, _), (ratio, ok, speed, tried, design)
+                in zip(probes_at, packed, found)]
         pairs = [(i, i + 1) for i in range(len(mine) - 1)
                  if mine[i].reachable != mine[i + 1].reachable
                  and probes_at[i + 1] - probes_at[i] > 1]
@@ -484,6 +510,23 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
                   tuple(bool(a) for a in allowed), tuple(float(r) for r in need),
                   tuple(probes), tuple(all_edges), ran[0], time.perf_counter() - t0, env,
                   cold)
+    return assign_on_reach(settings, reach)
+
+
+def assign_on_reach(settings: Settings, reach: Reach):
+    """(reach, assignment): the assignment on the channels and spacing ``reach`` offers,
+    or, where those cannot hold the steps but most of the band holds the packed
+    spacing, on every reachable channel at the packed spacing (the reach returned then
+    says ``relaxed``).
+
+    Raises
+    ------
+    planner.errors.PlanningError
+        Neither fits the steps, or most probes are hopeless (an undamped array).
+    """
+    from planner.assign import assign
+
+    probes = reach.probes
     try:
         return reach, assign(settings, settings.steps, reach=reach)
     except PlanningError:
@@ -491,9 +534,10 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
         if not reach.widened() and not hopeless or 2 * hopeless >= len(probes):
             raise
         # A widened spacing, or a probe found hopeless, is what a few seeded probe designs
-        # found (seed 13 of the default: one probe at 20.5 kHz needed x1.06 where the grid
-        # packs x1.04; seed 16: the 51.1 kHz probe's one try at x4 answered its
-        # neighbours; either way the 50 channels no longer fit).  Where most of the band
+        # found (when the probes still took the plan's seed, seed 13 of the default: one
+        # probe at 20.5 kHz needed x1.06 where the grid packs x1.04; seed 16: the 51.1 kHz
+        # probe's one try at x4 answered its neighbours; either way the 50 channels no
+        # longer fit).  Where most of the band
         # holds the packed spacing, plan at it on every reachable channel and let the
         # loop move what fails there, rather than refuse a spec other seeds plan; refuse
         # when that cannot hold the steps either, or when most probes are hopeless (an
@@ -521,7 +565,8 @@ def _cached_run(shared, args_list, store, ran, jobs, scheduler, pool, on_done=No
 
     out = [None] * len(args_list)
     base, floor = shared
-    digests = [task_digest({"reach_probe": args, **base}, floor, DESIGN_RETRIES,
+    digests = [task_digest({"reach_probe": args, "probe_format": PROBE_FORMAT, **base},
+                           floor, DESIGN_RETRIES,
                            INFEASIBLE_TRIES, SPEED_MARGIN, RATIO_LIMIT, RATIO_BISECTIONS,
                            WIDE_RUNG_TRIES, PROBE_TRIES) for args in args_list]
     todo = []
@@ -608,3 +653,4 @@ def _needed_ratio(grid, probes, allowed):
                                     axis=1)]
         allowed &= ~np.isin(nearest, hopeless)
     return need
+

@@ -66,13 +66,11 @@ def test_refused_output_folders_exit_2_before_any_work(tmp_path, out, why):
     (work / "lab" / "data.csv").write_text("1,2\n")
     (work / "notes.txt").write_text("my notes")
     before = _snapshot(tmp_path)
-    t0 = time.perf_counter()
     proc = _run(["plan", "specs/tiny.yaml", "--out", out, "--quiet"], work)
     assert proc.returncode == 2, proc.stderr
     assert why in proc.stderr and "Traceback" not in proc.stderr
     assert "design" not in proc.stderr  # refused before any stage started
     assert _snapshot(tmp_path) == before
-    assert time.perf_counter() - t0 < 120  # a hang guard, not a timing target
 
 
 def test_output_folder_swaps_in_and_replaces_only_its_own(tmp_path):
@@ -204,12 +202,10 @@ def test_sigterm_with_workers_running_stops_everything(tmp_path):
     time.sleep(1.0)
     kids = _children(proc.pid)
     proc.send_signal(signal.SIGTERM)
-    t0 = time.monotonic()
-    out, err = proc.communicate(timeout=60)
-    stopped_after = time.monotonic() - t0
+    # the timeout is a hang guard (measured ~1.3 s), not a timing target
+    out, err = proc.communicate(timeout=120)
     assert proc.returncode == 143, err
     assert "interrupted (SIGTERM)" in err and "Traceback" not in err
-    assert stopped_after < 20, f"took {stopped_after:.1f} s"  # hang guard; measured ~1.3 s
     time.sleep(0.5)
     assert [k for k in kids if _alive(k)] == []
     assert sorted(p.name for p in tmp_path.iterdir()) == []
@@ -316,11 +312,11 @@ def test_huge_independent_array_refused_in_seconds(tmp_path):
     4 min and 12 GB in the feasibility check before)."""
     spec = tmp_path / "huge.yaml"
     spec.write_text("name: huge\narray: {rows: 26, cols: 99}\nindependent: true\n")
-    t0 = time.perf_counter()
-    res = CliRunner().invoke(main, ["plan", str(spec), "--out", str(tmp_path / "out")])
-    assert res.exit_code == 2, res.output
-    assert "5148 impacters" in res.output or "channels" in res.output
-    assert time.perf_counter() - t0 < 60  # hang guard; the point is seconds, not minutes
+    # a subprocess under _run's timeout: a hang guard, not a timing target (the time
+    # of a refusal is measured in benchmarks/results/plan_speed.md)
+    proc = _run(["plan", str(spec), "--out", str(tmp_path / "out")], tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    assert "5148 impacters" in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "out").exists()
 
 

@@ -299,10 +299,8 @@ def test_a_negative_seed_is_refused_while_parsing(tiny_plan_dir, tmp_path, comma
                      _as_designed(tmp_path, tiny_plan_dir), "--out", tmp_path / "o"],
             "yield": ["yield", tiny_plan_dir, "--out", tmp_path / "o", "--allow-zero"],
             "drive": ["drive", tiny_plan_dir, "--step", "push", "--out", tmp_path / "o.wav"]}
-    t0 = time.perf_counter()
     res = cli(*args[command], "--seed", "-5")
     _refused(res, "--seed")
-    assert time.perf_counter() - t0 < 5.0        # refused before any work
     assert not any(p.name.startswith("o") for p in tmp_path.iterdir())
 
 
@@ -424,10 +422,8 @@ def test_a_second_yield_to_one_folder_is_refused_at_once(tiny_plan_dir, tmp_path
             assert first.poll() is None, first.communicate()
             assert time.monotonic() < deadline, "the first run never took its lock"
             time.sleep(0.1)
-        t0 = time.perf_counter()
         res = cli("yield", tiny_plan_dir, "--out", out, "--allow-zero", "--chips", "1",
                   "--quiet")
-        assert time.perf_counter() - t0 < 30
         _refused(res, "another vibroplan run is writing this folder")
     finally:
         first.send_signal(signal.SIGTERM)
