@@ -462,8 +462,14 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
     from model.warmup import numba_cache_state
     from planner.separation import position_grid
 
+    from planner.assign import assign
+
     cold = numba_cache_state()
     t0 = time.perf_counter()
+    # Know early: the probes can only take channels away or widen the spacing, so steps
+    # that do not fit the band with every channel served at the grid's packed spacing
+    # are refused here, before any probe design (PlanningError, in seconds)
+    unconstrained = assign(settings, settings.steps)
     tick = progress or (lambda stage, item=None, total=None: None)
     grid = np.asarray(settings.channel_grid_hz, dtype=float)
     sep = settings.separation_channels
@@ -510,6 +516,9 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
                   tuple(bool(a) for a in allowed), tuple(float(r) for r in need),
                   tuple(probes), tuple(all_edges), ran[0], time.perf_counter() - t0, env,
                   cold)
+    if not reach.constrained:
+        # the reach takes nothing from the grid: the assignment made before the probes
+        return reach, dataclasses.replace(unconstrained, reach=reach)
     return assign_on_reach(settings, reach)
 
 
