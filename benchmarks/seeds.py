@@ -78,10 +78,11 @@ def _revision():
         return "unknown"
 
 
-def plan_one(config, seed, jobs, work):
-    """Plan ``config`` (None: the embedded default) with ``seed``; one table row."""
+def plan_one(config, seed, jobs, work, cache=None):
+    """Plan ``config`` (None: the embedded default) with ``seed``; one table row.
+    ``cache``: the design cache folder (default: an empty one in ``work``)."""
     out_dir = Path(work) / "out"
-    cache = Path(work) / "cache"
+    cache = Path(work) / "cache" if cache is None else Path(cache)
     cmd = [sys.executable, "-m", "planner.cli", "plan"]
     if config != "default":
         cmd.append(str(ROOT / "configs" / f"{config}.yaml"))
@@ -142,6 +143,10 @@ def main(argv=None):
     ap.add_argument("--other-seeds", default="0-4", help="seeds of every other config")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", default=str(HERE / "results" / "seeds.md"))
+    ap.add_argument("--shared-reach", action="store_true",
+                    help="one design cache for all seeds of a config: the reach probes "
+                         "(the spec's, whatever the seed) are paid by its first seed only; "
+                         "designs are keyed by seed and never shared")
     ap.add_argument("--resume", action="store_true",
                     help="keep the CSV's rows measured on this revision; run the rest")
     args = ap.parse_args(argv)
@@ -153,13 +158,15 @@ def main(argv=None):
         old = pd.read_csv(csv)
         rows = [r for r in old.to_dict("records") if r.get("revision") == rev]
     done = {(r["config"], int(r["seed"])) for r in rows}
+    shared = tempfile.TemporaryDirectory(prefix="vp-seeds-reach-")
     for config in args.configs:
         seeds = _seeds(args.seeds if config in ("default", "array_5x5") else args.other_seeds)
         for seed in seeds:
             if (config, seed) in done:
                 continue
+            cache = Path(shared.name) / config if args.shared_reach else None
             with tempfile.TemporaryDirectory(prefix="vp-seeds-") as work:
-                row = plan_one(config, seed, args.jobs, work)
+                row = plan_one(config, seed, args.jobs, work, cache)
             row["revision"] = rev
             row["load"] = round(os.getloadavg()[0], 1)
             rows.append(row)
@@ -180,10 +187,23 @@ def main(argv=None):
                        f"{int((g.get('moved', 0) > 0).sum())}, phases drawn anew in "
                        f"{int((g.get('phase_draws', 0) > 0).sum())}; wall "
                        f"{g['wall_s'].min():.0f}-{g['wall_s'].max():.0f} s")
-    text = ["# Seeds and specs (issue 36)", "",
-            f"`python benchmarks/seeds.py --jobs {args.jobs}` on {machine()}, revision {rev}; "
-            "each plan with an empty design cache of its own (every design and reach probe "
-            "computed).  exit 0: verified, 1: a check failed (plan written), 2: refused "
+    for config, g in df.groupby("config", sort=False):
+        t = g["total_s"].dropna()
+        if len(t) > 1:
+            summary.append(f"  - {config}: plan total {t.min():.1f}-{t.max():.1f} s, max/min "
+                           f"{t.max() / t.min():.2f}; design stage {g['design_s'].min():.1f}-"
+                           f"{g['design_s'].max():.1f} s; reach {g['reach_s'].min():.1f}-"
+                           f"{g['reach_s'].max():.1f} s")
+    caching = ("one design cache per config shared by its seeds (`--shared-reach`): the "
+               "reach probes, the spec's whatever the seed, are computed by the first seed "
+               "and read by the others; designs are keyed by seed and never shared"
+               if args.shared_reach else
+               "each plan with an empty design cache of its own (every design and reach "
+               "probe computed)")
+    flags = " --shared-reach" if args.shared_reach else ""
+    text = ["# Seeds and specs (issues 36, 43)", "",
+            f"`python benchmarks/seeds.py --jobs {args.jobs}{flags}` on {machine()}, revision "
+            f"{rev}; {caching}.  exit 0: verified, 1: a check failed (plan written), 2: refused "
             "before any design.  `moved`: channels the loop moved (alone or by colouring "
             "again); `phase_draws`: multi-tone steps whose phases it drew anew; `designed` / "
             "`kept`: designs made, and kept by a re-check, in rounds after the first; "

@@ -105,6 +105,9 @@ def _search(problem, rng, budget, tick, starts=None, family=()):
         pool = [problem.evaluate(z) for z in samples]
         pool += [problem.evaluate(z) for z in family]
         steps = budget.anneal_steps
+        if family and budget.family_steps is not None:
+            # started from the spec's family, a chain needs a short local walk
+            steps = budget.family_steps
     else:
         pool = [problem.evaluate(z) for z in starts]
         steps = budget.resume_steps

@@ -470,6 +470,7 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
     # that do not fit the band with every channel served at the grid's packed spacing
     # are refused here, before any probe design (PlanningError, in seconds)
     unconstrained = assign(settings, settings.steps)
+    _refuse_undamped(settings, unconstrained)
     tick = progress or (lambda stage, item=None, total=None: None)
     grid = np.asarray(settings.channel_grid_hz, dtype=float)
     sep = settings.separation_channels
@@ -520,6 +521,32 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
         # the reach takes nothing from the grid: the assignment made before the probes
         return reach, dataclasses.replace(unconstrained, reach=reach)
     return assign_on_reach(settings, reach)
+
+
+def _refuse_undamped(settings: Settings, assignment):
+    """Refuse, before any probe design, an undamped array in which some impacter sits out
+    a tone: every probe of such a spec was hopeless (none silent even at neighbours
+    x4 away), since an undamped impacter released from x0 = +-c never stops ringing and
+    any tone it sits out, however far, adds to that swing until it reaches its wall."""
+    if settings.environment.viscosity_mpa_s > 0:
+        return
+    from planner.planning.exposure import forbidden_tones
+
+    idle = sorted(n.text for n, tones in forbidden_tones(settings.steps,
+                                                         assignment.frequencies).items()
+                  if tones)
+    if not idle:
+        return
+    raise PlanningError(
+        f"no design could be told apart from another tone: in vacuum an impacter is "
+        f"undamped (environment.viscosity_mpa_s: 0), and released from x0 = +-c, the "
+        f"initial states every design is checked from, its free oscillation never "
+        f"decays, so any tone it sits out adds to it until it reaches its wall, however "
+        f"far that tone is; {len(idle)} impacters sit out another's tone "
+        f"({', '.join(idle[:4])}{' ...' if len(idle) > 4 else ''}). Refused before any "
+        f"design. To plan: some damping (environment.viscosity_mpa_s: 0.0179 is air at "
+        f"room temperature), or fewer impacters that must be told apart (independent: "
+        f"false, scenes that move devices together and share one tone).")
 
 
 def assign_on_reach(settings: Settings, reach: Reach):
