@@ -7,7 +7,11 @@ design can drive its slider at the speed floor: too low, no matched beam is soft
 enough under the drive's power.  And the environment decides how far a design answers
 tones other than its own: in air a few hundred Hz, in vacuum (undamped) far.  Neither
 follows from the spec alone, so the planner measures both with the designer itself, at
-:data:`PROBE_COUNT` probe channels log-spaced over the channel grid, before it assigns:
+:data:`PROBE_COUNT` probe channels log-spaced over the channel grid (a spec that plays
+fewer tones than that: at the channels an assignment on the packed grid takes), before
+it assigns; the steps must first fit the band with every channel served at the packed
+spacing, or the spec is refused before any probe (the probes can only take channels
+away), and an undamped array is refused there too (its every probe was hopeless):
 
 1. A design for the probe's tone with a neighbour on each side at the grid's packed
    spacing (the positions ``drive.guard.separation_channels`` away, as in a full band),
@@ -476,7 +480,12 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
     sep = settings.separation_channels
     positions = position_grid(grid, sep, settings.guard)
     floor = settings.min_speed_m_s
-    probes_at = probe_channels(grid)
+    # a spec that plays fewer tones than PROBE_COUNT is probed at the tones it would
+    # play on the packed grid (a 1 x 2 array: 2 probe designs, not 9): the probes answer
+    # for the channels the assignment takes, the channels between and beyond them are
+    # judged as between and beyond any two probes
+    used = sorted({int(c) for c in unconstrained.channels.values()})
+    probes_at = used if len(used) < PROBE_COUNT else probe_channels(grid)
     packed = [packed_neighbours(grid, positions, sep, c) for c in probes_at]
     env = "vacuum" if settings.environment.viscosity_mpa_s == 0 else ""
     kinds = _kinds(settings)

@@ -240,7 +240,9 @@ def test_cold_numba_cache_is_detected_and_adds_compilation(tmp_path):
     assert "".join(after) == f"({n - 1},{n})"
 
 
+@pytest.mark.slow
 def test_dry_run_with_a_cold_numba_cache_counts_the_compilation(tmp_path):
+    """Slow (~90 s on 2 cores): the reach probes compile every kernel from cold."""
     env = dict(os.environ, PYTHONPATH=str(ROOT), NUMBA_CACHE_DIR=str(tmp_path / "numba"))
     out = subprocess.run([sys.executable, "-m", "planner.cli", "plan",
                           str(_tiny_spec(tmp_path)), "--dry-run", "--jobs", "1"], env=env,
