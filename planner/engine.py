@@ -32,6 +32,7 @@ import asyncio
 import contextlib
 import errno
 import logging
+import os
 import threading
 from typing import Any, Callable, Sequence
 
@@ -39,7 +40,8 @@ from planner.errors import SchedulerError
 
 #: Seconds to wait for a LocalCluster / Client to close.
 CLOSE_TIMEOUT_S = 10
-#: Seconds to connect to a scheduler, handshake included.
+#: Seconds to connect to a scheduler, handshake included (the environment variable
+#: ``VIBROPLAN_CONNECT_TIMEOUT_S`` overrides it, for a slow network or a test).
 CONNECT_TIMEOUT_S = 20
 #: Seconds without a finished task after which the scheduler is asked whether it lives.
 PROGRESS_POLL_S = 30
@@ -78,17 +80,45 @@ def check_scheduler(address: str) -> str:
     if not host or not port.isdigit() or not 0 < int(port) < 65536:
         raise ValueError(f"--scheduler {address}: expected {scheme}://HOST:PORT, e.g. "
                          f"{scheme}://10.0.0.5:8786")
+    if scheme == "tcp":
+        _refused(host.strip("[]"), int(port), text)
     _probe(f"{scheme}://{loc}")
     return text
+
+
+def _connect_timeout() -> float:
+    """:data:`CONNECT_TIMEOUT_S`, or ``VIBROPLAN_CONNECT_TIMEOUT_S`` when set (> 0)."""
+    text = os.environ.get("VIBROPLAN_CONNECT_TIMEOUT_S", "").strip()
+    try:
+        value = float(text)
+    except ValueError:
+        return CONNECT_TIMEOUT_S
+    return value if 0 < value < 3600 else CONNECT_TIMEOUT_S
+
+
+def _refused(host: str, port: int, address: str) -> None:
+    """Refuse at once a TCP address where nothing listens (distributed's connect would
+    retry a refused connection until its timeout, 20 s of a user's wait)."""
+    import socket
+
+    try:
+        with socket.create_connection((host, port), timeout=_connect_timeout()):
+            return
+    except ConnectionRefusedError:
+        raise SchedulerError(errno.ECONNREFUSED, "nothing listens there (connection "
+                             "refused): no dask.distributed scheduler", address) from None
+    except OSError:
+        return   # unreachable, a name that does not resolve ...: the handshake says why
 
 
 def _probe(address: str) -> None:
     """Connect to ``address`` and complete distributed's handshake within the timeout."""
     from distributed.comm import connect
 
+    timeout = _connect_timeout()
+
     async def handshake():
-        comm = await asyncio.wait_for(connect(address, timeout=CONNECT_TIMEOUT_S),
-                                      CONNECT_TIMEOUT_S)
+        comm = await asyncio.wait_for(connect(address, timeout=timeout), timeout)
         await comm.close()
 
     box = {}
@@ -101,11 +131,11 @@ def _probe(address: str) -> None:
 
     thread = threading.Thread(target=run, name="vibroplan-scheduler-probe", daemon=True)
     thread.start()
-    thread.join(CONNECT_TIMEOUT_S + 10)
+    thread.join(timeout + 10)
     exc = box.get("error")
     if thread.is_alive() or isinstance(exc, (asyncio.TimeoutError, TimeoutError)):
         raise SchedulerError(errno.ETIMEDOUT, f"no dask.distributed scheduler answered within "
-                             f"{CONNECT_TIMEOUT_S} s (is it a scheduler's address?)", address)
+                             f"{timeout:g} s (is it a scheduler's address?)", address)
     if exc is not None:
         reason = (getattr(exc, "strerror", None) or str(exc).strip()
                   or type(exc).__name__).splitlines()[0]
