@@ -171,6 +171,10 @@ class Reach:
     #: and the assignment offers every reachable channel at the grid's packed spacing
     #: instead (:func:`measure_reach`); the plan's loop moves a design that then fails
     relaxed: bool = False
+    #: the spec plays fewer tones than PROBE_COUNT: the probes sat at the tones an
+    #: assignment on the packed grid takes, each first asked with the neighbours that
+    #: assignment gives it (:func:`measure_reach`)
+    assigned: bool = False
 
     @property
     def family(self) -> tuple:
@@ -274,6 +278,11 @@ class Reach:
                     "kernels compiled first" if self.kernels_cold[0] and self.designs else "")
         head = (f"reach (measured in {self.seconds:.1f} s, {self.designs} probe "
                 f"designs{compiled}): ")
+        if not self.constrained and not self.relaxed and self.assigned:
+            tones = ", ".join(f"{p.tone_hz:.0f}" for p in self.probes)
+            return [head + f"every tone the spec plays ({tones} Hz) can be served at "
+                    f"{self.floor_m_s * 1e3:g} mm/s beside the tones it must be told "
+                    "apart from"]
         if not self.constrained and not self.relaxed:
             return [head + f"every channel {self.grid_hz[0]:.0f}-{self.grid_hz[-1]:.0f} Hz "
                     f"can be served at {self.floor_m_s * 1e3:g} mm/s at the grid's packed "
@@ -323,10 +332,14 @@ def _rung(shared, tone, neighbours, tries):
     return bool(res.feasible), float(res.predicted_slider_speed_m_s), _why(res), design
 
 
-def _tone(shared, tone, packed, packed_neighbours):
+def _tone(shared, tone, packed, packed_neighbours, assigned=None):
     """One probe (see the module docstring): returns (ratio or None, reachable, speed
     [m/s], tried, design), ``tried`` every rung as (ratio, feasible, why), ratio 0
-    alone; ``design`` the fastest feasible design with neighbours (or None)."""
+    alone; ``design`` the fastest feasible design with neighbours (or None).
+
+    ``assigned`` ((ratio, neighbours [Hz]) the assignment on the packed grid gives the
+    tone, wider than the packed ones): asked first, and when a design holds them the
+    probe ends there with that ratio (the spacing the plan keeps)."""
     tried = []
     best = [0.0]
     family = [0.0, None]
@@ -339,6 +352,8 @@ def _tone(shared, tone, packed, packed_neighbours):
             family[:] = [v, design]
         return ok
 
+    if assigned is not None and at(assigned[0], assigned[1], 1):
+        return assigned[0], True, best[0], tuple(tried), family[1]
     if at(packed, packed_neighbours, INFEASIBLE_TRIES):
         return packed, True, best[0], tuple(tried), family[1]
     if packed >= RATIO_LIMIT or not at(RATIO_LIMIT, (tone / RATIO_LIMIT, tone * RATIO_LIMIT),
@@ -485,8 +500,19 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
     # for the channels the assignment takes, the channels between and beyond them are
     # judged as between and beyond any two probes
     used = sorted({int(c) for c in unconstrained.channels.values()})
-    probes_at = used if len(used) < PROBE_COUNT else probe_channels(grid)
+    few = len(used) < PROBE_COUNT
+    probes_at = used if few else probe_channels(grid)
     packed = [packed_neighbours(grid, positions, sep, c) for c in probes_at]
+    # ... and each of those probes is first asked with the neighbours the assignment
+    # gives it (the tones next to its own), where they are wider than the packed ones
+    given = [None] * len(probes_at)
+    if few:
+        for i, c in enumerate(probes_at):
+            nb = [float(grid[used[j]]) for j in (i - 1, i + 1) if 0 <= j < len(used)]
+            ratio = (min(max(f, grid[c]) / min(f, grid[c]) for f in nb) if nb
+                     else RATIO_LIMIT)
+            if ratio > packed[i][0]:
+                given[i] = (float(ratio), tuple(nb))
     env = "vacuum" if settings.environment.viscosity_mpa_s == 0 else ""
     kinds = _kinds(settings)
     ran = [0]
@@ -497,13 +523,15 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
     for node in kinds:
         shared = ({**settings.design_kwargs(node), "seed": REACH_SEED}, floor)
         tick("reach", total=len(probes_at))
-        found = _cached_run(shared, [("tone", float(grid[c]), r, nb)
-                                     for c, (r, nb) in zip(probes_at, packed)],
+        found = _cached_run(shared, [("tone", float(grid[c]), r, nb, g)
+                                     for c, (r, nb), g in zip(probes_at, packed, given)],
                             store, ran, jobs, scheduler, pool,
                             on_done=lambda i, res: tick("reach", i))
-        mine = [Probe(c, float(grid[c]), r, ratio, ok, speed, tried, design)
-                for c, (r, _), (ratio, ok, speed, tried, design)
-                in zip(probes_at, packed, found)]
+        # a probe that held its assigned neighbours counts them as its packed ones
+        mine = [Probe(c, float(grid[c]), r if g is None or ratio != g[0] else g[0], ratio,
+                      ok, speed, tried, design)
+                for c, (r, _), g, (ratio, ok, speed, tried, design)
+                in zip(probes_at, packed, given, found)]
         pairs = [(i, i + 1) for i in range(len(mine) - 1)
                  if mine[i].reachable != mine[i + 1].reachable
                  and probes_at[i + 1] - probes_at[i] > 1]
@@ -525,7 +553,7 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
     reach = Reach(floor, tuple(float(f) for f in grid), tuple(bool(a) for a in reachable),
                   tuple(bool(a) for a in allowed), tuple(float(r) for r in need),
                   tuple(probes), tuple(all_edges), ran[0], time.perf_counter() - t0, env,
-                  cold)
+                  cold, assigned=few)
     if not reach.constrained:
         # the reach takes nothing from the grid: the assignment made before the probes
         return reach, dataclasses.replace(unconstrained, reach=reach)
