@@ -7,6 +7,7 @@ wall-free motion: never below it, and reached at the worst start and phase.
 """
 
 import math
+import os
 
 import numpy as np
 import pytest
@@ -15,6 +16,10 @@ from model import Drive, Impacter, responses, simulate
 from model.bounds import linear_envelope, silence_bound
 
 AIR = 1.79e-5
+#: The simulator-heavy checks need the compiled kernels (.ci/run also runs tests/model
+#: with NUMBA_DISABLE_JIT=1, where the bound's own code still runs in the other tests)
+compiled = pytest.mark.skipif(os.environ.get("NUMBA_DISABLE_JIT") == "1",
+                              reason="thousands of simulations: too slow without the JIT")
 
 
 def _impacter(nu_n, gap, viscosity=AIR, area=1.5e-8, restitution=0.5):
@@ -50,6 +55,7 @@ def _duration(imp, periods=400):
     return max(periods / (imp.omega_n / (2 * np.pi)), 12.0 / imp.sigma)
 
 
+@compiled
 def test_envelope_bounds_the_wall_free_motion_and_is_reached():
     # a gap far beyond the motion: the simulator's trajectory is the wall-free one
     imp = _impacter(1e4, 50e-6)
@@ -99,6 +105,7 @@ def _random_case(case):
     return imp, drive
 
 
+@compiled
 def test_silent_by_the_bound_is_silent_in_the_simulator():
     """300 random impacters and drives (1-3 tones, Q ~ 2-1000, gaps 0.1-2x the resonant
     swing): every proof holds in the simulator, and the proofs are not rare."""
@@ -127,12 +134,14 @@ def test_the_bound_is_not_vacuous_on_a_designed_impacter():
     assert all(far) and not any(near)
 
 
+@compiled
 def test_resonance_is_never_proven_silent_and_does_respond():
     imp = _impacter(1e4, 3e-6)
     assert not silence_bound(imp, Drive.tone(1e4)).silent
     assert _simulated_response(imp, Drive.tone(1e4), 10e-3, n_phases=1) > 0
 
 
+@compiled
 def test_grazing_gap_just_above_the_proof():
     """Shrink the gap until the proof stops: at the smallest proven gap the simulator
     must still find no counted impact (grazing is where a loose bound would slip)."""
@@ -160,6 +169,7 @@ def test_no_proof_undamped_or_overdamped_or_pressing():
     assert not silence_bound(pressing, Drive.tone(5e3)).silent
 
 
+@compiled
 def test_extreme_q_and_many_tones():
     """A 20-tone summed drive on Q ~ 70 is proven and silent; at Q ~ 1000 (near vacuum)
     the free swing from x0 = -c comes back within 0.2 % of the wall and nothing is
@@ -177,3 +187,25 @@ def test_extreme_q_and_many_tones():
 def test_margin_is_checked():
     with pytest.raises(ValueError, match="margin"):
         silence_bound(_impacter(1e4, 3e-6), Drive.tone(3e4), margin=0.5)
+
+
+def test_envelope_matches_the_closed_form_written_out():
+    """The kernel's W(t) against the closed form written out here in numpy (an
+    independent transcription; runs without the JIT too)."""
+    imp = _impacter(8e3, 3e-6)
+    drive = Drive([5e3, 11e3, 19e3], [0.5e-6, 0.3e-6, 0.1e-6])
+    t = np.linspace(0.0, 3e-3, 301)
+    wn, sg, c = imp.omega_n, imp.sigma, imp.gap
+    wd = math.sqrt(wn * wn - sg * sg)
+    w = 2 * np.pi * drive.frequencies
+    a = math.cos(imp.impact_angle) * w * w * drive.amplitudes
+    # response from rest to a e^{i w t}: the forced part and the free part that cancels it
+    X = a / (wn * wn - w * w + 2j * sg * w)
+    z = (X[None, :] * np.exp(1j * w[None, :] * t[:, None])
+         + np.exp(-sg * t)[:, None] * (-X[None, :] * np.cos(wd * t)[:, None]
+                                      - ((sg + 1j * w) * X / wd)[None, :]
+                                      * np.sin(wd * t)[:, None]))
+    g1 = np.exp(-sg * t) * (np.cos(wd * t) + sg / wd * np.sin(wd * t))
+    expected = c * np.abs(g1) + np.abs(z).sum(axis=1)
+    np.testing.assert_allclose(linear_envelope(imp, drive, t), expected, rtol=1e-12,
+                               atol=1e-12 * c)

@@ -137,6 +137,7 @@ def test_concurrent_writer_fails_cleanly(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["plan_out"]
 
 
+@pytest.mark.slow
 def test_concurrent_cli_writers_one_wins_one_refused(tmp_path):
     """Two real `vibroplan plan` runs into one folder: one writes it, the other is refused
     at once with exit 2, and the folder is whole."""

@@ -45,6 +45,7 @@ def test_a_second_plan_reads_every_design_from_the_cache(tiny_spec, tmp_path):
             == (tmp_path / "b" / "designs.csv").read_bytes())
 
 
+@pytest.mark.slow
 def test_an_unreadable_entry_is_recomputed_and_rewritten(tiny_spec, tmp_path):
     cache = tmp_path / "cache"
     assert _plan(tiny_spec, "--out", tmp_path / "a", "--cache-dir", cache).exit_code == 0
@@ -59,6 +60,7 @@ def test_an_unreadable_entry_is_recomputed_and_rewritten(tiny_spec, tmp_path):
     assert DesignStore(cache).get(entry.stem) is not None
 
 
+@pytest.mark.slow
 def test_the_default_cache_follows_the_environment_and_no_cache_writes_nothing(
         tiny_spec, tmp_path, monkeypatch):
     cache = tmp_path / "env-cache"

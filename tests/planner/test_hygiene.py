@@ -286,6 +286,7 @@ def test_sigkill_mid_design_leaves_no_process_and_its_leftovers_are_cleaned(tiny
     assert sorted(p.name for p in tmp_path.iterdir()) == ["plan_out"]
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc").exists(), reason="needs Linux /proc")
 def test_sighup_stops_the_plan_and_its_workers(tmp_path):
     proc, kids = _start_and_wait_for_workers(["plan", "--out", "plan_out", "--quiet",
@@ -364,6 +365,7 @@ def _free_port():
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_a_scheduler_that_dies_mid_run_is_exit_3(tiny_plan_dir, tmp_path, huge_spec):
     address = f"tcp://127.0.0.1:{_free_port()}"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))

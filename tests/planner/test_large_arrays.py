@@ -257,6 +257,7 @@ def test_dry_run_with_a_cold_numba_cache_counts_the_compilation(tmp_path):
     assert float(low.split("about ")[1].split(" s")[0]) >= COMPILE_S
 
 
+@pytest.mark.slow
 def test_dry_run_on_10x10_prints_an_estimate_and_writes_nothing(tmp_path):
     out = tmp_path / "never"
     res = CliRunner().invoke(main, ["plan", str(CONFIGS / "array_10x10_rows.yaml"),

@@ -92,6 +92,7 @@ def test_same_seed_same_plan_json():
     assert json.dumps(a) == json.dumps(b)
 
 
+@pytest.mark.slow
 def test_interrupted_plan_leaves_no_output(tmp_path):
     """SIGINT while the tiny plan is designing: exit 130, no output folder, no temporary.
 
@@ -132,6 +133,7 @@ def _cli_plan(spec, out, *extra):
                           capture_output=True, text=True, timeout=600)
 
 
+@pytest.mark.slow
 def test_cli_same_spec_and_seed_byte_identical_plan_json(tmp_path):
     spec = tmp_path / "tiny.yaml"
     spec.write_text(TINY)
@@ -160,6 +162,7 @@ def test_ctrl_c_mid_run_leaves_no_output(tmp_path):
     assert [p for p in tmp_path.iterdir() if p.name.startswith(".plan_out")] == []
 
 
+@pytest.mark.slow
 def test_row_assembly_config_shares_channels_and_verifies():
     from planner.planning import run_plan
     from planner.arrayspec import load_spec

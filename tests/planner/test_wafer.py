@@ -317,6 +317,7 @@ def test_a_batch_replan_gives_each_die_the_yields_replan(wafer_yield, wafer_batc
     assert not any(wafer_batch.parent.glob(".r1.dies*")), "the work folder is removed"
 
 
+@pytest.mark.slow
 def test_jobs_1_and_2_write_the_same_bytes(tiny_plan_dir, wafer_yield, wafer_batch, tmp_path):
     """~15 s, most of it the two-worker LocalCluster starting."""
     out = tmp_path / "r2"

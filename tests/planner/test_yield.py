@@ -178,6 +178,7 @@ def test_as_built_geometry_follows_the_documented_mapping(tiny_plan_dir):
     assert f3.mass == nominal.mass
 
 
+@pytest.mark.slow
 def test_local_cluster_reproduces_the_local_run(tiny_plan_dir, tmp_path):
     from distributed import LocalCluster
 

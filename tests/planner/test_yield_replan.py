@@ -114,6 +114,7 @@ def test_chip_results_with_replan_do_not_depend_on_order(tiny_plan_dir, shift_sp
     assert all(r.replan is not None for r in forward)
 
 
+@pytest.mark.slow
 def test_jobs_1_and_2_write_byte_identical_yield_json(tiny_plan_dir, shift_spec, tmp_path):
     """~20 s, most of it the two-worker LocalCluster starting."""
     outs = []
