@@ -123,7 +123,7 @@ def main(argv=None):
     summary = []
     for family, g in df.groupby("family", sort=False):
         summary.append(
-            f"| {'family (as planned)' if family else 'no family (before)'} | {len(g)} | "
+            f"| {'family (as planned)' if family else 'no family (the full first round)'} | {len(g)} | "
             f"{g['seconds'].sum():.1f} | {g['tries'].mean():.2f} | {g['tries'].max()} | "
             f"{(g['tries'] == 1).mean():.0%} | {g['evaluations'].mean():.0f} | "
             f"{g['first_try_evaluations'].median():.0f} | {g['simulations'].mean():.0f} | "
