@@ -93,7 +93,18 @@ nearest the target first with move-to-front on a violation, the check stops at t
 first violated frequency, and every kernel call is cached by its inputs.  With the
 "fast" budget only the ``active_forbidden`` most dangerous frequencies are checked
 during the search; the final design is checked against all of them, and any that it
-violates joins the active set for another search round (constraint generation).
+violates joins the active set for another search round (constraint generation).  A
+check that :func:`model.bounds.silence_bound` proves silent (every start, every phasing,
+any window) is answered without a run; the designs are the same with it and without it
+(``problem.SILENCE_BOUND``), the runs it saves are the cheap ones.
+
+**The family.**  A design may be given designs of the same spec at other tones
+(``design_impacter(family=)``, the plan passes the reach probes' designs): scaled to its
+tone (the same A, width or sensitivity, nu_n / tone and kappa) they join the first
+round's Sobol samples, and the chains walk ``Budget.family_steps`` moves from the best
+(with matched sensitivities a spec's designs are close to one family; on the default
+plan 154 candidate evaluations a design instead of 624, benchmarks/results/
+design_family.md).
 
 **Re-checks.**  The best designs of the archive are re-checked on a grid about eight
 times finer (with more refinement) and over a window LONG_WINDOW_FACTOR times longer;

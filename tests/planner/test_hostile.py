@@ -427,7 +427,9 @@ def test_a_second_yield_to_one_folder_is_refused_at_once(tiny_plan_dir, tmp_path
         _refused(res, "another vibroplan run is writing this folder")
     finally:
         first.send_signal(signal.SIGTERM)
-        first.wait(timeout=60)
+        # a hang guard (a run stopped inside a numba compilation on a cold cache answers
+        # the signal when that ends), not a timing target
+        first.wait(timeout=300)
     assert first.returncode == 143
     assert not out.exists() and not lock.exists()
 
