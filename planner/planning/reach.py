@@ -606,15 +606,21 @@ def assign_on_reach(settings: Settings, reach: Reach):
         hopeless = sum(p.hopeless for p in probes)
         if not reach.widened() and not hopeless or 2 * hopeless >= len(probes):
             raise
-        # A widened spacing, or a probe found hopeless, is what a few seeded probe designs
-        # found (when the probes still took the plan's seed, seed 13 of the default: one
-        # probe at 20.5 kHz needed x1.06 where the grid packs x1.04; seed 16: the 51.1 kHz
-        # probe's one try at x4 answered its neighbours; either way the 50 channels no
-        # longer fit).  Where most of the band
-        # holds the packed spacing, plan at it on every reachable channel and let the
-        # loop move what fails there, rather than refuse a spec other seeds plan; refuse
-        # when that cannot hold the steps either, or when most probes are hopeless (an
-        # undamped array in vacuum).
+        if 2 * (len(reach.widened()) + hopeless) >= len(probes):
+            # most of the band needs the wider spacing: at the packed one the loop would
+            # fail by trying (a 3 x 3 in a 5 um process, 5-40 kHz: every probe needed
+            # neighbours x1.4-2.7 apart, and 18 of 18 designs then answered several
+            # other tones, exit 1 after minutes); refused here, naming the spacing
+            raise
+        # A widened spacing, or a probe found hopeless, at a few probes is what a few
+        # seeded probe designs found (when the probes still took the plan's seed, seed 13
+        # of the default: one probe at 20.5 kHz needed x1.06 where the grid packs x1.04;
+        # seed 16: the 51.1 kHz probe's one try at x4 answered its neighbours; either way
+        # the 50 channels no longer fit).  Where most of the band holds the packed
+        # spacing, plan at it on every reachable channel and let the loop move what fails
+        # there, rather than refuse a spec other seeds plan; refuse when that cannot hold
+        # the steps either, when most probes are hopeless (an undamped array in vacuum),
+        # or when most need the wider spacing (above).
         relaxed = dataclasses.replace(reach, min_ratio=tuple(1.0 for _ in reach.min_ratio),
                                       allowed=reach.reachable, relaxed=True)
         try:

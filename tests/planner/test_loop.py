@@ -285,3 +285,31 @@ def test_the_reach_is_the_specs_not_the_seeds(tmp_path):
              for p in runs]
     assert " 0 probe designs" not in heads[0] and " 0 probe designs" in heads[1]
     assert heads[0].split("): ", 1)[1] == heads[1].split("): ", 1)[1]
+
+
+def test_a_reach_that_widens_most_of_the_band_is_refused_not_relaxed():
+    """A 3 x 3 in a 5 um process, 5-40 kHz (issue 43): every probe needed neighbours
+    x1.4-2.7 apart, the reach was relaxed to the packed spacing, and 18 of 18 designs then
+    answered other tones (exit 1 after 141 s).  When most probes need the wider spacing,
+    the assignment on the measured reach is refused, naming it, before any design."""
+    from planner.arrayspec import default_spec_path, load_spec
+    from planner.errors import PlanningError
+    from planner.planning.reach import (Probe, Reach, _needed_ratio, assign_on_reach,
+                                        packed_neighbours, probe_channels)
+    from planner.planning.settings import resolve_settings
+    from planner.separation import position_grid
+
+    settings = resolve_settings(load_spec(default_spec_path()), 0)
+    grid = np.asarray(settings.channel_grid_hz)
+    positions = position_grid(grid, settings.separation_channels, settings.guard)
+    probes = []
+    for c in probe_channels(grid):
+        packed, _ = packed_neighbours(grid, positions, settings.separation_channels, c)
+        probes.append(Probe(c, float(grid[c]), packed, 1.2, True, 3e-4))
+    allowed = np.ones(grid.size, dtype=bool)
+    need = _needed_ratio(grid, probes, allowed)
+    reach = Reach(settings.min_speed_m_s, tuple(float(f) for f in grid), (True,) * grid.size,
+                  tuple(bool(a) for a in allowed), tuple(float(r) for r in need),
+                  tuple(probes))
+    with pytest.raises(PlanningError, match="neighbours must be x1.2 away"):
+        assign_on_reach(settings, reach)
