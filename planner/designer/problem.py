@@ -244,12 +244,13 @@ class _Problem:
         kappa = gap / self.linear_amplitude(area, width, length, frequency)
         z = np.empty(4)
         z[0] = (math.log(area) - self.lo[0]) / (self.hi[0] - self.lo[0])
-        z[1] = (math.log(width) - self.lo[1]) / (self.hi[1] - self.lo[1]) if (
-            self.hi[1] > self.lo[1]) else 0.0
         if self.sensitivity is not None:
             s_lo, s_hi = self.sensitivity
             s = self.line_width.sensitivity(area, width, length)
             z[1] = (math.log(s / s_lo) / math.log(s_hi / s_lo)) if s_hi > s_lo else 0.0
+        else:
+            z[1] = ((math.log(width) - self.lo[1]) / (self.hi[1] - self.lo[1])
+                    if self.hi[1] > self.lo[1] else 0.0)
         z[2] = ((math.log(nu_n / frequency * self.frequency) - self.lo[2])
                 / (self.hi[2] - self.lo[2]))
         z[3] = (math.log(kappa) - self.lo[3]) / (self.hi[3] - self.lo[3])

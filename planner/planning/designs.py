@@ -72,12 +72,17 @@ RETRY_GAIN = 0.02
 RETRY_STALL = 2
 
 
+def _speeds(res):
+    """(speed at its tone, least speed at its tone window's edges) [m/s] of a design."""
+    at_tone = res.checks.get("speed_at_tone_m_s", res.predicted_slider_speed_m_s)
+    return at_tone, min(res.checks.get("speed_at_window_edges_m_s") or [at_tone])
+
+
 def _fast_enough(res, min_speed, margin):
     """Whether a feasible design needs no retry: its speed at its tone at least
     ``margin`` x the floor, and at its tone window's edges :data:`WINDOW_SPEED_MARGIN` x
     (or ``margin`` x when that is smaller: a probe's 1)."""
-    at_tone = res.checks.get("speed_at_tone_m_s", res.predicted_slider_speed_m_s)
-    edges = min(res.checks.get("speed_at_window_edges_m_s") or [at_tone])
+    at_tone, edges = _speeds(res)
     return (at_tone >= margin * min_speed
             and edges >= min(margin, WINDOW_SPEED_MARGIN) * min_speed)
 
@@ -154,8 +159,7 @@ def _speed_score(res, min_speed, margin):
     (1 or more: fast enough, :func:`_fast_enough`)."""
     if not min_speed:
         return 1.0
-    at_tone = res.checks.get("speed_at_tone_m_s", res.predicted_slider_speed_m_s)
-    edges = min(res.checks.get("speed_at_window_edges_m_s") or [at_tone])
+    at_tone, edges = _speeds(res)
     return min(at_tone / (margin * min_speed),
                edges / (min(margin, WINDOW_SPEED_MARGIN) * min_speed))
 

@@ -231,6 +231,31 @@ def test_seed_7_of_the_default_verifies_with_its_phases_drawn_anew(tmp_path):
     assert "phases drawn anew" in (tmp_path / "out" / "report.md").read_text()
 
 
+def _default_reach_as_found(seed, ratio_at):
+    """(settings, Reach) of the default spec at ``seed`` as its 9 probes might have found
+    it: every channel reachable, the probe at tone f [Hz] holding neighbours
+    ``ratio_at(f, packed ratio)`` apart (no design is run)."""
+    from planner.arrayspec import default_spec_path, load_spec
+    from planner.planning.reach import (Probe, Reach, _needed_ratio, packed_neighbours,
+                                        probe_channels)
+    from planner.planning.settings import resolve_settings
+    from planner.separation import position_grid
+
+    settings = resolve_settings(load_spec(default_spec_path()), seed)
+    grid = np.asarray(settings.channel_grid_hz)
+    positions = position_grid(grid, settings.separation_channels, settings.guard)
+    probes = []
+    for c in probe_channels(grid):
+        packed, _ = packed_neighbours(grid, positions, settings.separation_channels, c)
+        probes.append(Probe(c, float(grid[c]), packed, ratio_at(float(grid[c]), packed),
+                            True, 3e-4))
+    allowed = np.ones(grid.size, dtype=bool)
+    need = _needed_ratio(grid, probes, allowed)
+    return settings, Reach(settings.min_speed_m_s, tuple(float(f) for f in grid),
+                           (True,) * grid.size, tuple(bool(a) for a in allowed),
+                           tuple(float(r) for r in need), tuple(probes))
+
+
 def test_a_lone_probes_verdict_that_does_not_fit_is_relaxed_not_refused():
     """When the probes still took the plan's seed, seed 13 of the default found one probe
     design at 20.5 kHz that needed neighbours x1.06 apart where the grid packs them x1.04,
@@ -240,28 +265,13 @@ def test_a_lone_probes_verdict_that_does_not_fit_is_relaxed_not_refused():
     fails), and the reach says so; the assignment on the reach as measured is refused.
     Refusal stays for a spec most of whose probes are hopeless
     (test_vacuum_is_refused_naming_the_undamped_impacter)."""
-    from planner.arrayspec import default_spec_path, load_spec
     from planner.assign import assign
     from planner.errors import PlanningError
-    from planner.planning.reach import (Probe, Reach, _needed_ratio, assign_on_reach,
-                                        packed_neighbours, probe_channels)
-    from planner.planning.settings import resolve_settings
-    from planner.separation import position_grid
+    from planner.planning.reach import assign_on_reach
 
-    settings = resolve_settings(load_spec(default_spec_path()), 13)
-    grid = np.asarray(settings.channel_grid_hz)
-    positions = position_grid(grid, settings.separation_channels, settings.guard)
-    probes = []
-    for c in probe_channels(grid):
-        packed, _ = packed_neighbours(grid, positions, settings.separation_channels, c)
-        ratio = 1.06 if abs(grid[c] - 20.5e3) < 1e3 else packed
-        probes.append(Probe(c, float(grid[c]), packed, ratio, True, 3e-4))
-    assert sum(p.ratio > p.packed_ratio for p in probes) == 1
-    allowed = np.ones(grid.size, dtype=bool)
-    need = _needed_ratio(grid, probes, allowed)
-    reach = Reach(settings.min_speed_m_s, tuple(float(f) for f in grid), (True,) * grid.size,
-                  tuple(bool(a) for a in allowed), tuple(float(r) for r in need),
-                  tuple(probes))
+    settings, reach = _default_reach_as_found(
+        13, lambda tone, packed: 1.06 if abs(tone - 20.5e3) < 1e3 else packed)
+    assert sum(p.ratio > p.packed_ratio for p in reach.probes) == 1
     with pytest.raises(PlanningError):
         assign(settings, settings.steps, reach=reach)
     relaxed, a = assign_on_reach(settings, reach)
@@ -292,24 +302,9 @@ def test_a_reach_that_widens_most_of_the_band_is_refused_not_relaxed():
     x1.4-2.7 apart, the reach was relaxed to the packed spacing, and 18 of 18 designs then
     answered other tones (exit 1 after 141 s).  When most probes need the wider spacing,
     the assignment on the measured reach is refused, naming it, before any design."""
-    from planner.arrayspec import default_spec_path, load_spec
     from planner.errors import PlanningError
-    from planner.planning.reach import (Probe, Reach, _needed_ratio, assign_on_reach,
-                                        packed_neighbours, probe_channels)
-    from planner.planning.settings import resolve_settings
-    from planner.separation import position_grid
+    from planner.planning.reach import assign_on_reach
 
-    settings = resolve_settings(load_spec(default_spec_path()), 0)
-    grid = np.asarray(settings.channel_grid_hz)
-    positions = position_grid(grid, settings.separation_channels, settings.guard)
-    probes = []
-    for c in probe_channels(grid):
-        packed, _ = packed_neighbours(grid, positions, settings.separation_channels, c)
-        probes.append(Probe(c, float(grid[c]), packed, 1.2, True, 3e-4))
-    allowed = np.ones(grid.size, dtype=bool)
-    need = _needed_ratio(grid, probes, allowed)
-    reach = Reach(settings.min_speed_m_s, tuple(float(f) for f in grid), (True,) * grid.size,
-                  tuple(bool(a) for a in allowed), tuple(float(r) for r in need),
-                  tuple(probes))
+    settings, reach = _default_reach_as_found(0, lambda tone, packed: 1.2)
     with pytest.raises(PlanningError, match="neighbours must be x1.2 away"):
         assign_on_reach(settings, reach)
