@@ -36,7 +36,7 @@ from _timing import machine  # noqa: E402
 from model import Drive, Impacter, responses  # noqa: E402
 from model import devices as _d  # noqa: E402
 from planner.config import EnvironmentConfig  # noqa: E402
-from planner.design_config import load_design_config  # noqa: E402
+from planner.designer.config import load_design_config  # noqa: E402
 from planner.designer import design_impacter, design_pair, x0_grid  # noqa: E402
 
 UM = 1e-6

@@ -72,12 +72,12 @@ def predicted(plan_json: Path, gradient: float, chips=10_000) -> dict:
     """The plan's collision-free yield re-evaluated at ``gradient`` [um/mm]."""
     import numpy as np
 
-    from planner.assign import node_order
-    from planner.fabrication import ERRORS, Tolerances
+    from planner.assignment.assign import node_order
+    from planner.fabrication.tolerances import ERRORS, Tolerances
     from planner.manufacturability import BAND_MARGIN, collision_free_yield
-    from planner.nodes import Node
+    from planner.core.nodes import Node
     from planner.planning.plan_file import read_plan
-    from planner.wafer import device_positions
+    from planner.fabrication.wafer import device_positions
 
     rec = read_plan(plan_json)
     d = json.loads(plan_json.read_text())
@@ -195,7 +195,7 @@ def write(args, work, plans, curve, y, batch, times):
     agree_stdf = sum(r["stdf_outcome"] == r["replan_outcome"] for r in rows)
     differ = [r for r in rows if not _same(r["yield_outcome"], r["replan_outcome"])]
     # the two maps drawn again from the files (the batch's: from its summary.csv)
-    from planner.wafer_map import plot_wafer_map
+    from planner.figures.wafer_map import plot_wafer_map
 
     w = y["wafer"]
     plot_wafer_map(w["dies"], w["die_size_mm"], out.parent / "wafer_map_yield.png",

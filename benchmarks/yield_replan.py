@@ -32,7 +32,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
-from planner.fabrication import sample_chip  # noqa: E402
+from planner.fabrication.tolerances import sample_chip  # noqa: E402
 from planner.arrayspec import FabricationSpec, Tolerance, load_spec  # noqa: E402
 from planner.planning.plan_file import read_plan  # noqa: E402
 from planner.yield_ import make_payload, run_yield  # noqa: E402

@@ -14,9 +14,9 @@ Each line: impacter, tone [Hz], then per designer seed the predicted slider spee
 import argparse
 import time
 
-from planner.assign import assign
+from planner.assignment.assign import assign
 from planner.designer import Ensemble, design_impacter
-from planner.nodes import Node
+from planner.core.nodes import Node
 from planner.planning.exposure import driven_ensembles, idle_ensembles, played_tones
 from planner.planning.drives import drive_of, limit_acceleration, synthesize_steps
 from planner.planning.settings import resolve_settings

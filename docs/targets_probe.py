@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from planner.fabrication import design_from_plan, nominal_impacter
-from planner.gating import burst_peaks, gate
+from planner.fabrication.tolerances import design_from_plan, nominal_impacter
+from planner.synthesis.gating import burst_peaks, gate
 from planner.planning.motion import rest_state
 from planner.planning.settings import G0, resolve_settings
 from planner.planning.targets import RAMP_S, _Simulation

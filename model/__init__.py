@@ -7,7 +7,7 @@ response r of eq. (12) and parallel sweeps.  SI units throughout.
 """
 
 # before any kernel is decorated: an installed copy caches outside site-packages
-from model._numba_cache import cache_outside_installed_copy
+from model.numba_cache import cache_outside_installed_copy
 
 cache_outside_installed_copy()
 

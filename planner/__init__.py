@@ -22,12 +22,12 @@ _API = {
     "verify_coloring": "planner.coloring",
     "synthesize": "planner.synthesis",
     "Waveform": "planner.synthesis",
-    "export": "planner.exporters",
+    "export": "planner.lab.exporters",
     "plan": "planner.planning",
     "Plan": "planner.planning",
     "load_spec": "planner.arrayspec",
     "ArraySpec": "planner.arrayspec",
-    "SpecError": "planner.errors",
+    "SpecError": "planner.core.errors",
 }
 
 __all__ = sorted(_API)

@@ -26,9 +26,9 @@ from pydantic import Field, model_validator
 
 from model import Drive, Impacter, Slider
 from model import devices as _d
-from planner._pydantic import Strict
-from planner.units import UM
-from planner.yamlio import check_kind, load_yaml, validate
+from planner.core.strict import Strict
+from planner.core.units import UM
+from planner.files.yamlio import check_kind, load_yaml, validate
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -131,7 +131,7 @@ class ImpacterConfig(_Strict):
     length_um: PositiveFloat | None = None
     gap_um: PositiveFloat | None = None
     mass_thickness_um: PositiveFloat | None = None
-    #: at most 1 GHz, no MEMS resonance beyond (the lab files' bound, planner.lab_csv):
+    #: at most 1 GHz, no MEMS resonance beyond (the lab files' bound, planner.lab.csv_files):
     #: 5.2e303 Hz overflowed the trajectory's sampling instead of being refused
     natural_frequency_hz: Annotated[float, Field(gt=0, le=1e9, allow_inf_nan=False)] | None \
         = None
@@ -252,7 +252,7 @@ class Device:
 
 
 def load_device(path: str | Path) -> Device:
-    """Read and validate a device config; raise :class:`planner.errors.SpecError` if bad."""
+    """Read and validate a device config; raise :class:`planner.core.errors.SpecError` if bad."""
     data, lines = load_yaml(Path(path))
     check_kind(data, "device config", source=str(path))
     cfg = validate(DeviceConfig, data, lines, source=str(path))

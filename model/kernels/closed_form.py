@@ -195,25 +195,6 @@ def tone_coefficients(wn, sigma, w, a, phi):
     return coef
 
 
-@njit(cache=True)
-def _u_derivs(hd, t, out):
-    """Derivatives 0..4 of u(t) = sin(hd t)/hd (u = t at hd = 0) into out[0:5]."""
-    if hd == 0.0:
-        out[0] = t
-        out[1] = 1.0
-        out[2] = 0.0
-        out[3] = 0.0
-        out[4] = 0.0
-    else:
-        s = math.sin(hd * t)
-        c = math.cos(hd * t)
-        out[0] = s / hd
-        out[1] = c
-        out[2] = -hd * s
-        out[3] = -hd * hd * c
-        out[4] = hd * hd * hd * s
-
-
 @njit(cache=True, inline='always')
 def _beat_terms(w, sigma, delta, t, t_ref):
     """F = e^{i w t} E1(t - t_ref) and M = e^{i w t} e^{lambda (t - t_ref)} [s, -].
@@ -326,31 +307,6 @@ def particular_jet_ref(coef, t, t_ref):
             acc += (g * f2).real
             jerk += (g * f3).real
     return x, v, acc, jerk
-
-
-@njit(cache=True)
-def particular_derivative(coef, t, order):
-    """order-th derivative (0..4) of x_p at time t [m/s^order]."""
-    total = 0.0
-    for i in range(coef.shape[0]):
-        w = coef[i, 0]
-        if coef[i, 3] == REGULAR:
-            a = coef[i, 1]
-            b = coef[i, 2]
-            scale = 1.0
-            for _ in range(order):
-                a, b = b, -a
-                scale *= w
-            total += scale * (a * math.cos(w * t) + b * math.sin(w * t))
-        else:
-            f, m = _beat_terms(w, coef[i, 4], coef[i, 5], t, 0.0)
-            iw = complex(0.0, w)
-            mu = complex(-coef[i, 4], w + coef[i, 5])
-            for _ in range(order):
-                f = iw * f + m
-                m = mu * m
-            total += (complex(coef[i, 1], coef[i, 2]) * f).real
-    return total
 
 
 @njit(cache=True)

@@ -4,7 +4,7 @@ yield study.
 A measured resonance is one number per impacter (per half), but the fabrication error
 that moved it moved more than the stiffness: a line-width error dw widens the beams
 (w + dw), grows the plate ((sqrt(A) + dw)^2: mass and squeeze-film damping) and closes
-the gap (c - dw), as :mod:`planner.fabrication` builds a sampled chip.  A model that
+the gap (c - dw), as :mod:`planner.fabrication.tolerances` builds a sampled chip.  A model that
 keeps the design's mass, damping and gap and only fits k to the resonance is not the
 chip: near a design's tone window the difference decides (issue 37: 11 of 200 chips of
 the default, re-planned from an exact measurement, failed only on their true models).
@@ -12,7 +12,7 @@ the default, re-planned from an exact measurement, failed only on their true mod
 So the errors are inferred, then the chip rebuilt through eqs. (2)-(4):
 
 1. **Each resonance's shift** y = ln(nu_measured / nu_design) is, to first order, s . e:
-   the sensitivities s of :func:`planner.fabrication.frequency_sensitivities` times the
+   the sensitivities s of :func:`planner.fabrication.tolerances.frequency_sensitivities` times the
    five errors e (line width, thickness, gap, Young's modulus, natural frequency) of that
    impacter, each the sum of a die part (shared by the chip), a device part (per
    impacter pair) and, for a pair measured half by half, a pair part per half.
@@ -43,18 +43,18 @@ import numpy as np
 from scipy import optimize
 
 import model
-from planner.fabrication import (
+from planner.fabrication.tolerances import (
     ERRORS,
     ChipDesign,
     Tolerances,
-    _impacter,
-    _slider,
+    as_built_impacter,
+    as_built_slider,
     frequency_sensitivities,
     nominal_impacter,
 )
 
 #: Relative sigma of a measured resonance when the lab gives none [%]: a swept
-#: resonance fit to 1e-4 to 1e-3 (:mod:`planner.calibrate`, 1-2 % noise).
+#: resonance fit to 1e-4 to 1e-3 (:mod:`planner.lab.calibrate`, 1-2 % noise).
 DEFAULT_NOISE_PCT = 0.05
 #: Bracket of the exact-resonance root, in units of the posterior's own step [-].
 ROOT_BRACKET = 4.0
@@ -133,8 +133,8 @@ def infer_errors(design: ChipDesign, measured: dict, noise_pct=DEFAULT_NOISE_PCT
 
     Parameters
     ----------
-    design : planner.fabrication.ChipDesign
-        The chip's designs (:func:`planner.fabrication.design_from_plan`).
+    design : planner.fabrication.tolerances.ChipDesign
+        The chip's designs (:func:`planner.fabrication.tolerances.design_from_plan`).
     measured : dict
         Id -> :class:`~planner.afterfab.measurement.Measurement`; an impacter without
         one is not measured (its errors are the die's).
@@ -191,7 +191,7 @@ def _exact(spec, node, err, target_hz, direction):
         return err
 
     def miss(t):
-        return math.log(_impacter(spec, node, err + t * direction).natural_frequency
+        return math.log(as_built_impacter(spec, node, err + t * direction).natural_frequency
                         / target_hz)
 
     f0 = miss(0.0)
@@ -218,7 +218,7 @@ def as_built(design: ChipDesign, measured: dict, *, noise_pct=DEFAULT_NOISE_PCT)
 
     Parameters
     ----------
-    design : planner.fabrication.ChipDesign
+    design : planner.fabrication.tolerances.ChipDesign
         The chip's designs.
     measured : dict
         Id -> :class:`~planner.afterfab.measurement.Measurement` (quality factors and
@@ -247,14 +247,14 @@ def as_built(design: ChipDesign, measured: dict, *, noise_pct=DEFAULT_NOISE_PCT)
                 direction = step if np.any(step) else (var_die + var_dev) * \
                     frequency_sensitivities(spec, node)
                 err = _exact(spec, node, err, m.halves_hz[k], direction)
-            imp = _impacter(spec, node, err)
+            imp = as_built_impacter(spec, node, err)
             if m is not None:
                 imp = _measured_extras(imp, m.quality[k], m.gap_m[k], m.damping_ns_per_m)
             parts.append(imp)
             errs.append([float(x) for x in err])
         impacters[node.id] = parts[0] if len(parts) == 1 else model.pair_of(*parts)
         out_errors[node.id] = errs
-    sliders = {d: _slider(spec, d, float(die[0]), float(die[1])) for d in design.devices}
+    sliders = {d: as_built_slider(spec, d, float(die[0]), float(die[1])) for d in design.devices}
     return AsBuilt(impacters, sliders, out_errors, tuple(float(x) for x in die))
 
 
@@ -290,5 +290,5 @@ def _stiffness_only(design: ChipDesign, measured: dict) -> AsBuilt:
             parts.append(imp)
         impacters[node.id] = parts[0] if len(parts) == 1 else model.pair_of(*parts)
         errors[node.id] = [[0.0] * len(ERRORS) for _ in parts]
-    sliders = {d: _slider(spec, d, 0.0, 0.0) for d in design.devices}
+    sliders = {d: as_built_slider(spec, d, 0.0, 0.0) for d in design.devices}
     return AsBuilt(impacters, sliders, errors, (0.0,) * len(ERRORS))

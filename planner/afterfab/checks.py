@@ -1,5 +1,5 @@
 """Every check of a drive on one chip's models, counted by kind, with the impacters each
-failure implicates (keyed by :class:`planner.nodes.Node`).
+failure implicates (keyed by :class:`planner.core.nodes.Node`).
 
 The checks are the plan's own (:func:`planner.planning.verify.check_step` per step, the
 scenes with the state carried across steps): their structured
@@ -9,7 +9,7 @@ a cause.  The kinds' names are yield.json's (:data:`KINDS`).
 
 from __future__ import annotations
 
-from planner.nodes import Node
+from planner.core.nodes import Node
 from planner.planning.verify import (CARRIED_IDLE, IDLE_MOVES, IDLE_RESPONSE, OFF_TARGET,
                                      TOO_SLOW, TRAVEL_OVER, UNSETTLED)
 
@@ -73,7 +73,7 @@ def check_drive(settings, steps, waveforms, dwells, impacters, sliders, *,
     dict
         ``passed`` (every check), ``steps_passed`` (the per-step checks only),
         ``failures`` (kind -> count of failed checks), ``nodes`` (set of
-        :class:`~planner.nodes.Node`: the impacter pairs implicated), ``rows`` (the
+        :class:`~planner.core.nodes.Node`: the impacter pairs implicated), ``rows`` (the
         per-step verification rows), ``records`` (every
         :class:`~planner.planning.verify.Failure`, the carried-state ones last).
     """

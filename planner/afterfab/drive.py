@@ -31,13 +31,11 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import math
 from collections.abc import Callable
 
 import numpy as np
 
-from model import halves
-from planner.nodes import Node
+from planner.core.nodes import Node
 from planner.afterfab.separations import Separations, remeasured, separations_of
 
 #: A tone chosen beside a neighbour's silent band keeps this far from its edge: the
@@ -258,50 +256,6 @@ def weakened(steps, notes, plan_scales):
     return out
 
 
-def as_built_models(plan, measured: dict, *, quality=None, gaps=None):
-    """Node id -> the as-built model of a measured chip: the design's mass, damping and
-    gap, its stiffness from the measured resonance (k = m (2 pi nu)^2); a pair measured
-    half by half is a :class:`model.PairHalves` of two such models.
-
-    ``quality`` (node -> Q or (Q_a, Q_b)), optional: the damping from a measured
-    quality factor instead of the design's (b = m 2 pi nu / Q); ``gaps`` (node -> gap or
-    (gap_a, gap_b) [m]), optional: the measured gap instead of the design's.  A half
-    whose entry is None keeps its design's.
-    """
-    import model
-
-    def per_part(value, count):
-        return value if isinstance(value, (tuple, list)) else (value,) * count
-
-    out = {}
-    for rec in plan.impacters:
-        n = rec.id
-        m = rec.mass_kg
-        value = measured.get(n, rec.natural_frequency_hz)
-        freqs = value if isinstance(value, (tuple, list)) else (value,)
-        qs = per_part((quality or {}).get(n), len(freqs))
-        cs = per_part((gaps or {}).get(n), len(freqs))
-        parts = []
-        for nu, q, c in zip(freqs, qs, cs):
-            w = 2.0 * math.pi * float(nu)
-            b = m * w / float(q) if q else rec.damping_ns_per_m
-            parts.append(model.Impacter(m, m * w * w, b, float(c) if c else rec.gap_m,
-                                        rec.impact_angle_rad, rec.restitution))
-        out[n] = parts[0] if len(parts) == 1 else model.pair_of(*parts)
-    return out
-
-
-def natural_frequencies(impacters: dict) -> dict:
-    """Node id -> natural frequency [Hz] of each model (each half's, (a, b), for a pair of
-    unequal halves): what a lab measures of a chip."""
-    out = {}
-    for n, imp in impacters.items():
-        parts = halves(imp)
-        out[n] = (float(parts[0][0].natural_frequency) if len(parts) == 1 else
-                  tuple(float(h.natural_frequency) for h, _ in parts))
-    return out
-
-
 def plan_phases(plan) -> dict:
     """Step key -> {Node -> the phase [rad] its tone played at in the plan}.
 
@@ -387,7 +341,7 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict,
     settings : Settings
         The plan's.
     models, sliders : dict
-        The chip's models as measured (:func:`as_built_models`) and its sliders: the
+        The chip's models as measured (:func:`~planner.afterfab.as_built.as_built`) and its sliders: the
         bursts are sized for their speeds.
     remeasure : iterable of str
         Impacter ids whose separations are measured again on their models

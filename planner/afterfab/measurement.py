@@ -2,7 +2,7 @@
 measurement a yield study simulates.
 
 A lab sweeps each impacter pair (a vibrometer or a camera, the paper's Section IV) and
-fits its resonance (:mod:`planner.calibrate`); where it can tell the two cantilevers of a
+fits its resonance (:mod:`planner.lab.calibrate`); where it can tell the two cantilevers of a
 pair apart, each half's.  Optionally a quality factor (the damping) and a gap.  Every
 after-fabrication step -- the as-built models (:mod:`planner.afterfab.as_built`), the
 re-plan, the trim, a yield study's chips -- reads one :class:`Measurement` per impacter.
@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.nodes import node_key
-from planner.units import UM
+from planner.core.nodes import node_key
+from planner.core.units import UM
 
 #: Columns of measured.csv: required, optional, and ignored (calibrate's uncertainties).
 MEASURED_REQUIRED = ("impacter", "natural_frequency_hz")
@@ -142,7 +142,7 @@ def read_measured(path, impacter_ids, design_hz=None) -> dict:
         CSV with header ``impacter,natural_frequency_hz`` and optionally
         ``quality_factor``, ``gap_um`` and ``half`` (a or b: one cantilever of the pair;
         any order); columns ending in ``_std`` or ``_std_hz``
-        (:func:`planner.calibrate.write_measured`'s uncertainties) are ignored.  Blank
+        (:func:`planner.lab.calibrate.write_measured`'s uncertainties) are ignored.  Blank
         lines and lines starting with ``#`` are skipped.
     impacter_ids : iterable of str
         The plan's impacters; any other name is an error.
@@ -158,14 +158,14 @@ def read_measured(path, impacter_ids, design_hz=None) -> dict:
 
     Raises
     ------
-    planner.errors.SpecError
+    planner.core.errors.SpecError
         ``FILE: row N, column C: ...`` (N the 1-based line) for a missing or unknown
         column, an unknown or repeated impacter, a value that is not a finite number, a
         frequency, quality factor or gap <= 0, a gap in metres, a resonance beyond a
         factor 4 of its design's, or a pair half measured alone or both whole and by
         halves.
     """
-    from planner.lab_csv import read_csv_rows
+    from planner.lab.csv_files import read_csv_rows
 
     # calibrate writes uncertainties beside the values: accepted and left alone
     header_line, header, rows, fail = read_csv_rows(
@@ -176,10 +176,10 @@ def read_measured(path, impacter_ids, design_hz=None) -> dict:
 
 def measurements_from_rows(header_line, header, rows, fail, impacter_ids, design_hz=None):
     """:func:`read_measured`'s checks and result for rows already read
-    (:func:`planner.lab_csv.read_csv_rows`'s ``header_line``, ``header``, ``rows`` and
+    (:func:`planner.lab.csv_files.read_csv_rows`'s ``header_line``, ``header``, ``rows`` and
     ``fail``): one chip's rows of a wafer file too (:mod:`planner.afterfab.wafer_file`),
     whose other columns (the die's) are left alone."""
-    from planner.lab_csv import csv_number, row_values
+    from planner.lab.csv_files import csv_number, row_values
 
     known = set(impacter_ids)
     whole, first_line, halves = {}, {}, {}

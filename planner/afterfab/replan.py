@@ -42,8 +42,8 @@ import pandas as pd
 
 import model
 from model import Drive
-from planner.assign import Assignment, conflict_graph, guard_violations
-from planner.nodes import device_key, node_key
+from planner.assignment.assign import Assignment, conflict_graph, guard_violations
+from planner.core.nodes import device_key, node_key
 from planner.planning.plan_file import PlanRecord, drives
 from planner.planning.record import build_record
 from planner.planning.repair import scenes_and_motion
@@ -89,7 +89,7 @@ def chip_models(plan: PlanRecord, measured: dict, noise_pct=None) -> AsBuilt:
     the die's errors): :func:`planner.afterfab.as_built.as_built` on the plan's designs,
     the measurement's noise the spec's ``fabrication.measurement_noise_pct`` unless
     given."""
-    from planner.fabrication import design_from_plan
+    from planner.fabrication.tolerances import design_from_plan
 
     if noise_pct is None:
         noise_pct = plan.spec.fabrication.measurement_noise_pct
@@ -293,7 +293,7 @@ def regate(settings, steps, waveforms, tones, models, sliders, phases=None):
         its target on this chip keeps the step as synthesised: its verification then
         says by how far it misses.
     """
-    from planner.errors import PlanningError
+    from planner.core.errors import PlanningError
     from planner.planning.drives import synthesize_steps
     from planner.planning.targets import place_targets
 
@@ -310,7 +310,7 @@ def regate(settings, steps, waveforms, tones, models, sliders, phases=None):
 
 
 def _assignment(steps, settings, chosen, lower_bound):
-    """An :class:`~planner.assign.Assignment` of the chosen tones (the conflict graph as
+    """An :class:`~planner.assignment.assign.Assignment` of the chosen tones (the conflict graph as
     before; each impacter's channel is the grid channel of its tone)."""
     grid = np.asarray(settings.channel_grid_hz)
     graph, groups = conflict_graph(steps, settings.separation_channels, None,

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.nodes import Node
+from planner.core.nodes import Node
 
 #: Sigmas of the trim precision kept between two trimmed targets, on top of the
 #: separation: a trimmed pair then stays separable on ~98 % of trims [-].
@@ -114,7 +114,7 @@ def separations_of(plan, settings) -> Separations:
     design is simulated at its designed tone, at the largest amplitude its tone plays in
     the plan's steps, as :func:`planner.planning.manufacture.assess` measured it.
     """
-    from planner.fabrication import NodeDesign, nominal_impacter
+    from planner.fabrication.tolerances import NodeDesign, nominal_impacter
     from planner.manufacturability import measure_separation
 
     ids = tuple(sorted(r.id for r in plan.impacters))

@@ -22,7 +22,7 @@ from __future__ import annotations
 import struct
 from pathlib import Path
 
-from planner.errors import SpecError
+from planner.core.errors import SpecError
 
 #: CPU_TYPE of the FAR: 2 is little-endian (x86), how this writer packs every record.
 CPU_TYPE = 2
@@ -56,7 +56,7 @@ def read_test_map(path, impacter_ids) -> dict:
         Naming the row and column (an unknown impacter, a repeated test name, a half
         that is not a or b).
     """
-    from planner.lab_csv import read_csv_rows, row_values
+    from planner.lab.csv_files import read_csv_rows, row_values
 
     _, header, rows, fail = read_csv_rows(path, ("test_name", "impacter"), ("half",),
                                           what="a test map")
@@ -94,7 +94,7 @@ def read_stdf(path, impacter_ids, test_map=None) -> list:
     Parameters
     ----------
     path : path
-        The STDF file (at most :data:`planner._limits.MAX_INPUT_BYTES`).
+        The STDF file (at most :data:`planner.runtime.limits.MAX_INPUT_BYTES`).
     impacter_ids : iterable of str
         The plan's impacters.
     test_map : dict, optional
@@ -123,7 +123,7 @@ def read_stdf(path, impacter_ids, test_map=None) -> list:
     from pystdf import V4
     from pystdf.IO import Parser
 
-    from planner._io import read_input
+    from planner.files import read_input
 
     path = Path(path)
     source = str(path)

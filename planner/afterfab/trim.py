@@ -428,7 +428,7 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
     measured : dict
         Id -> :class:`~planner.afterfab.measurement.Measurement`
         (:func:`~planner.afterfab.measurement.read_measured`): every impacter of the plan
-        (a :class:`~planner.errors.SpecError` names those without a measurement).
+        (a :class:`~planner.core.errors.SpecError` names those without a measurement).
     seed : int, optional
         Seeds the trims' errors and the drive's phases (default: the plan's).
     spec : TrimSpec, optional
@@ -445,7 +445,7 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
     if missing:
         # a design value is no measurement of this chip: trim.csv would state it as
         # measured_hz and the trims would be chosen against a resonance nobody measured
-        from planner.errors import SpecError
+        from planner.core.errors import SpecError
 
         raise SpecError(f"no measured resonance for {', '.join(missing)}: a trim is chosen "
                         "from every impacter's measured resonance; measure them (vibroplan "

@@ -288,12 +288,12 @@ def read_motion(path) -> list:
 
     Raises
     ------
-    planner.errors.SpecError
+    planner.core.errors.SpecError
         ``FILE: row N, column C: ...`` for a missing or unknown column, an empty name,
         a number that is not finite, a tone <= 10 Hz, or an impacter with fewer than
         :data:`MIN_TONES` distinct tones.
     """
-    from planner.lab_csv import csv_number, read_csv_rows, row_values
+    from planner.lab.csv_files import csv_number, read_csv_rows, row_values
 
     header_line, header, rows, fail = read_csv_rows(path, MOTION_COLUMNS,
                                                     what="a motion sweep")
@@ -358,7 +358,7 @@ def read_windows(path, impacter_ids, tones_hz=None) -> dict:
     flagged : dict
         Impacter id -> the status of a window calibrate flagged.
     """
-    from planner.lab_csv import csv_number, read_csv_rows, row_values
+    from planner.lab.csv_files import csv_number, read_csv_rows, row_values
 
     known = set(impacter_ids)
     optional = tuple(c for c in WINDOW_COLUMNS if c not in WINDOW_REQUIRED)

@@ -2,7 +2,7 @@
 each die's outputs kept as it finishes, a summary and a wafer map at the end
 (``vibroplan replan PLAN --measured WAFER.csv``, issue 39).
 
-Per die (:func:`replan_die`, a task of :func:`planner.engine.run_tasks`), the loop a lab
+Per die (:func:`replan_die`, a task of :func:`planner.runtime.engine.run_tasks`), the loop a lab
 runs on one chip, from its measurement only:
 
 1. the chip's as-built models from the measurement
@@ -27,7 +27,7 @@ work folder beside the output (``.OUT.dies/``, one ``die_<x>_<y>/`` per die, ren
 into place whole); an interrupted run leaves it, and the next run with the same plan,
 measurement and options reads the finished dies back instead of redoing them (a run
 with other inputs starts afresh).  The output folder itself is written at the end and
-swapped in atomically (:func:`planner._io.output_folder`), and the work folder removed.
+swapped in atomically (:func:`planner.files.output_folder`), and the work folder removed.
 Every output depends on the inputs only: ``--jobs 1`` and ``--jobs 2`` (or a cluster)
 write the same bytes.
 """
@@ -124,7 +124,7 @@ def replan_die(job: WaferJob, die_x: int, die_y: int, measured: dict) -> dict:
 
     from planner.afterfab.checks import check_drive
     from planner.afterfab.replan import chip_models, replan, write_replan_outputs
-    from planner.errors import PlanningError
+    from planner.core.errors import PlanningError
     from planner.synthesis import LoopLengthError
 
     # one numba thread per die, as a yield study's chips: the dies are the parallelism
@@ -204,7 +204,7 @@ def inputs_digest(plan_path, measured_paths, options: dict) -> str:
     """SHA-256 of what a batch's results depend on: the plan.json's bytes, every
     measurement file's bytes (in order) and the options; a resume reads back only a
     work folder of the same digest."""
-    from planner._io.version import version_string
+    from planner.files.version import version_string
 
     h = hashlib.sha256()
     h.update(f"format {WORK_FORMAT}\n{version_string()}\n".encode())
@@ -276,13 +276,13 @@ def replan_wafer(record, dies, out_tmp, *, plan_path, measured_paths, trim=False
     dies : list of (int, int, dict)
         ``(die_x, die_y, measured)`` (:func:`planner.afterfab.wafer_file.read_wafer`).
     out_tmp : path
-        The output folder being written (:func:`planner._io.output_folder`'s temporary).
+        The output folder being written (:func:`planner.files.output_folder`'s temporary).
     plan_path, measured_paths :
         The inputs, whose bytes key the work folder (:func:`inputs_digest`).
     trim : bool
         Trim the dies whose pairs no drive tells apart.
     jobs, scheduler :
-        As :func:`planner.engine.run_tasks`.
+        As :func:`planner.runtime.engine.run_tasks`.
     progress : callable, optional
         ``progress(done, total, resumed)`` after each die and once at the start.
     work : path
@@ -293,7 +293,7 @@ def replan_wafer(record, dies, out_tmp, *, plan_path, measured_paths, trim=False
     list of dict
         Every die's result (without files), in ``dies``' order.
     """
-    from planner.engine import run_tasks
+    from planner.runtime.engine import run_tasks
 
     work = Path(work)
     digest = inputs_digest(plan_path, measured_paths, {"trim": bool(trim),
@@ -340,7 +340,7 @@ def write_outputs(record, results, work: Path, out: Path) -> None:
                "folder": f"dies/{name}"}
         lines.append(",".join(_csv_cell(row[c]) for c in SUMMARY_COLUMNS))
     (out / "summary.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
-    from planner.wafer import die_size
+    from planner.fabrication.wafer import die_size
 
     spec = record.spec
     wafer = spec.fabrication.wafer
@@ -348,7 +348,7 @@ def write_outputs(record, results, work: Path, out: Path) -> None:
             else (spec.array.cols * spec.array.pitch_um * 1e-6,
                   spec.array.rows * spec.array.pitch_um * 1e-6))
     size_mm = (size[0] * 1e3, size[1] * 1e3)
-    from planner.wafer_map import plot_wafer_map
+    from planner.figures.wafer_map import plot_wafer_map
 
     plot_wafer_map([{"die_x": r["die_x"], "die_y": r["die_y"], "outcome": r["outcome"],
                      "causes": r["causes"]} for r in results], size_mm,

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from planner.afterfab.measurement import (MEASURED_OPTIONAL, MEASURED_REQUIRED,
                                           measurements_from_rows, read_measured)
-from planner.errors import SpecError
+from planner.core.errors import SpecError
 
 #: The die columns in front of measured.csv's in a wafer CSV.
 DIE_COLUMNS = ("die_x", "die_y")
@@ -52,7 +52,7 @@ def is_wafer_csv(path) -> bool:
     """Whether ``path`` is a CSV whose header has the die columns (a wafer's file, not
     one chip's measured.csv); False for anything it cannot read as such (the chip's
     reader then says what is wrong)."""
-    from planner.lab_csv import read_csv_rows
+    from planner.lab.csv_files import read_csv_rows
 
     try:
         _, header, _, _ = read_csv_rows(path, (), DIE_COLUMNS + MEASURED_REQUIRED
@@ -87,7 +87,7 @@ def read_wafer_csv(path, impacter_ids, design_hz=None) -> list:
         ``FILE: row N, column C: ...`` as measured.csv's reader, and for a die index
         that is not an integer.
     """
-    from planner.lab_csv import read_csv_rows, row_values
+    from planner.lab.csv_files import read_csv_rows, row_values
 
     header_line, header, rows, fail = read_csv_rows(
         path, DIE_COLUMNS + MEASURED_REQUIRED, MEASURED_OPTIONAL, what="a wafer's CSV",

@@ -12,10 +12,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from planner.errors import SpecError
+from planner.core.errors import SpecError
 from planner.arrayspec.schema import ArraySpec
 from planner.arrayspec.steps import Step, resolve_steps
-from planner.yamlio import check_kind, format_loc, line_of, load_yaml, validate
+from planner.files.yamlio import check_kind, format_loc, line_of, load_yaml, validate
 
 
 @dataclass(frozen=True)

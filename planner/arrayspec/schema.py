@@ -1,6 +1,6 @@
 """The array spec's schema: every section and field of the YAML, its units and defaults.
 
-Pydantic models (unknown keys refused, :class:`planner._pydantic.Strict`) of the
+Pydantic models (unknown keys refused, :class:`planner.core.strict.Strict`) of the
 sections of an array spec (:class:`ArraySpec`): the array's grid, the device defaults
 and per-device overrides, the drive, the designer, the verification, the fabrication
 tolerances, the trim and the scenes' steps.  A field's unit is in its name; its
@@ -16,7 +16,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_serializer, model_validator
 
-from planner._pydantic import Strict
+from planner.core.strict import Strict
 from planner.config import (
     DEFAULT_IMPACTER,
     EnvironmentConfig,
@@ -81,7 +81,7 @@ class ChannelGrid(Strict):
     #: its impacters may take (every separation still kept), the tones rise along a
     #: serpentine walk of the devices, so that frequency neighbours sit on neighbouring
     #: devices and a line-width gradient across the die moves them alike
-    #: (:func:`planner.placement.neighbour_coloring`, issue 39).
+    #: (:func:`planner.assignment.placement.neighbour_coloring`, issue 39).
     placement: Literal["coloring", "neighbours"] = "coloring"
 
     @model_serializer(mode="wrap")
@@ -196,7 +196,7 @@ class DesignSpec(Strict):
     guard: Annotated[float, Field(ge=0, lt=0.5)] = 0.02
     #: Robust design: every impacter must respond and stay silent with its natural
     #: frequency shifted by +-robust_k sigma, sigma from the ``fabrication`` section's
-    #: tolerances at the candidate's own geometry (planner.fabrication.RobustShift).
+    #: tolerances at the candidate's own geometry (planner.fabrication.tolerances.RobustShift).
     robust: bool = False
     robust_k: Annotated[float, Field(gt=0, le=6, allow_inf_nan=False)] = 2.0
     #: Upper bound on m/M, one impacter's mass over its slider's [-]: eq. (10) is the
@@ -415,7 +415,7 @@ class StepSpec(Strict):
     ``relative_to: previous_step`` it is the move from where the slider ended the
     previous step.  The planner drives each targeted slider toward its target (forward
     for a positive move, backward for a negative one), switching each tone off when its
-    slider has gone far enough (:mod:`planner.gating`); devices without a target, or
+    slider has gone far enough (:mod:`planner.synthesis.gating`); devices without a target, or
     already at it, stay.  ``duration_ms`` is then the longest burst allowed, and
     ``forward``, ``backward`` and ``travel_um`` cannot be given.
     """

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from planner.errors import SpecError
+from planner.core.errors import SpecError
 from planner.arrayspec.schema import ArraySpec
-from planner.yamlio import format_loc, line_of
+from planner.files.yamlio import format_loc, line_of
 
 #: Longest burst [s] of a ``travel_um`` step without ``duration_ms``.
 DEFAULT_MAX_BURST_S = 0.1

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import click
 
-from planner._io import (
+from planner.files import (
     check_not_input,
     check_output_file,
     check_output_folder,
@@ -36,7 +36,7 @@ from planner._io import (
     output_folder,
     version_string,
 )
-from planner.errors import Interrupted, OutputError, PlanningError, SpecError
+from planner.core.errors import Interrupted, OutputError, PlanningError, SpecError
 
 __all__ = ["EXIT_CODES_HELP", "FORCE_FILES_HELP", "Finite", "check_output_files",
            "check_output_folder", "chip_inputs", "handle_errors", "output_file", "output_files",
@@ -273,7 +273,7 @@ def _with_windows(plan, measured, windows_path):
     without a measured resonance is an error naming its row; a flagged window is used
     with a warning."""
     from planner.afterfab.tune import read_windows
-    from planner.errors import SpecError
+    from planner.core.errors import SpecError
 
     tones = {r.id: r.frequency_hz for r in plan.impacters}
     windows, flagged = read_windows(windows_path, plan.impacter_ids, tones)

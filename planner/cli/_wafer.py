@@ -17,11 +17,11 @@ def replan_wafer_command(plan_path, measured, out_dir, *, trim, jobs, scheduler,
     the outcome per kind; exit 1 when a die is scrapped."""
     from pathlib import Path
 
-    from planner._limits import check_jobs, cores
+    from planner.runtime.limits import check_jobs, cores
     from planner.afterfab.stdf import read_test_map
     from planner.afterfab.wafer import counts, replan_wafer, work_folder
     from planner.afterfab.wafer_file import read_wafer
-    from planner.engine import check_scheduler
+    from planner.runtime.engine import check_scheduler
     from planner.planning.plan_file import read_plan
 
     if seed is not None:

@@ -32,7 +32,7 @@ def command(spec, out, plot, method, time_limit, force):
     harmonic and intermodulation products of tones that play together.  Without SPEC,
     the embedded default (configs/array_5x5.yaml) is used.
     """
-    from planner.assign import assign, verify_assignment
+    from planner.assignment.assign import assign, verify_assignment
     from planner.planning.settings import resolve_settings
     from planner.arrayspec import default_spec_path, load_spec
 
@@ -72,7 +72,7 @@ def command(spec, out, plot, method, time_limit, force):
                 table.to_csv(tmp, index=False)
         click.echo(f"wrote {out}")
     if plot:
-        from planner.report_plots import array_map
+        from planner.figures.plan import array_map
 
         with output_files([plot], command="assign", inputs=[path], force=force) as (tmp,):
             array_map(settings, table, tmp)

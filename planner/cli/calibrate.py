@@ -112,7 +112,7 @@ def command(sweep_csv, motion, out, fraction, min_speed_mm_s, keep_flagged, forc
                 keep_flagged, force)
         return
     out = out or Path("measured.csv")
-    from planner.calibrate import calibrate, read_sweep, write_measured
+    from planner.lab.calibrate import calibrate, read_sweep, write_measured
 
     check_output_files("calibrate", [("--out", out)], inputs=[sweep_csv], force=force)
     sweep = read_sweep(sweep_csv)

@@ -11,7 +11,7 @@ import click
 from planner.cli._common import (FORCE_FILES_HELP, Finite, check_output_files, handle_errors,
                                  output_file, output_files)
 
-from planner.units import UM  # noqa: E402
+from planner.core.units import UM  # noqa: E402
 
 
 def _rows(pair):
@@ -111,7 +111,7 @@ def command(config, forward_hz, backward_hz, seed, budget, out, plot, quiet, for
     """
     from tqdm import tqdm
 
-    from planner.design_config import load_design_config
+    from planner.designer.config import load_design_config
     from planner.designer import design_pair
 
     cfg = load_design_config(config)
@@ -146,7 +146,7 @@ def command(config, forward_hz, backward_hz, seed, budget, out, plot, quiet, for
         _write(pair.to_dict(), out, [config], force)
         click.echo(f"wrote {out}")
     if plot is not None:
-        from planner.design_plots import pair_response
+        from planner.figures.design import pair_response
 
         with output_files([plot], command="design", inputs=[config], force=force) as (tmp,):
             pair_response(pair, tmp, power=kwargs["power"], amplitude=kwargs["amplitude"],

@@ -10,7 +10,7 @@ import click
 from planner.cli._common import (FORCE_FILES_HELP, Finite, check_output_files, handle_errors,
                                  output_file, output_files)
 
-#: The exporters' registry names (``planner.exporters.EXPORTERS``), spelled out here so that
+#: The exporters' registry names (``planner.lab.exporters.EXPORTERS``), spelled out here so that
 #: ``vibroplan --help`` need not import numpy and scipy; a test keeps the two equal.
 FORMATS = ("wav", "wav16", "csv", "arb")
 
@@ -21,7 +21,7 @@ PLAN_SNAP_REL = 1e-9
 #: Stretch of the waveform the plot shows [s].
 PLOT_STRETCH = 5e-3
 
-from planner.units import UM  # noqa: E402
+from planner.core.units import UM  # noqa: E402
 
 
 @click.command("drive")
@@ -76,7 +76,7 @@ def command(spec_or_plan, step_name, fmt, out, plot, sample_rate, seed, reoptimi
       vibroplan drive plan_out/plan.json --step s1/forward --format arb --out s1.arb
       vibroplan drive plan_out --step forward --format wav --plot forward.png
     """
-    from planner.exporters import EXPORTERS, export, read_sidecar, sidecar_path, verify_export
+    from planner.lab.exporters import EXPORTERS, export, read_sidecar, sidecar_path, verify_export
     from planner.planning.plan_file import step_drive
     from planner.synthesis import MAX_LOOP_LENGTH, check_loop_memory
 
@@ -133,7 +133,7 @@ def command(spec_or_plan, step_name, fmt, out, plot, sample_rate, seed, reoptimi
 
     _summary(step, written, tones.frequencies, limit, notes)
     if plot is not None:
-        from planner.report_plots import waveform_and_spectrum
+        from planner.figures.plan import waveform_and_spectrum
 
         with output_files([plot], command="drive", inputs=inputs, force=force) as (tmp,):
             waveform_and_spectrum(written[0][2], tmp, step.key, peak_limit=limit,
@@ -206,11 +206,11 @@ def _synthesise(freqs, amps, phases, rate, seed, limit, mode, notes):
 def _burst(step, drive, phases, rate, seed, notes):
     """[(tone indices, Burst)] of a gated step (``playback: once``): its tones, each
     gated at its recorded ``start_s`` and ``gate_s`` with the step's ramp
-    (:func:`planner.gating.gate`); one tone plays at a time, so no peak limit applies
+    (:func:`planner.synthesis.gating.gate`); one tone plays at a time, so no peak limit applies
     to the sum."""
     import numpy as np
 
-    from planner.gating import gate
+    from planner.synthesis.gating import gate
 
     starts = [t.start_s for t in step.tones]
     gates = [t.gate_s for t in step.tones]

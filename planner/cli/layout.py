@@ -49,7 +49,7 @@ def command(plan_path, out_file, check, spec_file, device, force):
 
     {EXIT}
     """
-    from planner._io import version_string
+    from planner.files import version_string
     from planner.layout.run import run_layout
 
     result = run_layout(plan_path, out_file, check=check, rules_spec=spec_file, device=device,

@@ -97,8 +97,8 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
     """
     import numba
 
-    from planner._limits import check_jobs
-    from planner.engine import check_scheduler
+    from planner.runtime.limits import check_jobs
+    from planner.runtime.engine import check_scheduler
     from planner.planning import plan
     from planner.planning.design_store import default_cache_dir
     from planner.arrayspec import default_spec_path, load_spec

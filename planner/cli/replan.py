@@ -104,7 +104,7 @@ def command(plan_path, measured_path, windows_path, measured_dir, trim, jobs, sc
 
     {EXIT}
     """
-    from planner._io import output_folder
+    from planner.files import output_folder
     from planner.afterfab.replan import replan, write_replan_outputs
 
     if (measured_path is None) == (measured_dir is None):

@@ -9,7 +9,7 @@ import click
 from planner.cli._common import (FORCE_FILES_HELP, Finite, check_output_files, handle_errors,
                                  output_file, output_files)
 
-from planner.units import UM  # noqa: E402
+from planner.core.units import UM  # noqa: E402
 
 
 @click.command("simulate")
@@ -80,7 +80,7 @@ def command(config, freqs, x0_um, duration_ms, pair, amplitude_um, method, as_js
             "slider_mean_velocity_m_s": res.mean_velocity,
         })
     if plot:
-        from planner.plots import time_response
+        from planner.figures.device import time_response
 
         with output_files([plot], command="simulate", inputs=[config], force=force) as (tmp,):
             time_response(runs, tmp, title=f"{device.config.name or config}: {pair} pair, "

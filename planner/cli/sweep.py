@@ -9,7 +9,7 @@ import click
 from planner.cli._common import (FORCE_FILES_HELP, Finite, check_output_files, handle_errors,
                                  output_file, output_files)
 
-from planner.units import UM  # noqa: E402
+from planner.core.units import UM  # noqa: E402
 #: Frequencies per parallel batch; the progress bar advances once per batch.
 CHUNK = 64
 #: Memory per cell of the response table [bytes]: the float64 table, the DataFrame's copy
@@ -116,7 +116,7 @@ def command(config, f_from, f_to, f_step, x0_text, duration_ms, pair, out, plot,
     from tqdm import tqdm
 
     from model import sweep
-    from planner._limits import check_memory
+    from planner.runtime.limits import check_memory
     from planner.config import load_device
 
     if f_to < f_from:
@@ -152,7 +152,7 @@ def command(config, f_from, f_to, f_step, x0_text, duration_ms, pair, out, plot,
     with output_files([out], command="sweep", inputs=[config], force=force) as (tmp,):
         frame.to_csv(tmp, index=False, float_format="%.10g")
     if plot:
-        from planner.plots import frequency_response
+        from planner.figures.device import frequency_response
 
         with output_files([plot], command="sweep", inputs=[config], force=force) as (tmp,):
             frequency_response(freqs, r, x0s, tmp, natural_frequency=impacter.natural_frequency,

@@ -53,7 +53,7 @@ def command(plan_path, measured_path, out_dir, seed, force, no_figures, quiet):
 
     {EXIT}
     """
-    from planner._io import output_folder
+    from planner.files import output_folder
     from planner.afterfab.replan import write_replan_outputs
     from planner.afterfab.trim import trim_chip
     from planner.afterfab.trim import write_trim_csv
@@ -97,7 +97,7 @@ def _report(path, res):
 def _trim_section(res):
     """The trim's section of report.md: what to cut, and whether the re-planned drive
     passes on the trimmed models."""
-    from planner.markdown import Section
+    from planner.core.markdown import Section
 
     tp = res.trims
     lines = [f"Direction {res.spec.direction} ({'plate mass removed: the resonance rises' if res.spec.direction == 'up' else 'beam freed from its anchor: the resonance falls'}), "

@@ -106,14 +106,14 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
     """
     from tqdm import tqdm
 
-    from planner._limits import check_jobs
-    from planner.engine import check_scheduler
+    from planner.runtime.limits import check_jobs
+    from planner.runtime.engine import check_scheduler
     from planner.planning.plan_file import read_plan
     from planner.arrayspec import load_spec
     from planner.yield_ import (check_chip_count, check_noise, make_payload, parse_scales,
                                 run_yield, scale_key)
     from planner.yield_.dies import write_wafer_files
-    from planner.yield_report import write_outputs
+    from planner.yield_.report import write_outputs
 
     scales = parse_scales(sigma_scale)
     if 0.0 in scales and not allow_zero:

@@ -40,8 +40,8 @@ def read_band(path) -> nx.Graph:
     FileNotFoundError
         ``path`` does not exist.
     """
-    from planner._io import read_input
-    from planner._limits import check_memory
+    from planner.files import read_input
+    from planner.runtime.limits import check_memory
 
     path = Path(path)
     graph = None

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 # before the kernels are decorated: an installed copy caches outside site-packages
-from model._numba_cache import cache_outside_installed_copy
+from model.numba_cache import cache_outside_installed_copy
 
 cache_outside_installed_copy()
 

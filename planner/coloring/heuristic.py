@@ -14,8 +14,8 @@ from planner.coloring.kernels import (
     _tabu_kernel,
 )
 from planner.coloring.problem import _Problem, _span_of
-from planner._random import DEFAULT_SEED  # noqa: F401  (re-exported: None means seed 0)
-from planner._random import as_generator as _as_rng  # noqa: F401  (the one seed rule; strategies)
+from planner.core.rng import DEFAULT_SEED  # noqa: F401  (re-exported: None means seed 0)
+from planner.core.rng import as_generator as _as_rng  # noqa: F401  (the one seed rule; strategies)
 
 #: Tabu iterations without a better shortfall before an attempt is given up
 #: (scaled by the number of vertices, with a floor).

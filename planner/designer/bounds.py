@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-from planner.units import UM
+from planner.core.units import UM
 
 #: The paper's lower bounds (17): A >= 20 um^2, w >= 2 um, l >= 8 um, c >= 2 um [m^2, m].
 PAPER_LOWER = (20.0 * UM**2, 2.0 * UM, 8.0 * UM, 2.0 * UM)
@@ -109,7 +109,7 @@ class RuleBoundsError(ValueError):
     """A process rule no design inside the designer's bounds can meet.
 
     ``field`` is the spec field at fault, as a path tuple (``("process",
-    "min_line_um")``), for a :class:`planner.errors.SpecError` with its YAML line.
+    "min_line_um")``), for a :class:`planner.core.errors.SpecError` with its YAML line.
     """
 
     def __init__(self, field: tuple, message: str):

@@ -13,7 +13,7 @@ import numpy as np
 from model import CONTACTS, Impacter, Slider, SolverWarning, simulate_slider
 from model import devices as _d
 from model.drive import POWER
-from planner._random import as_generator as _as_rng  # the one seed rule
+from planner.core.rng import as_generator as _as_rng  # the one seed rule
 from planner.designer.bounds import UM, DesignBounds
 from planner.designer.budget import _as_budget
 from planner.designer.problem import LONG_WINDOW_FACTOR, _Problem
@@ -21,7 +21,7 @@ from planner.designer.response import _band_and_margins
 from planner.designer.result import DesignResult, PairDesign
 from planner.designer.runs import Ensemble, _Tones, _u_grid
 from planner.designer.search import _recheck, _search_and_recheck
-from planner.separation import check_target
+from planner.core.separation import check_target
 
 #: Default guard: silent within +-2% of each forbidden frequency, not just at it.  With
 #: guard = 0 the optimiser parks forbidden frequencies in holes of a responding region
@@ -137,7 +137,7 @@ def design_impacter(frequency, forbidden=(), *, process=None, environment=None, 
         callable ``(area, width, length, gap) -> s`` for a shift that depends on the
         candidate's own geometry (the array planner passes k sigma of the natural
         frequency under the spec's ``fabrication`` tolerances, ``design.robust_k`` = k:
-        :class:`planner.fabrication.RobustShift`).  The design must meet the target and
+        :class:`planner.fabrication.tolerances.RobustShift`).  The design must meet the target and
         stay silent with its natural frequency scaled by 1 - s, 1 and 1 + s; it costs
         about three times the simulations.  None or 0: the nominal problem only.
     target_drives : sequence of model.Drive or Ensemble
@@ -305,7 +305,7 @@ def _checked_inputs(frequency, forbidden, process, environment, bounds, window, 
     guard = float(guard)
     if not (math.isfinite(guard) and 0.0 <= guard < 0.5):
         raise ValueError(f"guard must be in [0, 0.5), {guard!r} was given")
-    # the same rule the assigner separates tones by (planner.separation)
+    # the same rule the assigner separates tones by (planner.core.separation)
     check_target(frequency, forbidden, guard)
     ensembles = tuple(e if isinstance(e, Ensemble) else Ensemble(e, f"drive {i}")
                       for i, e in enumerate(forbidden_drives))

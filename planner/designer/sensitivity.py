@@ -2,7 +2,7 @@
 
 A lithographic line-width error dw moves every drawn edge by dw/2 outward: beams widen
 to w + dw and the mass plate, a square of side sqrt(A), grows to (sqrt(A) + dw)^2; the
-beam length l is set by the anchors and stays (:mod:`planner.fabrication` builds
+beam length l is set by the anchors and stays (:mod:`planner.fabrication.tolerances` builds
 as-built chips by the same rule).  With eqs. (2) and (4),
 
     m = rho t A + 2 rho h w l = c_A A + c_wl w l,    k = K w^3 / l^3,

@@ -30,7 +30,7 @@ from planner.layout.shapes import (
     polygon_area,
     rect,
 )
-from planner.units import UM
+from planner.core.units import UM
 
 # Drawing constants: sizes [m] and multiples of the rules (min_line, min_space).
 #: Space along a joining member's roof between the ridge and each leg [min_space]:

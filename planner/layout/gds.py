@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from planner.units import UM
+from planner.core.units import UM
 
 #: GDSII user unit [m] and database unit (precision) [m].
 UNIT = UM

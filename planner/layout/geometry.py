@@ -1,7 +1,7 @@
 """The chip as polygons: every designed impacter pair, slider and device of a plan (SI).
 
 Pure geometry, no file format: :func:`build_chip` turns a plan's designs
-(:class:`planner.fabrication.ChipDesign`) into :class:`Cell` s of :class:`Shape` s on
+(:class:`planner.fabrication.tolerances.ChipDesign`) into :class:`Cell` s of :class:`Shape` s on
 named masks, with placements, in metres; :mod:`planner.layout.gds` writes them.
 
 The device (the paper's Fig. 3, one slider between two pairs of impacters)
@@ -54,12 +54,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.fabrication import ChipDesign, NodeDesign, nominal_impacter
+from planner.fabrication.tolerances import ChipDesign, NodeDesign, nominal_impacter
 from planner.layout.cantilever import Cantilever, cantilever
 from planner.layout.rules import LayoutRules
 from planner.layout.shapes import ANCHOR_CUT, Cell, Placement, Shape, Text, dimples, rect
 from planner.layout.trim import TrimPlan, tab_areas
-from planner.units import UM
+from planner.core.units import UM
 
 # Drawing constants: sizes [m] and multiples of the rules (min_line, min_space).
 #: Space between a moving structure and anything else, besides the swing of the
@@ -81,7 +81,7 @@ class ImpacterDrawing:
 
     Attributes
     ----------
-    node : planner.fabrication.NodeDesign
+    node : planner.fabrication.tolerances.NodeDesign
         Its design: id, device, direction, A, w, l, c, theta.
     beam_angle : float
         phi [rad].
@@ -207,8 +207,8 @@ def build_chip(design: ChipDesign, frequencies: dict, rules: LayoutRules,
 
     Parameters
     ----------
-    design : planner.fabrication.ChipDesign
-        The plan's designs (:func:`planner.fabrication.design_from_plan`).
+    design : planner.fabrication.tolerances.ChipDesign
+        The plan's designs (:func:`planner.fabrication.tolerances.design_from_plan`).
     frequencies : dict
         Impacter id -> (drive tone, natural frequency) [Hz], for the labels.
     rules : LayoutRules

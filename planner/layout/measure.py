@@ -20,7 +20,7 @@ cantilever's nearest POLY1 vertex, theta the angle between that wall and the
 cantilever's motion (perpendicular to its beams' axis).
 
 :func:`round_trip` turns the measured geometry into natural frequencies through eqs.
-(2)-(4) with the plan's process (:func:`planner.fabrication.nominal_impacter`).
+(2)-(4) with the plan's process (:func:`planner.fabrication.tolerances.nominal_impacter`).
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.fabrication import NodeDesign, nominal_impacter
+from planner.fabrication.tolerances import NodeDesign, nominal_impacter
 from planner.layout.geometry import cantilever_cell_name, slider_cell_name
 from planner.layout.shapes import polygon_area
 
@@ -245,7 +245,7 @@ def round_trip(spec, design, measured: MeasuredChip) -> list:
     ----------
     spec : planner.arrayspec.ArraySpec
         The plan's spec (its process and environment make eqs. (2)-(4)).
-    design : planner.fabrication.ChipDesign
+    design : planner.fabrication.tolerances.ChipDesign
         The plan's designs.
     measured : MeasuredChip
 

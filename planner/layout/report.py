@@ -1,13 +1,13 @@
 """The layout's report (markdown): what was drawn, the round trip, the pictures, the DRC,
-section by section (:class:`planner.markdown.Report`)."""
+section by section (:class:`planner.core.markdown.Report`)."""
 
 from __future__ import annotations
 
 import math
 
 from planner.layout.measure import ROUND_TRIP_RTOL
-from planner.markdown import Report, Section, md_table
-from planner.units import UM
+from planner.core.markdown import Report, Section, md_table
+from planner.core.units import UM
 
 #: First line of every layout report: a later run may replace a report that has it.
 HEADER = "<!-- written by vibroplan layout -->"
@@ -60,7 +60,7 @@ def layout_report(*, plan, chip, rows, drc, files, gds_bytes, version) -> Report
 
     Returns
     -------
-    planner.markdown.Report
+    planner.core.markdown.Report
     """
     spec = plan.spec
     devices = list(chip.device_origins)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from planner.units import UM
+from planner.core.units import UM
 
 #: The paper's minimum feature of the MUMPs process (Section III-C, the lower bounds
 #: (17)) [m]: the line and space rule of a spec that sets neither.

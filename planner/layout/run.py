@@ -16,7 +16,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from planner.errors import OutputError
+from planner.core.errors import OutputError
 from planner.layout.drc import DrcResult, check as run_check
 from planner.layout.gds import read_gds, write_gds
 from planner.layout.geometry import ChipLayout, build_chip
@@ -107,7 +107,7 @@ def run_layout(plan_path, out, *, check: bool = False, rules_spec=None,
         vibroplan's version, for the report.
     force : bool
         Replace existing files this command did not write (never an input, and never a
-        file inside another command's folder unless forced: :mod:`planner._io`).
+        file inside another command's folder unless forced: :mod:`planner.files`).
 
     Returns
     -------
@@ -115,10 +115,10 @@ def run_layout(plan_path, out, *, check: bool = False, rules_spec=None,
 
     Raises
     ------
-    FileNotFoundError, ValueError, planner.errors.SpecError, OutputError
+    FileNotFoundError, ValueError, planner.core.errors.SpecError, OutputError
         Bad input or output name; nothing is written.
     """
-    from planner._io import check_output_file, output_files
+    from planner.files import check_output_file, output_files
 
     _gds_name(out)                         # refused before any work
     plan = read_layout_plan(plan_path, rules_spec)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.units import UM
+from planner.core.units import UM
 
 #: Side of an anchor cut (ANCHOR1, ANCHOR2) [m], at least a line.
 ANCHOR_CUT = 5.0 * UM

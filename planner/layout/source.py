@@ -2,7 +2,7 @@
 
 :func:`read_layout_plan` is the layout's one reader of plan.json; it goes through the
 plan reader of the rest of vibroplan (:func:`planner.planning.plan_file.read_plan`, which
-checks the whole file, and :func:`planner.fabrication.design_from_plan`).
+checks the whole file, and :func:`planner.fabrication.tolerances.design_from_plan`).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ class LayoutPlan:
         Its plan.json.
     spec : planner.arrayspec.ArraySpec
         Its spec (process, environment, array, sliders).
-    design : planner.fabrication.ChipDesign
+    design : planner.fabrication.tolerances.ChipDesign
         Its designed impacters (geometry in SI; a re-planned plan's designs, not its
         as-built models).
     frequencies : dict
@@ -69,12 +69,12 @@ def read_layout_plan(plan_path, rules_spec=None) -> LayoutPlan:
         No plan there.
     ValueError
         Not a plan.json, or one whose designs do not follow from its geometry.
-    planner.errors.SpecError
+    planner.core.errors.SpecError
         ``rules_spec`` is not a valid spec, or sets rules that no design inside its
         own bounds can meet (naming the field).
     """
     from planner.config import LAYOUT_FIELDS
-    from planner.fabrication import design_from_plan
+    from planner.fabrication.tolerances import design_from_plan
     from planner.planning.plan_file import read_plan
     from planner.planning.settings import resolve_settings
     from planner.arrayspec import load_spec

@@ -1,7 +1,7 @@
 """Manufacturability: will a fabricated chip's resonances still be told apart?
 
 A plan verifies on the nominal chip.  A fabricated one has every natural frequency moved
-by the process (:mod:`planner.fabrication`): a die-level part shared by every impacter
+by the process (:mod:`planner.fabrication.tolerances`): a die-level part shared by every impacter
 and a device-level part of each.  The drive can follow a die that moved every resonance
 by one factor (a re-plan measures the chip and scales the tones), but not two impacters
 whose resonances came too close to be told apart.  This module predicts, in seconds and
@@ -9,7 +9,7 @@ without simulating chips, the fraction of chips on which that never happens -- t
 *collision-free yield* -- and sizes the channel grid for it:
 
 - :func:`sensitivities` (per design, d ln nu_n / d parameter through the as-built
-  equations of :mod:`planner.fabrication`);
+  equations of :mod:`planner.fabrication.tolerances`);
 - :func:`measure_separation` (per design, by simulation once): how far from its own
   resonance a tone must be for it to stay silent from every x0 at full power
   (``silent_beyond``), and how far its own tone may move and still drive it

@@ -1,6 +1,6 @@
 """Spec level, before any design: the scatter a tolerance model predicts, the channel grid
 it sizes (``drive.channels.spacing: tolerance``, with the z margin of
-:func:`planner.intervals.z_for`), and :func:`channel_grid`, the channel grid of every
+:func:`planner.core.intervals.z_for`), and :func:`channel_grid`, the channel grid of every
 spec (log, linear or tolerance)."""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ import math
 
 import numpy as np
 
-from planner.assign import activity, plan_steps
-from planner.fabrication import ERRORS, NodeDesign, Tolerances, frequency_sensitivities
-from planner.intervals import z_for
+from planner.assignment.assign import activity, plan_steps
+from planner.fabrication.tolerances import ERRORS, NodeDesign, Tolerances, frequency_sensitivities
+from planner.core.intervals import z_for
 from planner.arrayspec import ArraySpec, LoadedSpec, resolve_steps
 
 #: Die-level common shifts (sigmas) the channel grid keeps from the band's ends [-].

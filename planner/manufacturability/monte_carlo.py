@@ -7,9 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.assign import told_apart_pairs
-from planner.fabrication import ERRORS, Tolerances
-from planner.intervals import wilson_interval
+from planner.assignment.assign import told_apart_pairs
+from planner.fabrication.tolerances import ERRORS, Tolerances
+from planner.core.intervals import wilson_interval
 from planner.manufacturability.grid import predicted_sigmas
 
 #: Chips of the Monte Carlo by default: the 95 % interval of a yield near 0.95 is then
@@ -131,7 +131,7 @@ def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,
     sigma_field_line_width : float
         The wafer's across-wafer line-width field at the die [um]
         (``fabrication.wafer.line_width_field.sigma_um``): a die-level line width on
-        top of ``sigma_die``'s (the first error of :data:`planner.fabrication.ERRORS`).
+        top of ``sigma_die``'s (the first error of :data:`planner.fabrication.tolerances.ERRORS`).
     sigma_gradient : float
         One sigma of each component of the within-die line-width gradient [um/m]; with
         ``positions``, impacter k's line width moves by g . positions[k], g drawn per

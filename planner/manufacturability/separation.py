@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.fabrication import ERRORS, NodeDesign, frequency_sensitivities
+from planner.fabrication.tolerances import ERRORS, NodeDesign, frequency_sensitivities
 
 #: A tone drives an impacter while the least response over x0 stays above this fraction
 #: of the least response at its planned tone [-].  A heuristic of "still drives": the
@@ -36,7 +36,7 @@ BAND_MARGIN = 0.1
 
 def sensitivities(spec, node: NodeDesign) -> dict:
     """Parameter name -> d ln nu_n / d parameter [1/unit] of one design (every
-    :data:`planner.fabrication.ERRORS` entry)."""
+    :data:`planner.fabrication.tolerances.ERRORS` entry)."""
     s = frequency_sensitivities(spec, node)
     return {name: float(v) for name, v in zip(ERRORS, s)}
 

@@ -21,7 +21,7 @@
 
 After fabrication (measure, re-plan, trim) is :mod:`planner.afterfab`.
 
-Inside, impacters are keyed by :class:`planner.nodes.Node`; plan.json and the CSVs carry
+Inside, impacters are keyed by :class:`planner.core.nodes.Node`; plan.json and the CSVs carry
 a node's text.  pyproject.toml's ``planning-layers`` contract keeps the stages importing
 downwards only.
 
@@ -34,7 +34,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from planner._io import output_folder
+from planner.files import output_folder
 from planner.planning.outputs import write_outputs
 from planner.planning.pipeline import run_plan
 from planner.planning.result import Plan
@@ -56,7 +56,7 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, job
         embedded default (configs/array_5x5.yaml).
     out_dir : str or Path, optional
         Where to write plan.json, CSVs, waveforms, figures and report.md.  Checked
-        before any work (:func:`planner._io.check_output_folder`: never the current
+        before any work (:func:`planner.files.check_output_folder`: never the current
         directory or its ancestors, nor a folder holding the spec; an existing
         non-empty folder only if a previous vibroplan run wrote it, or with
         ``force``).  The files are written to a temporary folder beside it and

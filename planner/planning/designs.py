@@ -105,12 +105,12 @@ def _design_task(kwargs, min_speed, infeasible_tries=INFEASIBLE_TRIES, margin=SP
     ``infeasible_tries`` of them without a feasible one the design is given up; tries
     that miss only the floor retry at the same budget, up to ``max_tries`` (1 +
     DESIGN_RETRIES) in all.  Try k of ``kwargs["seed"]`` is seeded by
-    :func:`planner._random.try_seed` with index ``_stream + k`` (``_stream``: the
+    :func:`planner.core.rng.try_seed` with index ``_stream + k`` (``_stream``: the
     re-design offset of a repair round, popped from ``kwargs``), so no two plan seeds
     share a try.  A ``_keep`` entry (:func:`design_all`'s ``previous``) is tried first:
     the previous design, re-checked where its inputs changed."""
-    from planner._random import try_seed
-    from planner._workers import single_thread_blas
+    from planner.core.rng import try_seed
+    from planner.runtime.workers import single_thread_blas
     from planner.designer import design_impacter
     from planner.designer.budget import widened
 
@@ -167,7 +167,7 @@ def _speed_score(res, min_speed, margin):
 def _recheck_kept(kwargs, keep, min_speed):
     """The previous design re-checked against what changed
     (:func:`planner.designer.recheck_design`)."""
-    from planner._workers import single_thread_blas
+    from planner.runtime.workers import single_thread_blas
     from planner.designer import recheck_design
 
     rest = {k: v for k, v in kwargs.items()
@@ -207,7 +207,7 @@ def dispatch(func, shared, args_list, *, jobs=1, scheduler=None, pool=None, on_d
             on_done(i, res)
 
     if scheduler:
-        from planner.engine import run_tasks
+        from planner.runtime.engine import run_tasks
 
         for i, res in enumerate(run_tasks(func, shared, args_list, jobs=jobs,
                                           scheduler=scheduler, progress=on_tick)):
@@ -216,7 +216,7 @@ def dispatch(func, shared, args_list, *, jobs=1, scheduler=None, pool=None, on_d
         import concurrent.futures as cf
         import contextlib
 
-        from planner._workers import process_pool
+        from planner.runtime.workers import process_pool
 
         with (contextlib.nullcontext(pool) if pool is not None else process_pool(jobs)) as workers:
             futures = {workers.submit(func, shared, *args): i
@@ -238,9 +238,9 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
     sharing every input (tone, forbidden set, drives and the impacter's own settings:
     contact parameters, process, slider) are designed once; with ``jobs`` > 1 the
     distinct designs run in that many worker processes, with ``scheduler`` (an address)
-    on that ``dask.distributed`` cluster (:func:`planner.engine.run_tasks`).  Each design
+    on that ``dask.distributed`` cluster (:func:`planner.runtime.engine.run_tasks`).  Each design
     is seeded by the spec alone and runs with BLAS on one thread
-    (:func:`planner._workers.single_thread_blas`), so the results do not depend on where
+    (:func:`planner.runtime.workers.single_thread_blas`), so the results do not depend on where
     it ran: serial, the process pool and Dask give the same plan.json.
     
     ``reseed`` (node -> seed offset) re-designs the impacters a repair round found too
@@ -251,7 +251,7 @@ def design_all(settings: Settings, steps, assignment, cache, progress=None, wave
     on-disk cache: a design it holds is read instead of computed, and every design
     computed is written to it.
 
-    ``pool`` (a :class:`planner._workers.WarmPool`, optional): the plan's worker pool,
+    ``pool`` (a :class:`planner.runtime.workers.WarmPool`, optional): the plan's worker pool,
     kept for its whole run (its first worker compiled the kernels while the plan
     assigned the channels); without it, ``jobs`` > 1 starts a pool for this call.
 

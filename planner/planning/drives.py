@@ -4,7 +4,7 @@ peaks and the acceleration limit."""
 from __future__ import annotations
 
 from model import Drive
-from planner.nodes import Node
+from planner.core.nodes import Node
 from planner.planning.settings import Settings, tone_amplitudes
 
 
@@ -43,17 +43,17 @@ def synthesize_steps(settings: Settings, steps, assignment, seed=None, phases=No
                      draws=None):
     """Waveform of every step (the sum of its active impacters' tones), by step key.
 
-    ``assignment``: an :class:`~planner.assign.Assignment`, or a mapping Node -> tone
+    ``assignment``: an :class:`~planner.assignment.assign.Assignment`, or a mapping Node -> tone
     [Hz] (a re-plan's tones).  Step ``i`` is seeded with ``seed + i`` (``seed``
     default ``settings.seed``).  ``phases`` (optional): step key -> {Node -> phase
     [rad]}; a step whose every impacter has one plays its tones at those phases
     instead of optimised ones (a re-plan keeps the phases its designs were verified
     under).  ``draws`` (optional): step key -> k, the k-th phase draw of that step
-    (seeded :func:`planner._random.try_seed` ``(seed + i, k)``; 0, the first, is
+    (seeded :func:`planner.core.rng.try_seed` ``(seed + i, k)``; 0, the first, is
     ``seed + i``): the plan's loop draws a multi-tone step's phases anew when an idle
     impacter cannot be made silent under its summed drive.
     """
-    from planner._random import try_seed
+    from planner.core.rng import try_seed
     from planner.synthesis import synthesize
 
     seed = settings.seed if seed is None else seed
@@ -93,11 +93,11 @@ def program_of(waveform, duration):
     """What a step plays, as (duration [s], Drive) stretches played in turn.
 
     A loop (:class:`planner.synthesis.Waveform`) plays its summed drive for
-    ``duration`` [s]: one stretch.  A gated burst (:class:`planner.gating.Burst`)
-    plays its :meth:`~planner.gating.Burst.program` (its own length; ``duration`` is
+    ``duration`` [s]: one stretch.  A gated burst (:class:`planner.synthesis.gating.Burst`)
+    plays its :meth:`~planner.synthesis.gating.Burst.program` (its own length; ``duration`` is
     not read).
     """
-    from planner.gating import Burst
+    from planner.synthesis.gating import Burst
 
     # a gated drive read back from plan.json (planner.planning.plan_file.RecordedDrive)
     # plays its gates as the Burst it was
@@ -150,9 +150,9 @@ def limit_acceleration(settings: Settings, waveforms):
 
 def drive_peaks(waveform):
     """(peak |zeta| [m], peak |zeta''| [m/s^2]) of a summed drive over its loop, or of
-    a gated burst (:class:`planner.gating.Burst`) over its length
-    (:func:`planner.gating.tone_peaks`)."""
-    from planner.gating import Burst, burst_peaks, tone_peaks
+    a gated burst (:class:`planner.synthesis.gating.Burst`) over its length
+    (:func:`planner.synthesis.gating.tone_peaks`)."""
+    from planner.synthesis.gating import Burst, burst_peaks, tone_peaks
 
     if isinstance(waveform, Burst):
         return burst_peaks(waveform)

@@ -59,7 +59,7 @@ from dataclasses import dataclass
 
 from model.warmup import PLAN_KERNELS, numba_cache_state  # noqa: F401 (re-exported)
 from planner.manufacturability import CHIPS
-from planner.nodes import Node
+from planner.core.nodes import Node
 from planner.planning.designs import DESIGN_RETRIES, INFEASIBLE_TRIES
 from planner.planning.exposure import driven_ensembles, forbidden_tones, idle_ensembles
 
@@ -253,7 +253,7 @@ def estimate(settings, steps, assignment, jobs=1, kernels=None) -> Estimate:
     ----------
     settings : Settings
     steps : sequence of Step
-    assignment : planner.assign.Assignment
+    assignment : planner.assignment.assign.Assignment
     jobs : int
         Worker processes for the designs and threads for the simulations.
     kernels : (int, int), optional
@@ -300,7 +300,7 @@ def estimate(settings, steps, assignment, jobs=1, kernels=None) -> Estimate:
     cold, total = numba_cache_state() if kernels is None else kernels
     # manufacturability: one separation per distinct design (in this process, on the
     # numba threads), and the Monte Carlo over the pairs the steps must tell apart
-    from planner.assign import told_apart_pairs
+    from planner.assignment.assign import told_apart_pairs
 
     chips = 0 if settings.tolerances.zero else CHIPS
     pairs = len(told_apart_pairs(assignment, sorted(freqs))) if chips else 0

@@ -6,7 +6,7 @@ summed drive of every multi-tone step it sits out as a forbidden drive
 (:func:`idle_ensembles`); the multi-tone steps it plays in are its target drives
 (:func:`driven_ensembles`).  :func:`design_offenders` names, for an infeasible design,
 the impacters whose tones it could not be made silent under (the repair widens their
-separations).  Every mapping is keyed by :class:`planner.nodes.Node`.
+separations).  Every mapping is keyed by :class:`planner.core.nodes.Node`.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from planner.nodes import Node
+from planner.core.nodes import Node
 
 
 def _active(step) -> set[Node]:

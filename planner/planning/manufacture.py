@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from planner.assign import node_order, told_apart_pairs
-from planner.fabrication import ERRORS, NodeDesign
+from planner.assignment.assign import node_order, told_apart_pairs
+from planner.fabrication.tolerances import ERRORS, NodeDesign
 from planner.manufacturability import (
     BAND_MARGIN,
     CHIPS,
@@ -22,7 +22,7 @@ from planner.manufacturability import (
     sensitivities,
     z_for,
 )
-from planner.nodes import Node
+from planner.core.nodes import Node
 
 
 def _node_design(n: Node, design):
@@ -58,8 +58,8 @@ def _wafer_terms(settings, nodes) -> dict:
     wafer = settings.chip_spec.fabrication.wafer
     if wafer is None:
         return {}
-    from planner.units import MM
-    from planner.wafer import device_positions
+    from planner.core.units import MM
+    from planner.fabrication.wafer import device_positions
 
     pos = device_positions(settings.chip_spec.array)
     return {"sigma_field_line_width": wafer.line_width_field.sigma_um,

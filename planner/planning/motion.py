@@ -36,7 +36,7 @@ import numpy as np
 
 import model
 from model import Drive
-from planner.nodes import Node
+from planner.core.nodes import Node
 from planner.planning.drives import drive_of
 
 #: Chunk [s] of the undriven settle simulation, and the dwell's granularity.
@@ -56,11 +56,11 @@ def _empty_kicks():
 
 
 def by_node(models: dict) -> dict:
-    """``models`` keyed by :class:`~planner.nodes.Node`, as every stage keys them.
+    """``models`` keyed by :class:`~planner.core.nodes.Node`, as every stage keys them.
 
     Two other keys are re-keyed here, once, at the entry of the verification and the
     scene simulation: a node's text (a chip sampled by
-    :func:`planner.fabrication.sample_chip` is keyed by plan.json's ids) and a plain
+    :func:`planner.fabrication.tolerances.sample_chip` is keyed by plan.json's ids) and a plain
     ``(device, direction)`` tuple (what a Node key becomes when Dask scatters a dict to
     its worker processes: ``client.scatter`` sends a dict of plain types by msgpack).
     """
@@ -75,7 +75,7 @@ def run_phase(impacters, sliders, contacts, drive, duration, states, sl_states):
     Parameters
     ----------
     impacters : dict
-        :class:`~planner.nodes.Node` -> model.Impacter.
+        :class:`~planner.core.nodes.Node` -> model.Impacter.
     sliders : dict
         Device id -> model.Slider (only these sliders move; each is kicked by its
         own impacters among ``impacters``).

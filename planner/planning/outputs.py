@@ -13,7 +13,7 @@ import model
 from planner.planning.report import (drive_figure_name, pattern_figure_name, target_scenes,
                                      write_report)
 from planner.planning.result import Plan
-from planner.units import MS
+from planner.core.units import MS
 
 #: Response-curve figure: points over the band, half-width of the fine grid across each
 #: design's own peak (relative), and initial positions over [-c, c].
@@ -25,7 +25,7 @@ RESPONSE_X0_POINTS = 5
 def write_outputs(result: Plan, out_dir: Path, *, figures=True, sections=()) -> float:
     """Write plan.json, CSVs, waveforms, figures and report.md into ``out_dir``.
 
-    ``sections``: :class:`planner.markdown.Section` s a later command adds to report.md
+    ``sections``: :class:`planner.core.markdown.Section` s a later command adds to report.md
     (a re-plan's, a trim's), each where :data:`planner.planning.report.SECTIONS` puts its
     title.
 
@@ -36,7 +36,7 @@ def write_outputs(result: Plan, out_dir: Path, *, figures=True, sections=()) -> 
     """
     import warnings
 
-    from planner.exporters import export
+    from planner.lab.exporters import export
 
     settings = result.settings
     t0 = time.perf_counter()
@@ -70,7 +70,7 @@ def write_outputs(result: Plan, out_dir: Path, *, figures=True, sections=()) -> 
 
 
 def _figures(result, out_dir):
-    from planner import report_plots as rp
+    from planner.figures import plan as rp
 
     figs = out_dir / "figures"
     figs.mkdir(exist_ok=True)

@@ -15,10 +15,10 @@ from dataclasses import dataclass
 
 import pandas as pd
 
-from planner._cores import measured_free_cores, stage_threads
-from planner.assign import Assignment, assign
-from planner.errors import PlanningError
-from planner.nodes import device_key
+from planner.runtime.cores import measured_free_cores, stage_threads
+from planner.assignment.assign import Assignment, assign
+from planner.core.errors import PlanningError
+from planner.core.nodes import device_key
 from planner.planning.design_store import DesignStore
 from planner.planning.designs import design_all
 from planner.planning.drives import limit_acceleration, synthesize_steps
@@ -148,7 +148,7 @@ def _design_round(settings, steps, assignment, clock, tick, design_cache, draws=
     """Drives, designs, burst sizing, gates and the per-step verification for one
     assignment (``draws``: step key -> phase draw, :func:`synthesize_steps`;
     ``free_cores``: the probe the verification's thread count is chosen from,
-    :func:`planner._cores.stage_threads`)."""
+    :func:`planner.runtime.cores.stage_threads`)."""
     # the drives depend on the frequencies only, so they come before the designs,
     # which must be silent under the summed drive of every step they sit out
     synthesized = clock.timed("drive", synthesize_steps, settings, steps, assignment,
@@ -217,7 +217,7 @@ def _repair_rounds(settings, clock, tick, on_assignment, design_kw, first, free_
     An infeasible design (:func:`planner.planning.repair.design_levers`) gets a new
     phase draw of the summed drive it answers, a channel further from the tones it
     answers (the movers placed alone on free positions, every other channel kept:
-    :func:`planner.reassign.move_groups`; the whole graph coloured again only when no
+    :func:`planner.assignment.reassign.move_groups`; the whole graph coloured again only when no
     free position fits) or a re-design from further seeds; the verification's
     failures widen separations or re-design the impacters that answered or were slow
     (:mod:`planner.planning.repair`).  A design whose own tone did not move is kept
@@ -235,7 +235,7 @@ def _repair_rounds(settings, clock, tick, on_assignment, design_kw, first, free_
     """
     from planner.planning.designs import design_keys
     from planner.planning.repair import design_levers
-    from planner.reassign import move_groups
+    from planner.assignment.reassign import move_groups
 
     steps, sep = settings.steps, settings.separation_channels
     pair_sep, design_cache, rounds, reseed, idle_redesigned = {}, {}, [], {}, set()
@@ -328,8 +328,8 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     arguments giving the cores other processes leave free; the stages that run numba's
     parallel kernels in this process (verification, scenes and coupling,
     manufacturability) take their thread count from it when they start
-    (:func:`planner._cores.stage_threads`; default measured,
-    :func:`planner._cores.measured_free_cores`).  It changes no result, only the time.
+    (:func:`planner.runtime.cores.stage_threads`; default measured,
+    :func:`planner.runtime.cores.measured_free_cores`).  It changes no result, only the time.
     """
     if settings is None:
         settings = resolve_settings(loaded, seed)
@@ -361,7 +361,7 @@ def _plan_pool(jobs, scheduler):
     if jobs <= 1 or scheduler:
         return contextlib.nullcontext(None)
     from model.warmup import compile_kernels
-    from planner._workers import warm_pool
+    from planner.runtime.workers import warm_pool
 
     return warm_pool(jobs, compile_kernels)
 

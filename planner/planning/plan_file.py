@@ -8,7 +8,7 @@ the file; the rest of the file (verification rows, scenes, figures' data) is the
 report's and is not read back.
 
 Validated once, here, with the key named on any fault (:class:`PlanFileError`, a
-:class:`~planner.errors.SpecError`: exit 2 in the CLI):
+:class:`~planner.core.errors.SpecError`: exit 2 in the CLI):
 
 - the JSON itself, and ``format_version`` (plans from before format versions are
   format 1; another version is refused);
@@ -17,7 +17,7 @@ Validated once, here, with the key named on any fault (:class:`PlanFileError`, a
 - numbers that contradict each other: an impacter's ``natural_frequency_hz`` against its
   ``mass_kg`` and ``stiffness_n_per_m`` (nu = sqrt(k/m) / 2 pi); its mass, stiffness and
   damping against its ``geometry`` through the fabrication equations
-  (:func:`planner.fabrication.nominal_impacter`, eqs. (2)-(4)) on the spec's process; ids against
+  (:func:`planner.fabrication.tolerances.nominal_impacter`, eqs. (2)-(4)) on the spec's process; ids against
   devices and directions; steps against the impacters they drive.
 
 A re-planned plan (``vibroplan replan``) is a plan: its impacters carry the as-built
@@ -39,11 +39,11 @@ from typing import Annotated
 import numpy as np
 from pydantic import ConfigDict, Field, TypeAdapter, ValidationError
 
-from planner.errors import SpecError
-from planner.nodes import DIRECTIONS, Node
+from planner.core.errors import SpecError
+from planner.core.nodes import DIRECTIONS, Node
 from planner.arrayspec import ArraySpec, LoadedSpec, Step, resolve_steps
 from planner.arrayspec.load import check_sections
-from planner.yamlio import format_loc, validate
+from planner.files.yamlio import format_loc, validate
 
 #: The plan.json format this version writes and reads (``format_version``).  Raise it
 #: when a key that a reader needs changes meaning or shape.
@@ -101,7 +101,7 @@ class StepRecord:
     #: plans from before the limit).
     acceleration_scale: Positive | None = None
     #: ``loop`` (a seamless loop played for ``duration_s``) or ``once`` (a gated burst:
-    #: each tone between its ``start_s`` and ``gate_s``, :mod:`planner.gating`).
+    #: each tone between its ``start_s`` and ``gate_s``, :mod:`planner.synthesis.gating`).
     playback: str = "loop"
     #: A gated step's gating (``ramp_s`` and more, plan.json's ``gating``).
     gating: dict | None = None
@@ -124,7 +124,7 @@ class StepRecord:
         if self.targets_m is None:
             return Step(self.scene, self.name, self.index, self.duration_s, self.forward,
                         self.backward)
-        from planner.nodes import device_key
+        from planner.core.nodes import device_key
 
         def ordered(d):
             return tuple(sorted(((k, float(v)) for k, v in (d or {}).items()),
@@ -392,7 +392,7 @@ class RecordedDrive:
     """A step's drive as plan.json records it: what the verification reads of a
     :class:`planner.synthesis.Waveform` (its tones), in SI; a gated step's
     (``playback: once``) also each tone's start and gate and the ramp [s], which the
-    verification plays as :class:`planner.gating.Burst` plays them."""
+    verification plays as :class:`planner.synthesis.gating.Burst` plays them."""
 
     frequencies: np.ndarray
     amplitudes: np.ndarray
@@ -402,9 +402,9 @@ class RecordedDrive:
     ramp_s: float = 0.0
 
     def program(self):
-        """A gated drive as stretches of constant tones (:meth:`planner.gating.Burst.
+        """A gated drive as stretches of constant tones (:meth:`planner.synthesis.gating.Burst.
         program`): ((duration [s], model.Drive), ...)."""
-        from planner.gating import stretches
+        from planner.synthesis.gating import stretches
 
         if self.gates_s is None:
             raise ValueError("a loop's drive has no program of its own: it plays for its "
@@ -446,7 +446,7 @@ def read_plan(path) -> PlanRecord:
         type, or numbers that contradict each other; the message names the file and the
         key (``impacters[0] (A1.forward).natural_frequency_hz: ...``).
     """
-    from planner._io import read_input
+    from planner.files import read_input
 
     path = Path(path)
     file = path / "plan.json" if path.is_dir() else path
@@ -586,7 +586,7 @@ def _agree(got: float, want: float) -> bool:
 
 def _check(record: PlanRecord, source: str) -> None:
     """Numbers that must agree, ids that must exist (see the module docstring)."""
-    from planner.fabrication import NodeDesign, nominal_impacter
+    from planner.fabrication.tolerances import NodeDesign, nominal_impacter
 
     def fail(where, message):
         raise PlanFileError(message, path=where, source=source)

@@ -23,7 +23,7 @@ away), and an undamped array is refused there too (its every probe was hopeless)
    from no other tone: the channels nearest the probe are not offered) or not (the tone
    is out of reach).  Feasible there, the neighbour ratio is narrowed to 1 + 2^k (r0 -
    1), k = 1, 2 ..., and bisected once in log ratio below the first feasible rung: the
-   spacing the assigner must keep there (:func:`planner.separation.position_grid`'s
+   spacing the assigner must keep there (:func:`planner.core.separation.position_grid`'s
    ``min_ratio``).
 3. Between a probe that can be served and one that cannot, the edge is bisected to the
    channel (each step one design with neighbours, and one alone if that fails).
@@ -37,7 +37,7 @@ only when the designs with neighbours fail.
 Channels out of reach are not offered to the assigner, and the positions it lays the
 colouring on keep the measured spacing; a spec whose steps cannot fit what remains is
 refused before any design, naming the reachable tones, the spacing and what would widen
-them (:func:`planner.assign.assign`).  Every probe is a design task, run on the plan's
+them (:func:`planner.assignment.assign.assign`).  Every probe is a design task, run on the plan's
 worker pool and kept in the design cache.
 """
 
@@ -51,7 +51,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planner.errors import PlanningError
+from planner.core.errors import PlanningError
 from planner.planning.designs import (DESIGN_RETRIES, INFEASIBLE_TRIES, SPEED_MARGIN,
                                       _design_task, dispatch)
 from planner.planning.settings import Settings
@@ -423,7 +423,7 @@ def probe_channels(grid, count=PROBE_COUNT):
 
 def _kinds(settings: Settings):
     """One representative node per distinct impacter setting among the driven nodes."""
-    from planner.nodes import Node
+    from planner.core.nodes import Node
 
     driven = sorted({Node(d, dr) for st in settings.steps for d, dr in st.active_nodes()})
     out = {}
@@ -470,18 +470,18 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
         The reach (channels offered and spacing per channel: with several kinds of
         impacter, set apart by ``devices:``, the channels every kind can serve and the
         widest spacing any needs) and the assignment on it
-        (:func:`planner.assign.assign`; its ``reach`` is this one).
+        (:func:`planner.assignment.assign.assign`; its ``reach`` is this one).
 
     Raises
     ------
-    planner.errors.PlanningError
+    planner.core.errors.PlanningError
         The steps cannot fit the channels a design can serve with the spacing it needs
         (the message names the reachable tones, the spacing and what would widen them).
     """
     from model.warmup import numba_cache_state
-    from planner.separation import position_grid
+    from planner.core.separation import position_grid
 
-    from planner.assign import assign
+    from planner.assignment.assign import assign
 
     cold = numba_cache_state()
     t0 = time.perf_counter()
@@ -594,10 +594,10 @@ def assign_on_reach(settings: Settings, reach: Reach):
 
     Raises
     ------
-    planner.errors.PlanningError
+    planner.core.errors.PlanningError
         Neither fits the steps, or most probes are hopeless (an undamped array).
     """
-    from planner.assign import assign
+    from planner.assignment.assign import assign
 
     probes = reach.probes
     try:

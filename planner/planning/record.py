@@ -1,6 +1,6 @@
 """The plan.json record: deterministic, rounded to 12 significant digits.
 
-The file boundary: the stages key impacters by :class:`planner.nodes.Node`, plan.json
+The file boundary: the stages key impacters by :class:`planner.core.nodes.Node`, plan.json
 by the node's text (``"A1.forward"``).
 
 Read back by :mod:`planner.planning.plan_file` (its ``format_version`` is that module's
@@ -13,12 +13,12 @@ import math
 
 import numpy as np
 
-from planner._io import version_string
-from planner.assign import node_order, verify_assignment
-from planner.exporters import EXPORTERS
+from planner.files import version_string
+from planner.assignment.assign import node_order, verify_assignment
+from planner.lab.exporters import EXPORTERS
 from planner.planning.motion import PROBE_S
 from planner.planning.plan_file import FORMAT_VERSION
-from planner.nodes import Node, device_key
+from planner.core.nodes import Node, device_key
 
 #: Standard gravity [m/s^2].
 G0 = 9.80665
@@ -73,9 +73,9 @@ def step_record(step, waveform, motion=None):
     burst was gated for, from where the scene left the slider) and ``gating`` (the
     ramp, each node's start and gate [s] and the search's iterations), and each of its
     tones its ``start_s`` and ``gate_s`` (gate 0: not played); its ``playback`` is
-    ``once`` (a gated burst, :class:`planner.gating.Burst`) where other steps
+    ``once`` (a gated burst, :class:`planner.synthesis.gating.Burst`) where other steps
     ``loop``, and its peaks and acceleration scale are the burst's."""
-    from planner.gating import Burst
+    from planner.synthesis.gating import Burst
 
     stem = f"{step.scene}__{step.name}"
     w = waveform

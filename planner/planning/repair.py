@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 
-from planner.nodes import Node
+from planner.core.nodes import Node
 from planner.planning.designs import DESIGN_RETRIES
 from planner.planning.verify import IDLE_RESPONSE, TOO_SLOW
 

@@ -1,11 +1,11 @@
 """report.md of a plan: what it is, whether it verifies, and why, in lab units.
 
 :func:`plan_report` reads plan.json's content (``Plan.data``) and the verification
-table and assembles the report from named sections (:class:`planner.markdown.Report`)
+table and assembles the report from named sections (:class:`planner.core.markdown.Report`)
 in the order of :data:`SECTIONS`; a later command's section (a re-plan's, a trim's)
-is handed over as a :class:`~planner.markdown.Section` and takes its place there by its
+is handed over as a :class:`~planner.core.markdown.Section` and takes its place there by its
 title (:func:`write_report`'s ``sections``).  :func:`md_table` and :func:`fmt` (from
-:mod:`planner.markdown`) also serve the re-plan's section
+:mod:`planner.core.markdown`) also serve the re-plan's section
 (:func:`planner.afterfab.replan.replan_report_lines`).
 """
 
@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import math
 
-from planner.markdown import Report, Section, fmt, md_table
-from planner.nodes import device_key
+from planner.core.markdown import Report, Section, fmt, md_table
+from planner.core.nodes import device_key
 from planner.planning.scenes import scene_overshoot
 from planner.planning.settings import SETTLE_S
-from planner.units import UM
+from planner.core.units import UM
 
 #: The sections of a plan's report.md, in the order they are written.  A plan writes
 #: those its content calls for; a re-plan adds "As-built re-plan" and a trim "Trim"
@@ -94,13 +94,13 @@ def plan_report(result, out_dir, timings, sections=()) -> Report:
         Where its files are.
     timings : dict
         Stage -> seconds, for the last table.
-    sections : iterable of planner.markdown.Section
+    sections : iterable of planner.core.markdown.Section
         A later command's sections (a re-plan's, a trim's), each placed by its title's
         place in :data:`SECTIONS`.
 
     Returns
     -------
-    planner.markdown.Report
+    planner.core.markdown.Report
     """
     d, ver = result.data, result.verification
     summary = _step_summary(ver)

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import pandas as pd
 
 if TYPE_CHECKING:
-    from planner.assign import Assignment
+    from planner.assignment.assign import Assignment
     from planner.planning.settings import Settings
 
 
@@ -48,7 +48,7 @@ class Plan:
         The ``plan.json`` content (a re-plan's with ``as_built`` and ``replan``).
     settings : planner.planning.settings.Settings
         The spec in SI units, as every stage read it (keyword only).
-    assignment : planner.assign.Assignment
+    assignment : planner.assignment.assign.Assignment
         Channels [-] and frequencies [Hz] of every node (keyword only).
     timings : dict
         Seconds per stage (not in plan.json, which is deterministic; ``outputs`` once

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from planner.nodes import device_key
+from planner.core.nodes import device_key
 from planner.planning.drives import program_of
 from planner.planning.motion import REST, by_node, rest_state, run_program, settle
 

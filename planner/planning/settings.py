@@ -1,7 +1,7 @@
 """Stage 0, settings: the validated array spec converted to SI values, once.
 
 Every later stage reads a :class:`Settings` and nothing of the spec.  Every spec field
-either reaches a setting here or is refused with a :class:`planner.errors.SpecError`
+either reaches a setting here or is refused with a :class:`planner.core.errors.SpecError`
 naming the field and its YAML line (:func:`resolve_settings`): an impacter's geometry
 is what the planner designs, so ``device.impacter.area_um2`` and the like are refused
 (bound the search with ``design.bounds`` instead), while its contact parameters
@@ -22,15 +22,15 @@ from typing import TYPE_CHECKING
 
 import model
 from model import devices as _d
-from planner.assign import plan_steps
+from planner.assignment.assign import plan_steps
 from planner.config import EnvironmentConfig, ProcessConfig, SliderConfig, build_slider
-from planner.errors import SpecError
-from planner.fabrication import Tolerances
+from planner.core.errors import SpecError
+from planner.fabrication.tolerances import Tolerances
 from planner.manufacturability import channel_grid, pair_sigma_rel, sensitivity_target_per_um
-from planner.nodes import DIRECTIONS, Node, device_key
+from planner.core.nodes import DIRECTIONS, Node, device_key
 from planner.arrayspec import ArraySpec, LoadedSpec, Step, TrimSpec
-from planner.units import MS, UM
-from planner.yamlio import format_loc, line_of
+from planner.core.units import MS, UM
+from planner.files.yamlio import format_loc, line_of
 
 if TYPE_CHECKING:
     from planner.designer import DesignBounds
@@ -86,7 +86,7 @@ class ImpacterSettings:
 @dataclass(frozen=True)
 class ToneRules:
     """What a product of playing tones may not hit (``drive.guard``), for
-    :func:`planner.assign.guard_violations`.
+    :func:`planner.assignment.assign.guard_violations`.
 
     Attributes
     ----------
@@ -130,7 +130,7 @@ class Settings:
         ``log``, ``linear`` or ``tolerance`` (``drive.channels.spacing``).
     channel_placement : str
         ``coloring`` (the colouring's order) or ``neighbours`` (tone neighbours on
-        neighbouring devices, :func:`planner.placement.neighbour_coloring`;
+        neighbouring devices, :func:`planner.assignment.placement.neighbour_coloring`;
         ``drive.channels.placement``).
     resonance_separation_hz : float
         How close two resonances may come and still be told apart on a tolerance grid
@@ -169,7 +169,7 @@ class Settings:
     robust_k : float or None
         ``design.robust_k`` when ``design.robust`` is on, else None [-].
     impacters : dict
-        :class:`~planner.nodes.Node` -> :class:`ImpacterSettings`, every impacter of
+        :class:`~planner.core.nodes.Node` -> :class:`ImpacterSettings`, every impacter of
         every device.
     sliders : dict
         Device id -> model.Slider, every device, in device order.
@@ -209,11 +209,11 @@ class Settings:
         Relative sigma of a lab's measured resonance [-]
         (``fabrication.measurement_noise_pct`` / 100): the as-built models' and a yield
         study's.
-    tolerances : planner.fabrication.Tolerances
+    tolerances : planner.fabrication.tolerances.Tolerances
         The fabrication tolerance model: the sigma of every error at every level
         (die, device, pair), in the errors' own units (um, %: those of the
         sensitivities), read from ``fabrication:`` once
-        (:meth:`~planner.fabrication.Tolerances.from_spec`).
+        (:meth:`~planner.fabrication.tolerances.Tolerances.from_spec`).
     target_yield : float
         The collision-free yield the plan is held to (``fabrication.target_yield``) [-].
     pair_sigma_rel : float
@@ -223,7 +223,7 @@ class Settings:
         How a fabricated chip is trimmed (``trim:``, else its defaults).
     chip_spec : planner.arrayspec.ArraySpec
         The validated spec as the fabrication equations take it
-        (:mod:`planner.fabrication`, :mod:`planner.manufacturability`: process,
+        (:mod:`planner.fabrication.tolerances`, :mod:`planner.manufacturability`: process,
         environment, design and tolerances together), for the models of an as-built
         chip only: the manufacturability stage, robust design and the yield predicted
         from the channels.  No stage reads a setting from it.
@@ -313,7 +313,7 @@ class Settings:
         each candidate's natural frequency under the spec's fabrication tolerances)."""
         if self.robust_k is None:
             return {}
-        from planner.fabrication import RobustShift
+        from planner.fabrication.tolerances import RobustShift
 
         return {"robust_shift": RobustShift(self.chip_spec, self.robust_k,
                                             imp.impact_angle_rad, imp.restitution)}
@@ -428,7 +428,7 @@ def _check_over_limit(loaded):
 def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
     """Convert a validated spec to :class:`Settings` (SI), refusing what cannot take effect.
 
-    Refused (:class:`~planner.errors.SpecError` naming the field and its line): an
+    Refused (:class:`~planner.core.errors.SpecError` naming the field and its line): an
     impacter's designed geometry (see the module docstring), ``design.robust`` without
     tolerances, design rules no design can meet, and ``drive.over_limit: split``: a
     plan lowers a step over a limit by one factor (which its designs and verification

@@ -3,7 +3,7 @@ its scene asks it to be.
 
 One summed drive moves a step's sliders at speeds ten times apart, so a burst sized for
 one slider leaves the others short or far beyond their targets.  A ``targets_um`` step
-therefore plays a gated burst (:mod:`planner.gating`): its tones one after the other,
+therefore plays a gated burst (:mod:`planner.synthesis.gating`): its tones one after the other,
 each fading in, playing until its slider has gone far enough, and fading out.
 
 Why one tone at a time
@@ -34,7 +34,7 @@ The designs are not made against a targets step's summed drive, which never play
 (:func:`planner.planning.exposure.idle_ensembles`; nor does the assignment keep its
 ensemble separation for it): every impacter idle in it is designed silent under each of
 its tones, and each impacter of such a step silent under every other tone of it and able
-to move its slider alone (:func:`planner.assign.plan_steps`).  The verification
+to move its slider alone (:func:`planner.assignment.assign.plan_steps`).  The verification
 re-simulates the burst exactly as it is exported, so none of this is taken on trust.
 
 Finding the gates
@@ -47,7 +47,7 @@ dwell, since a slider moves on while its tone fades out:
    (the step's ``duration_ms``, else :data:`planner.arrayspec.DEFAULT_MAX_BURST_S`), its
    slider's travel recorded every :data:`PROBE_CHUNK_S` (until it has gone its move).
    A slider that does not travel its move in that time cannot reach its target:
-   :class:`~planner.errors.PlanningError` naming the device, the travel it made and the
+   :class:`~planner.core.errors.PlanningError` naming the device, the travel it made and the
    scale its tone had.  Its first playing time is where it had gone its move less half a
    ramp's travel.
 2. **iterate**: the tones in sequence (:func:`sequence`), the burst simulated exactly
@@ -59,7 +59,7 @@ dwell, since a slider moves on while its tone fades out:
 3. **limits**: a tone that alone is above ``drive.max_acceleration_g`` or the piezo's
    limit has every amplitude lowered by one factor before the probe; the burst's peak
    acceleration and displacement are measured over continuous time
-   (:func:`planner.gating.burst_peaks`, the ramps included), and above a limit every
+   (:func:`planner.synthesis.gating.burst_peaks`, the ramps included), and above a limit every
    amplitude is lowered by one factor and the times found again.
 
 A slider whose move is the other way of its impacter (the scene left it beyond a target
@@ -78,13 +78,13 @@ import math
 import numpy as np
 
 from model import Drive
-from planner.errors import PlanningError
-from planner.gating import burst_peaks, gate
-from planner.nodes import Node
+from planner.core.errors import PlanningError
+from planner.synthesis.gating import burst_peaks, gate
+from planner.core.nodes import Node
 from planner.planning.drives import scaled
 from planner.planning.motion import run_phase, run_program, settle
 from planner.planning.scenes import simulate_scenes
-from planner.units import UM
+from planner.core.units import UM
 
 #: Fade-in and fade-out of every tone of a gated burst [s]: many beat periods of an
 #: impacter a few hundred Hz off the tone (a switched tone rings its neighbours at their
@@ -155,7 +155,7 @@ def place_targets(settings, steps, waveforms, frequencies, impacters, sliders, p
     (steps, waveforms, notes)
         The steps, a ``targets_um`` step with its burst's length as ``duration_s`` and
         the moves it was gated for as ``moves_m``; the waveforms, a ``targets_um`` step's
-        its :class:`planner.gating.Burst`; ``notes``: step key -> what the search did
+        its :class:`planner.synthesis.gating.Burst`; ``notes``: step key -> what the search did
         (:func:`search_gates`).
 
     Raises

@@ -14,11 +14,11 @@ import pandas as pd
 
 import model
 from model import Drive
-from planner.nodes import Node, device_key
+from planner.core.nodes import Node, device_key
 from planner.planning.drives import program_of
 from planner.planning.motion import by_node, device_travel, run_phase
 from planner.planning.settings import Settings, tone_amplitudes
-from planner.units import UM
+from planner.core.units import UM
 
 #: Failure kinds: an idle impacter hits its slider; a moving slider is too slow from some
 #: x0; an idle slider moves beyond the tolerance.
@@ -147,7 +147,7 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
     burst and the settle dwell (:func:`planner.planning.motion.device_travel`): its
     travel (``travel_m``) must stay within ``max_travel_m`` and the dwell it needs
     (``settle_s``) within the cap.  ``waveform`` is the step's loop, played for
-    ``step.duration_s``, or its gated burst (:class:`planner.gating.Burst`), played as
+    ``step.duration_s``, or its gated burst (:class:`planner.synthesis.gating.Burst`), played as
     it is exported; then each moving slider of a ``targets_um`` step must travel its
     move (``step.moves``) within ``settings.position_tolerance_m`` from every initial
     position of its impacter, instead of the speed check.
@@ -243,7 +243,7 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
 
 
 def _check_on_engine(shared, step, waveform):
-    """:func:`check_step` as a :func:`planner.engine.run_tasks` task: ``shared`` is
+    """:func:`check_step` as a :func:`planner.runtime.engine.run_tasks` task: ``shared`` is
     (settings, impacters, sliders), sent to each worker once."""
     settings, impacters, sliders = shared
     return check_step(settings, step, waveform, impacters, sliders)
@@ -256,7 +256,7 @@ def check_steps(settings: Settings, steps, waveforms, impacters, sliders, *, pro
     The steps are independent (each starts every device from rest or from its x0 grid
     and reads nothing another step wrote), so with ``scheduler`` (the address of a
     ``dask.distributed`` scheduler) they run as tasks on that cluster
-    (:func:`planner.engine.run_tasks`); without, in this process, one after another.
+    (:func:`planner.runtime.engine.run_tasks`); without, in this process, one after another.
     The result is the same either way (the simulation kernels give the same digits on
     any number of threads).
 
@@ -288,18 +288,13 @@ def check_steps(settings: Settings, steps, waveforms, impacters, sliders, *, pro
             if progress is not None:
                 progress(st.key)
         return out
-    from planner.engine import run_tasks
+    from planner.runtime.engine import run_tasks
 
     done = iter(steps)
     tick = (lambda: progress(next(done).key)) if progress is not None else None
     return run_tasks(_check_on_engine, (settings, impacters, sliders),
                      [(st, waveforms[st.key]) for st in steps], scheduler=scheduler,
                      progress=tick)
-
-
-def verify_step(settings: Settings, step, waveform, impacters, sliders):
-    """The rows of :func:`check_step` (one per device in scope)."""
-    return check_step(settings, step, waveform, impacters, sliders)[0]
 
 
 def coupling_matrix(impacters, tones, settings: Settings, duration):

@@ -42,7 +42,7 @@ Layout of this package (each module imports only those listed below it):
 
 from __future__ import annotations
 
-from planner._random import as_generator
+from planner.core.rng import as_generator
 from planner.synthesis.api import DEFAULT_POWER, split_tones, synthesize, tones_from_power
 from planner.synthesis.loop import (FREQUENCY_TOLERANCE_REL, MAX_LOOP_LENGTH, LoopLengthError,
                                     check_loop_memory)

@@ -20,7 +20,7 @@ import numpy as np
 import model
 from model.drive import POWER as DEFAULT_POWER  # Z0^2 w^3 = 50 m^2/s^3, the paper's convention
 from model.drive import amplitude_from_power
-from planner._random import as_generator
+from planner.core.rng import as_generator
 from planner.synthesis.kernels import _cosine_sum
 from planner.synthesis.loop import MAX_LOOP_LENGTH, _loop_for, _tolerance
 from planner.synthesis.peak import peak_of

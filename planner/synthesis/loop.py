@@ -31,8 +31,8 @@ LOOP_BYTES_PER_POINT = 48
 
 def check_loop_memory(points: int, what: str) -> None:
     """Refuse, before allocating, a loop search or signal of ``points`` samples that the
-    machine's memory cannot hold (:func:`planner._limits.check_memory`)."""
-    from planner._limits import check_memory
+    machine's memory cannot hold (:func:`planner.runtime.limits.check_memory`)."""
+    from planner.runtime.limits import check_memory
 
     check_memory(LOOP_BYTES_PER_POINT * float(points), f"{what} ({points:.4g} points)")
 

@@ -23,7 +23,7 @@ import numpy as np
 import scipy.fft
 from scipy.optimize import linprog, minimize
 
-from planner._random import as_generator
+from planner.core.rng import as_generator
 from planner.synthesis.kernels import _grid_points, _grid_signal, _reduce
 from planner.synthesis.peak import _extrema
 

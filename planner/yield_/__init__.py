@@ -1,7 +1,7 @@
 """Yield of a plan under fabrication variation: the Monte Carlo behind ``vibroplan yield``.
 
 Every chip is a sample of the spec's ``fabrication:`` tolerance model
-(:mod:`planner.fabrication`) built from the plan's designs.  On each chip every step
+(:mod:`planner.fabrication.tolerances`) built from the plan's designs.  On each chip every step
 of the plan is re-verified with the plan's own checks
 (:func:`planner.planning.verify.check_step`, from the same initial-state grid, with the
 drive rebuilt exactly from ``plan.json``'s tones) and every scene is simulated with the
@@ -42,10 +42,10 @@ workers, the order they finish in, or where the scale stands in ``--sigma-scale`
 (and scales 1.0000001 and 1.0000002 are two scales).
 
 Layout of this package (each module imports only those listed below it); the outputs
-(``yield.json``, report.md, figures) are written by :mod:`planner.yield_report`.
+(``yield.json``, report.md, figures) are written by :mod:`planner.yield_.report`.
 
 - :mod:`~planner.yield_.run`: :func:`run_yield`, the driver (in this process or on
-  Dask, :func:`planner.engine.run_tasks`).
+  Dask, :func:`planner.runtime.engine.run_tasks`).
 - :mod:`~planner.yield_.statistics`: Wilson intervals, the tallies of failing checks
   and causes, and the content of ``yield.json``.
 - :mod:`~planner.yield_.chip`: :func:`verify_chip`, the per-chip worker, with the
@@ -58,7 +58,7 @@ Layout of this package (each module imports only those listed below it); the out
   chip's models, by kind, with the impacters implicated.
 - :mod:`~planner.yield_.inputs`: :class:`Payload` and :func:`make_payload` (what the
   workers get from the plan), and the checks of the command's numbers.
-- :func:`wilson_interval` and ``Z95`` (from :mod:`planner.intervals`): the 95 % interval of a yield.
+- :func:`wilson_interval` and ``Z95`` (from :mod:`planner.core.intervals`): the 95 % interval of a yield.
 """
 
 
@@ -70,7 +70,7 @@ from planner.yield_.inputs import (Payload, check_chip_count, check_noise, make_
 from planner.yield_.results import (ChipResult, Collision, ReplanOutcome, Seconds,
                                     TrimOutcome, TuneOutcome)
 from planner.yield_.run import run_yield
-from planner.intervals import Z95, wilson_interval
+from planner.core.intervals import Z95, wilson_interval
 from planner.yield_.statistics import scale_key
 
 __all__ = ["CARRIED", "CARRIED_KINDS", "KINDS", "REPLAN_CAUSES", "Z95", "ChipResult",

@@ -7,9 +7,9 @@ import dataclasses
 
 import numpy as np
 
-from planner._random import chip_seed
-from planner.fabrication import sample_chip
-from planner.wafer import line_width_offsets
+from planner.core.rng import chip_seed
+from planner.fabrication.tolerances import sample_chip
+from planner.fabrication.wafer import line_width_offsets
 from planner.afterfab.checks import check_drive
 from planner.yield_.inputs import Payload
 from planner.yield_.results import (ChipResult, Collision, ReplanOutcome, Seconds,
@@ -43,7 +43,7 @@ def verify_chip(payload: Payload, scale_index: int, chip_index: int,
     ChipResult
         ``passed``, ``carried_passed`` (equal to ``passed``: the carried-state check is
         part of the pass), ``failures`` (kind -> failed checks), ``nodes`` (the
-        impacter pairs implicated in a failure: sorted :class:`~planner.nodes.Node`),
+        impacter pairs implicated in a failure: sorted :class:`~planner.core.nodes.Node`),
         ``scale_index``, ``chip``; with
         ``payload.replan`` also ``replan`` (see :func:`replan_chip_on`) and
         ``seconds`` (wall time of the nominal checks and of the re-plan [s]); with
@@ -204,7 +204,7 @@ def replan_chip_on(payload: Payload, settings, scale: float, chip_index: int, ch
         The chip's sigma scale.
     chip_index : int
         The chip's index (its measurement noise is seeded from both, :func:`chip_seed`).
-    chip : planner.fabrication.Chip
+    chip : planner.fabrication.tolerances.Chip
         The sampled chip (its impacters and sliders are the truth).
     nominal : dict
         :func:`check_drive` of the original drive on this chip: passed on as the

@@ -2,7 +2,7 @@
 cause, the yield against the die's radius, and what a prober measures of each die.
 
 A chip of the study is die ``chip % dies`` of wafer ``chip // dies``
-(:func:`planner.wafer.die_place`).  Its **outcome** is the first stage of the lab's
+(:func:`planner.fabrication.wafer.die_place`).  Its **outcome** is the first stage of the lab's
 loop that makes it work -- the plan's drive as it is, the drive re-planned from its
 measurement (``--replan``), the chip trimmed and re-planned (``--trim``) -- or
 ``fails``, with the causes of the last stage that was run (:func:`chip_outcome`).
@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from planner._random import chip_seed
+from planner.core.rng import chip_seed
 from planner.afterfab.checks import KINDS
-from planner.fabrication import sample_chip
-from planner.intervals import wilson_interval
-from planner.wafer import die_place, line_width_offsets, wafer_layout
+from planner.fabrication.tolerances import sample_chip
+from planner.core.intervals import wilson_interval
+from planner.fabrication.wafer import die_place, line_width_offsets, wafer_layout
 from planner.yield_.chip import measured_frequencies
 from planner.yield_.inputs import Payload
 from planner.yield_.results import ChipResult
@@ -97,7 +97,7 @@ def wafer_record(payload: Payload, results: list) -> dict:
 
 def die_measurements(payload: Payload, scale: float, chips) -> list:
     """What a prober measures of every die: for each chip index of ``chips``, its
-    place (:func:`planner.wafer.die_place`) and ``measured`` (impacter id -> its
+    place (:func:`planner.fabrication.wafer.die_place`) and ``measured`` (impacter id -> its
     measured resonance [Hz], or (a, b) for the halves of a pair measured apart).
 
     The chip is the study's (the same draws as :func:`planner.yield_.verify_chip`), and

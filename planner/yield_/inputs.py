@@ -7,8 +7,8 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
-from planner.fabrication import ChipDesign, design_from_plan
-from planner.nodes import Node
+from planner.fabrication.tolerances import ChipDesign, design_from_plan
+from planner.core.nodes import Node
 from planner.afterfab.checks import drive_of
 from planner.planning.plan_file import PlanRecord
 from planner.arrayspec import FabricationSpec, LoadedSpec
@@ -119,7 +119,7 @@ def make_payload(record: PlanRecord, seed: int, fabrication: FabricationSpec | N
             raise ValueError("--trim-precision needs --trim")
     fab = fabrication if fabrication is not None else record.spec.fabrication
     if fab.wafer is not None:
-        from planner.wafer import wafer_layout
+        from planner.fabrication.wafer import wafer_layout
 
         wafer_layout(record.spec.array, fab.wafer)     # no die fits: refused before any work
     if fab.zero and not allow_zero:
@@ -169,11 +169,11 @@ def check_chip_count(chips: int, n_scales: int = 1) -> None:
     Raises
     ------
     ValueError
-        ``chips`` < 1; :class:`planner.errors.LimitError` with the figures when
+        ``chips`` < 1; :class:`planner.core.errors.LimitError` with the figures when
         ``chips`` x ``n_scales`` chips (plus the nominal one) need more memory than the
         machine has (:data:`CHIP_BYTES` each).
     """
-    from planner._limits import check_memory
+    from planner.runtime.limits import check_memory
 
     if int(chips) < 1:
         raise ValueError(f"chips must be >= 1, {chips} was given")

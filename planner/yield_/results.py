@@ -269,7 +269,7 @@ class ChipResult:
         Check kind (:data:`planner.afterfab.checks.KINDS`, or ``unbuildable``) ->
         number of failed checks [-] (for ``unbuildable``: of devices and impacters
         that cannot be built).
-    nodes : tuple of planner.nodes.Node
+    nodes : tuple of planner.core.nodes.Node
         The impacter pairs implicated in a failure, sorted.
     replan : ReplanOutcome or None
         With ``--replan``, the chip measured and re-planned; else None.

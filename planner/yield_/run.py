@@ -31,7 +31,7 @@ def run_yield(payload: Payload, chips: int, *, scales=(1.0,), jobs: int = 1,
     import time
 
     t_start = time.perf_counter()
-    from planner.engine import run_tasks
+    from planner.runtime.engine import run_tasks
 
     chips = int(chips)
     scales = [float(s) for s in scales]

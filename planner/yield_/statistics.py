@@ -9,7 +9,7 @@ from planner.arrayspec import TrimSpec
 from planner.afterfab.checks import KINDS
 from planner.yield_.chip import REPLAN_CAUSES
 from planner.yield_.results import ChipResult
-from planner.intervals import wilson_interval
+from planner.core.intervals import wilson_interval
 
 
 def scale_key(scale: float) -> str:

@@ -27,7 +27,7 @@ def _cli(*args):
 @pytest.fixture(scope="module")
 def close(close_plan_dir):
     """(plan record, settings, chip design) of the close plan."""
-    from planner.fabrication import design_from_plan
+    from planner.fabrication.tolerances import design_from_plan
     from planner.planning.plan_file import read_plan
     from planner.planning.settings import plan_settings
 
@@ -47,7 +47,7 @@ def test_a_line_width_chip_measured_exactly_is_rebuilt_as_it_is(close):
     from planner.afterfab.checks import check_drive
     from planner.afterfab.measurement import measure_models
     from planner.afterfab.replan import chip_models, replan_chip
-    from planner.fabrication import sample_chip
+    from planner.fabrication.tolerances import sample_chip
 
     rec, settings, design = close
     fab = rec.spec.fabrication
@@ -174,7 +174,7 @@ def test_calibrate_motion_then_replan_windows_puts_each_tone_in_its_window(
     from planner.afterfab.measurement import measure_models
     from planner.afterfab.replan import chip_models, replan_chip
     from planner.afterfab.tune import fit_windows, sweep_speeds
-    from planner.fabrication import sample_chip
+    from planner.fabrication.tolerances import sample_chip
 
     rec, settings, design = close
     chip = sample_chip(design, rec.spec.fabrication, np.random.default_rng(9200))

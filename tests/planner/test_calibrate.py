@@ -18,7 +18,7 @@ from click.testing import CliRunner
 
 from model import Drive, Impacter, amplitude_from_power, simulate
 from model.devices import VISCOSITY_AIR
-from planner.calibrate import (
+from planner.lab.calibrate import (
     MEASURED_COLUMNS,
     calibrate,
     fit_resonance,
@@ -26,7 +26,7 @@ from planner.calibrate import (
     transmissibility,
 )
 from planner.cli import main
-from planner.errors import SpecError
+from planner.core.errors import SpecError
 
 UM = 1e-6
 #: Relative noise of a lab's amplitude reading [-].

@@ -185,7 +185,7 @@ def mutated_csv(draw, text):
 def _sweep_text():
     import numpy as np
 
-    from planner.calibrate import transmissibility
+    from planner.lab.calibrate import transmissibility
 
     f = np.linspace(4000.0, 4600.0, 24)
     a = 0.1 * transmissibility(f, 4300.0, 40.0)

@@ -14,9 +14,9 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from planner._io import MARKER, check_output_folder, output_folder
+from planner.files import MARKER, check_output_folder, output_folder
 from planner.cli import main
-from planner.errors import OutputError
+from planner.core.errors import OutputError
 from tests.planner.test_pipeline import TINY  # the 1 x 2 spec every plan test uses
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"

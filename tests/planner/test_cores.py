@@ -14,7 +14,7 @@ from pathlib import Path
 import numba
 import pytest
 
-from planner._cores import (
+from planner.runtime.cores import (
     FREE_CORE_FRACTION,
     free_from,
     measured_free_cores,
@@ -103,7 +103,7 @@ def _until(cond, timeout_s=5.0):
 
 
 def test_measured_free_cores_from_injected_samples():
-    from planner._cores import _allowed_cores
+    from planner.runtime.cores import _allowed_cores
 
     n = len(_allowed_cores())
     ticks = itertools.count()
@@ -144,7 +144,7 @@ def test_a_sampler_that_fails_later_gives_no_stale_answer():
 
 
 def test_measured_free_cores_reads_this_machine():
-    from planner._cores import _allowed_cores
+    from planner.runtime.cores import _allowed_cores
 
     with measured_free_cores(period_s=0.01, window_s=0.05) as free:
         assert _until(lambda: not math.isnan(free()))
@@ -155,7 +155,7 @@ def test_the_sampler_counts_this_processs_workers_as_its_own():
     import subprocess
     import sys
 
-    from planner._cores import _allowed_cores, _cpu_sampler
+    from planner.runtime.cores import _allowed_cores, _cpu_sampler
 
     sample = _cpu_sampler(_allowed_cores(), refresh_s=0.0)
     child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from planner.nodes import Node
+from planner.core.nodes import Node
 
 TRAVEL = """\
 name: travel
@@ -140,7 +140,7 @@ def test_carried_state_failure_counts_in_the_verification():
     the dwell capped short, the scene's carried state is a failure of the step (and of
     ``verification.passed``), not only a note."""
     import model
-    from planner.assign import plan_steps
+    from planner.assignment.assign import plan_steps
     from planner.config import build_slider
     from planner.planning.repair import merge_carried
     from planner.planning.scenes import scene_failures, simulate_scenes
@@ -235,7 +235,7 @@ def test_seed_reaches_the_designs():
 
 
 def test_spec_keys_are_validated():
-    from planner.errors import SpecError
+    from planner.core.errors import SpecError
     from planner.planning.settings import resolve_settings
     from planner.arrayspec import load_spec
 
@@ -334,7 +334,7 @@ def test_repair_redesigns_a_too_slow_impacter_alone():
     from planner.planning.repair import reseed_slow
     from planner.planning.settings import resolve_settings
     from planner.planning.verify import TOO_SLOW, Failure
-    from planner.assign import assign
+    from planner.assignment.assign import assign
     from planner.arrayspec import load_spec
 
     settings = resolve_settings(load_spec(TRAVEL), 0)
@@ -354,7 +354,7 @@ def test_repair_redesigns_a_too_slow_impacter_alone():
     again = design_all(settings, steps, a, cache, waveforms=waveforms, reseed=reseed)
     assert len(cache) == n_cached + 1          # one new design, the rest from the cache
     # its tries continue the first round's stream where it could have ended
-    from planner._random import try_seed
+    from planner.core.rng import try_seed
 
     base = settings.design_kwargs(node)["seed"]
     assert first[node].seed in [try_seed(base, k) for k in range(1 + DESIGN_RETRIES)]
@@ -370,7 +370,7 @@ def test_an_infeasible_design_is_given_up_after_a_few_tries():
     """Another seed rarely makes an infeasible target feasible: the planner stops after
     INFEASIBLE_TRIES tries (and reports the impacter) instead of retrying for minutes;
     a feasible but slow design is retried up to 1 + DESIGN_RETRIES times."""
-    from planner._random import try_seed
+    from planner.core.rng import try_seed
     from planner.planning.designs import INFEASIBLE_TRIES, _design_task
 
     calls = []
@@ -414,7 +414,7 @@ def test_designs_are_silent_at_the_tones_as_played():
     silent).  An infeasible design's offender is found from the played tone too."""
     import dataclasses
 
-    from planner.assign import assign
+    from planner.assignment.assign import assign
     from planner.planning.designs import design_all
     from planner.planning.exposure import design_offenders, forbidden_tones, played_tones
     from planner.planning.drives import synthesize_steps
@@ -443,7 +443,7 @@ def test_repair_redesigns_an_idle_responder_once_then_widens():
     """An idle impacter that answers a step although its design was feasible is
     re-designed alone from further seeds (no re-colouring); if it answers again, its
     separation from the step's nearest tone is widened instead."""
-    from planner.assign import assign
+    from planner.assignment.assign import assign
     from planner.planning.designs import DESIGN_RETRIES, design_all
     from planner.planning.drives import synthesize_steps
     from planner.planning.repair import reseed_idle, widen_separations

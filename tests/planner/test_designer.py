@@ -19,7 +19,7 @@ from model import devices as _d
 from planner import design_impacter, design_pair
 from planner.cli import main
 from planner.config import EnvironmentConfig
-from planner.design_config import load_design_config
+from planner.designer.config import load_design_config
 from planner.designer import (
     BUDGETS,
     PAPER_LOWER,

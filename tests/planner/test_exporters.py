@@ -18,7 +18,7 @@ import pytest
 from click.testing import CliRunner
 from scipy.io import wavfile
 
-from planner.exporters import (
+from planner.lab.exporters import (
     EXPORTERS,
     INT16_FULL_SCALE,
     DriveWarning,

@@ -1,10 +1,10 @@
-"""Gated bursts (planner.gating): the envelopes, the exact program of constant-tone
+"""Gated bursts (planner.synthesis.gating): the envelopes, the exact program of constant-tone
 stretches the simulation plays, the samples a lab plays, their peaks."""
 
 import numpy as np
 import pytest
 
-from planner.gating import Burst, burst_peaks, envelopes, gate, tone_peaks
+from planner.synthesis.gating import Burst, burst_peaks, envelopes, gate, tone_peaks
 from planner.synthesis import synthesize
 
 FS = 200e3

@@ -378,7 +378,7 @@ def test_calibrate_refuses_a_sweep_in_khz(tmp_path):
     """Issue 38: a sweep written in kHz fitted 4.44 Hz and marked it ok."""
     import numpy as np
 
-    from planner.calibrate import transmissibility
+    from planner.lab.calibrate import transmissibility
 
     f = np.linspace(4.0, 4.8, 40)
     a = 0.1 * transmissibility(f, 4.44, 40.0)
@@ -459,7 +459,7 @@ def test_a_layout_failing_while_writing_leaves_the_old_files(tiny_plan_dir, tmp_
     """Issue 38: a layout that failed while writing (exit 3) left a mix of two chips'
     files.  The registry beside the files made a folder: the swap fails after the
     files are moved in, and every old file comes back."""
-    from planner._io import REGISTRY
+    from planner.files import REGISTRY
 
     out = tmp_path / "chip.gds"
     assert _layout(tiny_plan_dir, out, "--check").exit_code in (0, 1)

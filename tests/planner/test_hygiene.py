@@ -88,7 +88,7 @@ def huge_spec(tmp_path):
 
 def _sweep_csv(path, nu=4300.0, q=50.0, freqs=None):
     """A lab sweep of one impacter around its resonance (eqs. 1, 5)."""
-    from planner.calibrate import transmissibility
+    from planner.lab.calibrate import transmissibility
 
     f = np.linspace(0.93 * nu, 1.07 * nu, 40) if freqs is None else np.asarray(freqs)
     a = 0.1 * transmissibility(f, nu, q)
@@ -400,7 +400,7 @@ def test_a_scheduler_that_dies_mid_run_is_exit_3(tiny_plan_dir, tmp_path, huge_s
 
 
 def test_jobs_beyond_the_cores_are_refused(tiny_plan_dir, tmp_path, huge_spec):
-    from planner._limits import cores
+    from planner.runtime.limits import cores
 
     res = cli("yield", tiny_plan_dir, "--spec", huge_spec, "--chips", 1, "--out",
               tmp_path / "y", "--jobs", cores() + 1, "--quiet")
@@ -436,7 +436,7 @@ def test_inputs_must_be_regular_files(tiny_plan_dir, tmp_path, fifo, special, co
 
 
 def test_an_input_over_the_size_limit_is_refused_unread(tmp_path):
-    from planner._limits import MAX_INPUT_BYTES
+    from planner.runtime.limits import MAX_INPUT_BYTES
 
     big = tmp_path / "big.yaml"
     with big.open("wb") as fh:
@@ -640,11 +640,11 @@ def test_a_nan_option_is_bad_input_not_a_conversion_error(tmp_path):
 
 
 def test_the_warm_pool_runs_its_warm_up_first_and_then_the_tasks():
-    """planner._workers.warm_pool: the warm-up (numba's compilation, model.warmup) starts
+    """planner.runtime.workers.warm_pool: the warm-up (numba's compilation, model.warmup) starts
     in a worker at once; the first task submitted waits for it, so no second worker
     compiles the same kernels at the same time; the tasks then run as in any pool."""
     from model.warmup import compile_kernels
-    from planner._workers import warm_pool
+    from planner.runtime.workers import warm_pool
 
     with warm_pool(2, compile_kernels) as pool:
         futures = [pool.submit(math.sqrt, x) for x in (4.0, 9.0)]

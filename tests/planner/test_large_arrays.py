@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from planner.assign import assign, plan_steps
+from planner.assignment.assign import assign, plan_steps
 from planner.cli import main
-from planner.errors import PlanningError
+from planner.core.errors import PlanningError
 from planner.manufacturability import channel_grid
 from planner.planning.exposure import forbidden_tones
 from planner.planning.estimate import estimate
 from planner.planning.settings import resolve_settings
-from planner.separation import check_target, position_grid, separated
+from planner.core.separation import check_target, position_grid, separated
 from planner.arrayspec import load_spec
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -304,7 +304,7 @@ def test_serial_process_pool_and_local_cluster_give_the_same_plan_json(tmp_path)
     in a two-process pool (--jobs 2) and a serial run give a byte-identical plan.json.
 
     No BLAS environment variables: every design runs with BLAS pinned to one thread
-    (planner._workers.single_thread_blas), whatever the process's default.  No design
+    (planner.runtime.workers.single_thread_blas), whatever the process's default.  No design
     cache (--no-cache): every run computes its designs, so the cluster runs them too."""
     distributed = pytest.importorskip("distributed")
     spec = _tiny_spec(tmp_path)
@@ -330,7 +330,7 @@ def test_serial_process_pool_and_local_cluster_give_the_same_plan_json(tmp_path)
 
 def test_single_thread_blas_pins_blas_and_restores_it_after_the_last_block():
     threadpoolctl = pytest.importorskip("threadpoolctl")
-    from planner._workers import single_thread_blas
+    from planner.runtime.workers import single_thread_blas
 
     def blas_threads():
         return sorted({i["num_threads"] for i in threadpoolctl.threadpool_info()

@@ -19,7 +19,7 @@ from click.testing import CliRunner
 
 import model
 from planner.cli import main
-from planner.units import UM
+from planner.core.units import UM
 
 PITCH_UM = 1500.0
 
@@ -39,7 +39,7 @@ def _synthetic_plan(tiny_plan_dir, folder, *, edit=None, geometry=_graded, rows=
     """A consistent plan.json made from the tiny plan's: impacter i (two per device, in
     device order) gets ``geometry(i)`` = (A um^2, w um, l um, c um); its m, k, b and
     nu_n follow from eqs. (2)-(4)."""
-    from planner.fabrication import NodeDesign, nominal_impacter
+    from planner.fabrication.tolerances import NodeDesign, nominal_impacter
     from planner.arrayspec import ArraySpec
 
     import numpy as np
@@ -319,7 +319,7 @@ def test_same_plan_same_bytes(chip, tmp_path):
         (tmp_path / run).mkdir()
         assert _layout(chip["plan"], "--out", tmp_path / run / "chip.gds",
                        "--check").exit_code == 0
-    # (and the record of what vibroplan wrote there, planner._io's registry)
+    # (and the record of what vibroplan wrote there, planner.files's registry)
     names = sorted(p.name for p in (tmp_path / "a").iterdir() if not p.name.startswith("."))
     assert names == ["chip.gds", "chip.md", "chip.png", "chip_A1.png", "chip_drc.json"]
     for name in names:

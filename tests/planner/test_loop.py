@@ -90,7 +90,7 @@ def test_a_moved_tone_redesigns_what_it_touches_and_keeps_the_rest(tmp_path):
     design cache holds."""
     import pickle
 
-    from planner.nodes import Node
+    from planner.core.nodes import Node
     from planner.planning.design_store import DesignStore
     from planner.planning.designs import design_all, design_keys
     from planner.planning.drives import limit_acceleration, synthesize_steps
@@ -134,13 +134,13 @@ def test_move_groups_moves_only_the_movers():
     """On a band with room, an impacter moved away from its offender takes a free
     position; every other channel stays."""
     from planner.planning.settings import resolve_settings
-    from planner.reassign import move_groups
+    from planner.assignment.reassign import move_groups
     from planner.arrayspec import load_spec
 
     spec = LOW_BAND.replace("[3000, 12000]", "[5000, 14000]").replace(
         "independent: false", "independent: true")
     settings = resolve_settings(load_spec(spec))
-    from planner.assign import assign
+    from planner.assignment.assign import assign
 
     a = assign(settings, settings.steps)
     n = sorted(a.frequencies)[0]
@@ -154,7 +154,7 @@ def test_move_groups_moves_only_the_movers():
     assert set(moves) == {n}
     assert abs(b.positions[n] - b.positions[offender]) >= (gap + 2) * a.stride
     assert all(b.frequencies[m] == a.frequencies[m] for m in a.frequencies if m != n)
-    from planner.assign import verify_assignment
+    from planner.assignment.assign import verify_assignment
 
     assert verify_assignment(b) == []
 
@@ -239,7 +239,7 @@ def _default_reach_as_found(seed, ratio_at):
     from planner.planning.reach import (Probe, Reach, _needed_ratio, packed_neighbours,
                                         probe_channels)
     from planner.planning.settings import resolve_settings
-    from planner.separation import position_grid
+    from planner.core.separation import position_grid
 
     settings = resolve_settings(load_spec(default_spec_path()), seed)
     grid = np.asarray(settings.channel_grid_hz)
@@ -265,8 +265,8 @@ def test_a_lone_probes_verdict_that_does_not_fit_is_relaxed_not_refused():
     fails), and the reach says so; the assignment on the reach as measured is refused.
     Refusal stays for a spec most of whose probes are hopeless
     (test_vacuum_is_refused_naming_the_undamped_impacter)."""
-    from planner.assign import assign
-    from planner.errors import PlanningError
+    from planner.assignment.assign import assign
+    from planner.core.errors import PlanningError
     from planner.planning.reach import assign_on_reach
 
     settings, reach = _default_reach_as_found(
@@ -302,7 +302,7 @@ def test_a_reach_that_widens_most_of_the_band_is_refused_not_relaxed():
     x1.4-2.7 apart, the reach was relaxed to the packed spacing, and 18 of 18 designs then
     answered other tones (exit 1 after 141 s).  When most probes need the wider spacing,
     the assignment on the measured reach is refused, naming it, before any design."""
-    from planner.errors import PlanningError
+    from planner.core.errors import PlanningError
     from planner.planning.reach import assign_on_reach
 
     settings, reach = _default_reach_as_found(0, lambda tone, packed: 1.2)

@@ -15,7 +15,7 @@ from scipy import integrate, stats
 from planner.config import EnvironmentConfig, ProcessConfig
 from planner.designer.design import _impacter_factory
 from planner.designer.sensitivity import LineWidthModel
-from planner.fabrication import (
+from planner.fabrication.tolerances import (
     ERRORS,
     ChipDesign,
     NodeDesign,
@@ -53,7 +53,7 @@ def _node(k, area, width, length, gap=4e-6):
 def test_closed_form_sensitivity_is_the_fabrication_models(area, width, length):
     """The designer's closed form of d ln nu_n / dw agrees with central differences
     through the designer's factory and through the as-built equations of
-    planner.fabrication (an independent path: the chip builder)."""
+    planner.fabrication.tolerances (an independent path: the chip builder)."""
     lw = _line_width()
     s = lw.sensitivity(area, width, length)
     assert s == pytest.approx(lw.check(area, width, length), rel=1e-6)
@@ -65,7 +65,7 @@ def test_closed_form_sensitivity_is_the_fabrication_models(area, width, length):
 
 def test_matched_designs_keep_their_frequency_ratios_under_a_die_error():
     """Designs of one line-width sensitivity, at frequencies 6-60 kHz, sampled as real
-    chips (planner.fabrication.sample_chip, the full equations) with a die-level error
+    chips (planner.fabrication.tolerances.sample_chip, the full equations) with a die-level error
     only: every pairwise ratio of as-built natural frequencies stays as designed to
     second order, while designs of unmatched widths are reshuffled by the same error."""
     lw = _line_width()
@@ -203,7 +203,7 @@ def test_monte_carlo_yield_of_two_impacters_matches_the_exact_value():
 
 
 def test_monte_carlo_against_chips_sampled_through_the_full_equations():
-    """The first-order Monte Carlo against chips built by planner.fabrication.sample_chip
+    """The first-order Monte Carlo against chips built by planner.fabrication.tolerances.sample_chip
     (the full equations, its own draws): the same collision rule on both gives yields
     within their intervals."""
     lw = _line_width()
@@ -261,7 +261,7 @@ def test_dry_run_predicts_the_yield_from_the_grid(tmp_path):
     does not depend on the reach, so the probes are not run here: the CLI's line is
     read by test_pipeline's plan)."""
     from planner.arrayspec import load_spec
-    from planner.assign import assign
+    from planner.assignment.assign import assign
     from planner.planning.settings import resolve_settings
 
     def dry(drive):
@@ -349,7 +349,7 @@ def test_plan_records_its_manufacturability(tmp_path):
     ({"fabrication": {"target_yield": 1.0}}, "target_yield"),
 ])
 def test_contradicting_design_for_yield_fields_are_refused_with_their_line(section, message):
-    from planner.errors import SpecError
+    from planner.core.errors import SpecError
     from planner.arrayspec import load_spec
 
     text = yaml.safe_dump({"name": "t", "array": {"rows": 1, "cols": 2}, **section})

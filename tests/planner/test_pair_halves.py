@@ -8,8 +8,8 @@ import pytest
 
 import model
 from model import Drive, Impacter, PairHalves, Slider, pair_of
-from planner.fabrication import ChipDesign, NodeDesign, sample_chip
-from planner.nodes import Node
+from planner.fabrication.tolerances import ChipDesign, NodeDesign, sample_chip
+from planner.core.nodes import Node
 from planner.planning.verify import device_motion, pair_responses
 from planner.arrayspec import ArraySpec
 
@@ -98,7 +98,7 @@ def test_a_pair_level_splits_the_halves_by_its_sigma():
 
 
 def test_the_pair_level_lowers_the_predicted_yield():
-    from planner.fabrication import ERRORS
+    from planner.fabrication.tolerances import ERRORS
     from planner.manufacturability import collision_free_yield
 
     nu = np.array([30000.0, 30700.0])

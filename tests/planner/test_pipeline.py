@@ -55,7 +55,7 @@ def test_verification_is_real_simulation(tiny_plan):
     check run again reproduces the row, and the same check on a chip whose A1.forward
     resonance is 25 % off its tone fails (the simulation decides, not the plan's own
     prediction)."""
-    from planner.nodes import Node
+    from planner.core.nodes import Node
     from planner.planning.verify import check_step
 
     settings = tiny_plan.settings
@@ -221,7 +221,7 @@ def test_scene_counts_the_overshoot_after_the_drive_stops():
     # step's settle dwell must record those hits and the slider's extra travel forward,
     # and last until the hits stop (every hit takes 1 - e^2 of the impacter's energy).
     import model
-    from planner.assign import plan_steps
+    from planner.assignment.assign import plan_steps
     from planner.config import build_slider
     from planner.planning.scenes import SETTLE_NAME, simulate_scenes
     from planner.planning.settings import SETTLE_S, SINGLE_STEP_S
@@ -285,7 +285,7 @@ def test_report_is_its_sections_in_their_order(tiny_plan, tmp_path):
     """report.md is made of named sections in the order of report.SECTIONS; a later
     command's section is handed over whole and takes its place by its title (no text
     spliced into a written report), and one with no place is refused by name."""
-    from planner.markdown import Section
+    from planner.core.markdown import Section
     from planner.planning import write_outputs
     from planner.planning.report import SECTIONS, plan_report
 

@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 
 from planner.afterfab import Measurement
-from planner.nodes import Node
+from planner.core.nodes import Node
 
 A1F, A2B = Node("A1", "forward"), Node("A2", "backward")
 
@@ -232,7 +232,7 @@ def test_pair_halves_are_read_from_the_half_column(plan_data, tmp_path):
     """measured.csv may give each half of a pair (``half`` a/b): both halves are kept,
     the pair's resonance is their mean; half a pair, or a pair measured both ways, is
     refused naming the row."""
-    from planner.errors import SpecError
+    from planner.core.errors import SpecError
     from planner.afterfab.measurement import read_measured
 
     ids = [r["id"] for r in plan_data["impacters"]]

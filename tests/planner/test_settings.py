@@ -8,9 +8,9 @@ import math
 import pytest
 import yaml
 
-from planner.design_config import DesignConfig
-from planner.errors import SpecError
-from planner.nodes import Node
+from planner.designer.config import DesignConfig
+from planner.core.errors import SpecError
+from planner.core.nodes import Node
 from planner.planning.settings import resolve_settings
 from planner.arrayspec import load_spec
 
@@ -39,12 +39,12 @@ def _settings(*changes):
 
 def _sampled(s):
     """What the yield's Monte Carlo makes of one fixed design under the settings'
-    tolerances (:func:`planner.fabrication.sample_chip`, a fixed seed): every half's
+    tolerances (:func:`planner.fabrication.tolerances.sample_chip`, a fixed seed): every half's
     mass, stiffness, damping and gap, and every slider's mass."""
     import numpy as np
 
     import model
-    from planner.fabrication import ChipDesign, NodeDesign, sample_chip
+    from planner.fabrication.tolerances import ChipDesign, NodeDesign, sample_chip
 
     node = NodeDesign("A1.forward", "A1", "forward", 1.5e-8, 4e-6, 1.2e-3, 3e-6,
                       math.radians(45.0), 0.5)
@@ -192,7 +192,7 @@ def test_tolerances_are_the_specs_sigmas_read_once():
     and the errors' own units (those of the sensitivities and of plan.json's keys)."""
     import numpy as np
 
-    from planner.fabrication import ERROR_UNITS, ERRORS, Tolerances
+    from planner.fabrication.tolerances import ERROR_UNITS, ERRORS, Tolerances
 
     sigmas = {"line_width_um": {"die": 0.05, "device": 0.02, "pair": 0.01},
               "youngs_modulus_pct": {"die": 1.5}, "natural_frequency_pct": {"device": 0.3}}

@@ -5,10 +5,10 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from planner.assign import activity, assign, conflict_graph, plan_steps, verify_assignment
+from planner.assignment.assign import activity, assign, conflict_graph, plan_steps, verify_assignment
 from planner.cli import main
-from planner.errors import SpecError
-from planner.nodes import Node
+from planner.core.errors import SpecError
+from planner.core.nodes import Node
 from planner.planning.settings import resolve_settings
 from planner.arrayspec import default_spec_path, load_spec, separation_for_bandwidth
 
@@ -160,7 +160,7 @@ def _separations_hold(graph, coloring):
 
 
 def test_block_layouts_keep_every_separation_and_the_span():
-    from planner.assign import _block_layouts
+    from planner.assignment.assign import _block_layouts
     from planner.coloring import solve_bandwidth
 
     loaded = load_spec(default_spec_path())
@@ -180,7 +180,7 @@ def test_default_layout_puts_multi_tone_steps_below_their_idle_impacters():
     """The 25-tone positioning step and the 5-tone release of row C: the chosen layout
     has no idle impacter of either step below one of its tones except the row-C
     backward impacters under the positioning cluster, at a wide relative gap."""
-    from planner.assign import _ensemble_severity
+    from planner.assignment.assign import _ensemble_severity
 
     loaded = load_spec(default_spec_path())
     steps = plan_steps(loaded, 0.01)

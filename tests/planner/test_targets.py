@@ -9,9 +9,9 @@ import sys
 import numpy as np
 import pytest
 
-from planner.errors import PlanningError, SpecError
+from planner.core.errors import PlanningError, SpecError
 from planner.arrayspec import load_spec
-from planner.units import UM
+from planner.core.units import UM
 from tests.planner.test_pipeline import TINY
 
 #: Two devices, two different targets, then back: the tiny spec of test_pipeline with a
@@ -77,7 +77,7 @@ def test_exported_burst_is_the_drive_the_verification_simulated(two_plan):
     """The lab plays what was verified: the exported file (read back through its
     sidecar) is the gated burst's samples, which its program of constant-tone stretches
     reproduces, and verify_export accepts it."""
-    from planner.exporters import read_sidecar, read_waveform, verify_export
+    from planner.lab.exporters import read_sidecar, read_waveform, verify_export
 
     burst = two_plan.waveforms["s/write"]
     rec = next(s for s in two_plan.data["steps"] if s["name"] == "write")
@@ -99,7 +99,7 @@ def test_exported_burst_is_the_drive_the_verification_simulated(two_plan):
 
 
 def test_tampered_burst_fails_verify_export(two_plan, tmp_path):
-    from planner.exporters import export, verify_export
+    from planner.lab.exporters import export, verify_export
 
     burst = two_plan.waveforms["s/write"]
     path = tmp_path / "b.csv"
@@ -249,7 +249,7 @@ def test_vibroplan_drive_writes_the_plans_burst(two_plan, tmp_path):
     from click.testing import CliRunner
 
     from planner.cli import main
-    from planner.exporters import read_sidecar, read_waveform
+    from planner.lab.exporters import read_sidecar, read_waveform
 
     out = tmp_path / "write.csv"
     res = CliRunner().invoke(main, ["drive", str(two_plan.out_dir), "--step", "write",

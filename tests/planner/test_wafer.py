@@ -101,7 +101,7 @@ def _summary(folder: Path) -> dict:
 
 def test_the_die_grid_fills_the_wafer_inside_its_edge_exclusion():
     from planner.arrayspec import ArraySpec, WaferSpec
-    from planner.wafer import wafer_layout
+    from planner.fabrication.wafer import wafer_layout
 
     spec = ArraySpec.model_validate({"array": {"rows": 5, "cols": 5, "pitch_um": 2000.0}})
     lay = wafer_layout(spec.array, WaferSpec(diameter_mm=135.0, edge_exclusion_mm=3.0))
@@ -125,7 +125,7 @@ def test_the_die_grid_fills_the_wafer_inside_its_edge_exclusion():
 
 def test_the_field_is_correlated_over_its_length_and_the_gradient_is_linear():
     from planner.arrayspec import ArraySpec
-    from planner.wafer import device_positions, line_width_offsets, wafer_draws, wafer_layout
+    from planner.fabrication.wafer import device_positions, line_width_offsets, wafer_draws, wafer_layout
 
     spec = ArraySpec.model_validate({
         "array": {"rows": 3, "cols": 3, "pitch_um": 2000.0},
@@ -254,9 +254,9 @@ def test_the_wafer_file_holds_what_the_yield_measured(tiny_plan_dir, wafer_yield
     for (_, _, got), w in zip(dies, want):
         assert {n: m.resonance for n, m in got.items()} == w["measured"]
     # and that is what the study's re-plan measured of the chip
-    from planner._random import chip_seed
-    from planner.fabrication import sample_chip
-    from planner.wafer import line_width_offsets
+    from planner.core.rng import chip_seed
+    from planner.fabrication.tolerances import sample_chip
+    from planner.fabrication.wafer import line_width_offsets
 
     rng = np.random.default_rng(chip_seed(3, 1.0, 2))
     chip = sample_chip(payload.design, payload.fabrication, rng, 1.0,
@@ -535,7 +535,7 @@ drive:
 
 
 def _assignment(placement):
-    from planner.assign import assign, plan_steps
+    from planner.assignment.assign import assign, plan_steps
     from planner.planning.settings import resolve_settings
     from planner.arrayspec import load_spec
 
@@ -545,8 +545,8 @@ def _assignment(placement):
 
 
 def test_neighbours_put_tone_neighbours_on_neighbouring_devices():
-    from planner.assign import verify_assignment
-    from planner.nodes import device_key
+    from planner.assignment.assign import verify_assignment
+    from planner.core.nodes import device_key
 
     def steps_between_neighbours(a):
         order = sorted(a.frequencies, key=lambda n: a.frequencies[n])

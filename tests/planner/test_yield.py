@@ -89,8 +89,8 @@ def test_chip_results_depend_on_seed_and_index_only(tiny_plan_dir):
 
     import dataclasses
 
-    from planner.fabrication import sample_chip
-    from planner._random import chip_seed
+    from planner.fabrication.tolerances import sample_chip
+    from planner.core.rng import chip_seed
 
     fab = load_spec(HUGE).spec.fabrication
     record = read_plan(tiny_plan_dir)
@@ -116,7 +116,7 @@ def test_chip_results_depend_on_seed_and_index_only(tiny_plan_dir):
 def test_failure_rates_count_the_impacters_each_chip_implicates(tiny_plan_dir):
     """yield.json's per-impacter failure rate is the fraction of chips whose checks
     implicated that impacter (a Node inside, its text in the file)."""
-    from planner.nodes import Node
+    from planner.core.nodes import Node
     from planner.planning.plan_file import read_plan
     from planner.arrayspec import load_spec
     from planner.yield_ import make_payload, run_yield, verify_chip
@@ -135,7 +135,7 @@ def test_failure_rates_land_on_their_devices_cells():
     """The report's array figure puts each impacter's rate on its own device's cell,
     two-digit columns included."""
     from planner.arrayspec import load_spec
-    from planner.yield_report import _grid
+    from planner.yield_.report import _grid
 
     spec = load_spec("name: wide\narray: {rows: 2, cols: 11}\n").spec
     rates = {"A2.forward": 0.5, "A10.forward": 1.0, "B11.backward": 0.25, "A1.backward": 0.0}
@@ -147,7 +147,7 @@ def test_failure_rates_land_on_their_devices_cells():
 
 
 def test_as_built_geometry_follows_the_documented_mapping(tiny_plan_dir):
-    from planner.fabrication import ERRORS, _impacter, sample_chip
+    from planner.fabrication.tolerances import ERRORS, as_built_impacter, sample_chip
     from planner.planning.plan_file import read_plan
     from planner.arrayspec import FabricationSpec
     from planner.yield_ import make_payload
@@ -165,15 +165,15 @@ def test_as_built_geometry_follows_the_documented_mapping(tiny_plan_dir):
     spec = payload.loaded.spec
     err = dict.fromkeys(ERRORS, 0.0)
     err["line_width_um"] = 0.1
-    wide = _impacter(spec, node, [err[k] for k in ERRORS])
+    wide = as_built_impacter(spec, node, [err[k] for k in ERRORS])
     assert math.isclose(wide.geometry.width, node.width + 0.1e-6)
     assert math.isclose(wide.gap, node.gap - 0.1e-6)
     assert math.isclose(wide.geometry.area, (math.sqrt(node.area) + 0.1e-6) ** 2)
-    nominal = _impacter(spec, node, [0.0] * len(ERRORS))
+    nominal = as_built_impacter(spec, node, [0.0] * len(ERRORS))
     assert wide.stiffness > nominal.stiffness  # k ~ w^3
     err = dict.fromkeys(ERRORS, 0.0)
     err["natural_frequency_pct"] = 3.0
-    f3 = _impacter(spec, node, [err[k] for k in ERRORS])
+    f3 = as_built_impacter(spec, node, [err[k] for k in ERRORS])
     assert math.isclose(f3.natural_frequency, 1.03 * nominal.natural_frequency, rel_tol=1e-12)
     assert f3.mass == nominal.mass
 

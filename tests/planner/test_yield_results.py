@@ -10,7 +10,7 @@ import pickle
 
 import pytest
 
-from planner.nodes import Node
+from planner.core.nodes import Node
 from planner.yield_ import (ChipResult, Collision, ReplanOutcome, Seconds, TrimOutcome,
                             TuneOutcome)
 

@@ -1,0 +1,1 @@
+"""Frequency assignment: channels for every impacter (colouring), re-assignment, placement."""

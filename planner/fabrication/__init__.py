@@ -1,0 +1,1 @@
+"""Fabrication: tolerances and sampled as-built chips, and where a die sat on its wafer."""

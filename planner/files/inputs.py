@@ -1,0 +1,70 @@
+"""Input files read safely: a regular file of bounded size, never a device or a FIFO.
+
+:func:`read_input` is how every command reads a spec, a plan, a sweep or a band file:
+a folder, a device (/dev/zero would never end), a FIFO or socket (which would block
+forever) or a file over :data:`planner.runtime.limits.MAX_INPUT_BYTES` is refused with a
+:class:`~planner.core.errors.SpecError` naming the file.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+
+from planner.core.errors import SpecError
+
+
+def read_input(path: str | os.PathLike, *, limit: int | None = None) -> bytes:
+    """The bytes of an input file: a regular file of at most ``limit`` bytes.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The file.
+    limit : int, optional
+        Largest size [bytes]; default :data:`planner.runtime.limits.MAX_INPUT_BYTES`.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    planner.core.errors.SpecError
+        A folder, a device (/dev/zero), a FIFO or socket (which would block), or a
+        file over the limit, naming the file.
+    OSError
+        It cannot be read (permissions), with the path.
+    """
+    from planner.runtime.limits import MAX_INPUT_BYTES
+
+    limit = MAX_INPUT_BYTES if limit is None else int(limit)
+    path = Path(path)
+    # O_NONBLOCK: opening a FIFO must not wait for a writer; the type is checked on the
+    # open descriptor, so the file cannot be swapped for another kind in between
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0)
+    try:
+        fd = os.open(path, flags)
+    except IsADirectoryError:
+        raise SpecError("is a folder, not a file", source=str(path)) from None
+    try:
+        info = os.fstat(fd)
+        if stat.S_ISDIR(info.st_mode):
+            raise SpecError("is a folder, not a file", source=str(path))
+        if not stat.S_ISREG(info.st_mode):
+            kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(info.st_mode) else
+                    "a device" if stat.S_ISCHR(info.st_mode) or stat.S_ISBLK(info.st_mode)
+                    else "a socket" if stat.S_ISSOCK(info.st_mode) else "not a regular file")
+            raise SpecError(f"is {kind}, not a regular file: give a file", source=str(path))
+        if info.st_size > limit:
+            raise SpecError(f"{info.st_size / 2**20:.1f} MiB is over the {limit / 2**20:.0f} MiB "
+                            "an input may have: is this the right file?", source=str(path))
+        with os.fdopen(fd, "rb", closefd=True) as fh:
+            fd = None
+            data = fh.read(limit + 1)
+    finally:
+        if fd is not None:
+            os.close(fd)
+    if len(data) > limit:   # it grew while we read
+        raise SpecError(f"over the {limit / 2**20:.0f} MiB an input may have",
+                        source=str(path))
+    return data

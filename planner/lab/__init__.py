@@ -1,0 +1,1 @@
+"""The lab's files: measured CSVs read, calibration fitted, drive waveforms exported."""
