@@ -34,6 +34,13 @@ DIE_FILE = re.compile(r"^die_(-?\d+)_(-?\d+)\.csv$")
 STDF_MAGIC = (b"\x02\x00\x00\x0a", b"\x00\x02\x00\x0a")
 
 
+def not_measured(dies, impacter_ids) -> list:
+    """``(die_x, die_y, ids)`` of every die whose measurement leaves impacters out
+    (each then taken at its design), in ``dies``' order."""
+    return [(x, y, [n for n in impacter_ids if n not in measured])
+            for x, y, measured in dies if any(n not in measured for n in impacter_ids)]
+
+
 def die_name(x: int, y: int) -> str:
     """A die's folder and file stem: ``die_<x>_<y>``."""
     return f"die_{int(x)}_{int(y)}"
@@ -133,14 +140,16 @@ def read_measured_dir(folder, impacter_ids, design_hz=None) -> list:
     return [(x, y, read_measured(p, impacter_ids, design_hz=design_hz)) for x, y, p in found]
 
 
-def read_wafer_stdf(path, impacter_ids, design_hz=None, test_map=None) -> list:
+def read_wafer_stdf(path, impacter_ids, design_hz=None, test_map=None, *,
+                    notes=None) -> list:
     """A tester's STDF V4 file's dies (:func:`planner.afterfab.stdf.read_stdf`), each
-    die's resonances checked as measured.csv's, every error naming the record."""
+    die's resonances checked as measured.csv's, every error naming the record; the
+    tests skipped for their TEST_FLG are appended to ``notes`` (a list) if given."""
     from planner.afterfab.stdf import read_stdf
 
     source = str(path)
     out = []
-    for x, y, rows in read_stdf(path, impacter_ids, test_map):
+    for x, y, rows in read_stdf(path, impacter_ids, test_map, skipped=notes):
         header = ["impacter", "natural_frequency_hz", "half"]
 
         def fail(record, column, message, _x=x, _y=y):
@@ -153,10 +162,11 @@ def read_wafer_stdf(path, impacter_ids, design_hz=None, test_map=None) -> list:
     return out
 
 
-def read_wafer(path, impacter_ids, design_hz=None, *, test_map=None) -> list:
+def read_wafer(path, impacter_ids, design_hz=None, *, test_map=None, notes=None) -> list:
     """The dies of a wafer's file or folder: an STDF V4 file, a wafer CSV or a folder
     of measured.csv files (:func:`read_wafer_stdf`, :func:`read_wafer_csv`,
-    :func:`read_measured_dir`).
+    :func:`read_measured_dir`); ``notes`` (a list, optional) gets a line per test an
+    STDF file's flags say not to use.
 
     Raises
     ------
@@ -167,7 +177,7 @@ def read_wafer(path, impacter_ids, design_hz=None, *, test_map=None) -> list:
     if path.is_dir():
         dies = read_measured_dir(path, impacter_ids, design_hz)
     elif is_stdf(path):
-        dies = read_wafer_stdf(path, impacter_ids, design_hz, test_map)
+        dies = read_wafer_stdf(path, impacter_ids, design_hz, test_map, notes=notes)
     else:
         dies = read_wafer_csv(path, impacter_ids, design_hz)
     return dies
