@@ -63,8 +63,9 @@ NOT_MEASURED = "not measured, taken as designed: "
 #: The summary's columns.
 SUMMARY_COLUMNS = ("die_x", "die_y", "outcome", "causes", "trimmed", "checks_passed",
                    "checks", "folder")
-#: Version of the work folder's contents: a resume reads back only its own kind.
-WORK_FORMAT = 1
+#: Version of the work folder's contents: a resume reads back only its own kind (2: a
+#: die not measured whole is "partly measured", issue 44).
+WORK_FORMAT = 2
 #: The file of a die's work folder written last: its presence says the die finished.
 RESULT_FILE = "result.json"
 

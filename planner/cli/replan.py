@@ -97,7 +97,8 @@ def command(plan_path, measured_path, windows_path, measured_dir, trim, jobs, sc
     or --measured-dir) is re-planned die by die on Dask (--jobs, --scheduler), with
     --trim trimming the dies no drive can tell apart; OUT/ then holds dies/die_<x>_<y>/
     (each die's drive files, trim.csv), summary.csv (one line per die: as designed,
-    after re-plan, after trim or scrapped, with the causes), report.md and
+    after re-plan, after trim, scrapped, or partly measured when its file leaves an
+    impacter out, with the causes), report.md and
     wafer_map.png; exit 1 when a die is scrapped.  Each die is kept as it finishes in
     .OUT.dies/ beside OUT: run the same command again after an interruption and the
     finished dies are read back, not redone.
