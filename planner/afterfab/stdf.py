@@ -33,6 +33,24 @@ HZ_UNITS = ("", "hz", "Hz", "HZ")
 HALF_SEP = ":"
 #: X_COORD / Y_COORD of a PRR that does not know where its die sat (STDF's invalid).
 NO_COORD = -32768
+#: TEST_FLG bits of a PTR whose RESULT was measured but is not to be trusted (STDF V4,
+#: PTR: bit 2 unreliable, bit 3 timed out, bit 4 not executed, bit 5 aborted): the test
+#: is skipped, with a note naming the die, test and record, and its impacter is read
+#: as not measured (the die counted ``partly measured``, :mod:`planner.afterfab.wafer`).
+#: A tester sets them in its normal flow (a test the flow skipped, one stopped on a
+#: fault); bit 1 (RESULT invalid) is a damaged record and stays an error.
+SKIP_FLAGS = {0x04: "unreliable", 0x08: "timed out", 0x10: "not executed",
+              0x20: "aborted"}
+#: A record's header: REC_LEN (2 bytes), REC_TYP, REC_SUB.
+HEADER_BYTES = 4
+#: STDF V4 record names by (REC_TYP, REC_SUB), for a record cut short.
+RECORD_NAMES = {(0, 10): "FAR", (0, 20): "ATR", (1, 10): "MIR", (1, 20): "MRR",
+                (1, 30): "PCR", (1, 40): "HBR", (1, 50): "SBR", (1, 60): "PMR",
+                (1, 62): "PGR", (1, 63): "PLR", (1, 70): "RDR", (1, 80): "SDR",
+                (2, 10): "WIR", (2, 20): "WRR", (2, 30): "WCR", (5, 10): "PIR",
+                (5, 20): "PRR", (10, 30): "TSR", (15, 10): "PTR", (15, 15): "MPR",
+                (15, 20): "FTR", (20, 10): "BPS", (20, 20): "EPS", (50, 10): "GDR",
+                (50, 30): "DTR"}
 
 
 def default_test_name(impacter: str, half: str = "") -> str:
@@ -88,7 +106,29 @@ def _default_map(impacter_ids) -> dict:
     return out
 
 
-def read_stdf(path, impacter_ids, test_map=None) -> list:
+def _check_whole(raw: bytes, source: str) -> None:
+    """Walk the records' headers: a record whose REC_LEN runs past the end of the file
+    was cut short (pystdf reads what is there and stops quietly, so a PRR cut inside
+    its coordinates would read as a die without them)."""
+    order = "<" if raw[4] == 2 else ">"     # the FAR's CPU_TYPE: 1 big-, 2 little-endian
+    at, k = 0, 0
+    while at < len(raw):
+        k += 1
+        if len(raw) - at < HEADER_BYTES:
+            raise SpecError(f"the file is cut short: record {k}'s header has "
+                            f"{len(raw) - at} of its {HEADER_BYTES} bytes (after byte {at})",
+                            source=source)
+        (length,) = struct.unpack(order + "H", raw[at:at + 2])
+        name = RECORD_NAMES.get((raw[at + 2], raw[at + 3]),
+                                f"type {raw[at + 2]}, sub-type {raw[at + 3]}")
+        have = len(raw) - at - HEADER_BYTES
+        if length > have:
+            raise SpecError(f"the file is cut short inside record {k} ({name}): its "
+                            f"REC_LEN says {length} bytes, {have} are there", source=source)
+        at += HEADER_BYTES + length
+
+
+def read_stdf(path, impacter_ids, test_map=None, *, skipped=None) -> list:
     """The dies of a tester's STDF V4 file and their measured resonances.
 
     Parameters
@@ -100,6 +140,10 @@ def read_stdf(path, impacter_ids, test_map=None) -> list:
     test_map : dict, optional
         Test name -> (impacter id, half) (:func:`read_test_map`); default every
         impacter id is its own test name (:func:`default_test_name`).
+    skipped : list, optional
+        Gets one line per mapped PTR not used because its TEST_FLG says it is not to
+        be trusted (:data:`SKIP_FLAGS`): ``die (x, y): record K (PTR): test 'A1.forward'
+        not executed (TEST_FLG 0x10): skipped``.
 
     Returns
     -------
@@ -112,9 +156,10 @@ def read_stdf(path, impacter_ids, test_map=None) -> list:
     Raises
     ------
     SpecError
-        Not an STDF V4 file, a PTR without a valid result or in another unit than Hz,
-        a die without coordinates or tested twice, a die none of whose tests is
-        mapped; naming the record.
+        Not an STDF V4 file, a file cut short (naming the record), a PTR without a
+        valid result or in another unit than Hz, a part begun again before its PRR, a
+        die without coordinates or tested twice, a die none of whose tests is mapped
+        (or all skipped); naming the record.
     ModuleNotFoundError
         ``pystdf`` is not installed (the CLI says how to install it).
     """
@@ -131,6 +176,7 @@ def read_stdf(path, impacter_ids, test_map=None) -> list:
     if len(raw) < 6 or raw[2:4] != b"\x00\x0a" or raw[5] != 4:
         raise SpecError("not an STDF V4 file (it must begin with a FAR record of "
                         "STDF_VER 4)", source=source)
+    _check_whole(raw, source)
     mapping = test_map if test_map is not None else _default_map(impacter_ids)
     records = []
 
@@ -155,7 +201,15 @@ def read_stdf(path, impacter_ids, test_map=None) -> list:
             return SpecError(message, path=f"record {_k} ({_name})", source=source)
 
         if isinstance(rectype, V4.Pir):
-            open_parts[(rec["HEAD_NUM"], rec["SITE_NUM"])] = []
+            where = (rec["HEAD_NUM"], rec["SITE_NUM"])
+            if where in open_parts:
+                # STDF gives a part's die only in its PRR: without it, the tests before
+                # this PIR belong to no known die (a record lost, files spliced)
+                raise fail(f"a part begins on head {where[0]}, site {where[1]} while the "
+                           f"part begun at record {open_parts[where][0]} (PIR) has no "
+                           "PRR: its die's X_COORD and Y_COORD are unknown (a record "
+                           "lost?)")
+            open_parts[where] = (k, [], [])
         elif isinstance(rectype, V4.Ptr):
             name = rec["TEST_TXT"] or names.get(rec["TEST_NUM"], "")
             names.setdefault(rec["TEST_NUM"], name)
@@ -166,13 +220,17 @@ def read_stdf(path, impacter_ids, test_map=None) -> list:
                 raise fail(f"test {name!r} outside a part (no PIR for head "
                            f"{rec['HEAD_NUM']}, site {rec['SITE_NUM']} before it)")
             flags = rec["TEST_FLG"] or 0
+            why = [w for bit, w in SKIP_FLAGS.items() if flags & bit]
+            if why:
+                part[2].append((k, name, flags, why))
+                continue
             if flags & 0b10 or rec["RESULT"] is None:
                 raise fail(f"test {name!r}: its RESULT is flagged invalid (TEST_FLG bit 1)")
             units = (rec["UNITS"] or "").strip()
             if units not in HZ_UNITS:
                 raise fail(f"test {name!r}: UNITS {units!r}; a resonance's result is in Hz")
             imp, half = mapping[name]
-            part.append((k, imp, repr(float(rec["RESULT"])), half))
+            part[1].append((k, imp, repr(float(rec["RESULT"])), half))
         elif isinstance(rectype, V4.Prr):
             part = open_parts.pop((rec["HEAD_NUM"], rec["SITE_NUM"]), None)
             if part is None:
@@ -185,11 +243,21 @@ def read_stdf(path, impacter_ids, test_map=None) -> list:
             if (x, y) in seen:
                 raise fail(f"die ({x}, {y}) tested twice (records {seen[(x, y)]} and {k})")
             seen[(x, y)] = k
-            if not part:
+            _, rows, skips = part
+            notes = [f"die ({x}, {y}): record {j} (PTR): test {t!r} {' and '.join(why)} "
+                     f"(TEST_FLG 0x{flags:02x}): skipped" for j, t, flags, why in skips]
+            if not rows and skips:
+                raise fail(f"die ({x}, {y}): every test naming an impacter is flagged not "
+                           f"to be used ({notes[0].split(': ', 1)[1]}"
+                           + (f", and {len(skips) - 1} more" if len(skips) > 1 else "")
+                           + ")")
+            if not rows:
                 raise fail(f"die ({x}, {y}): none of its tests names an impacter (test "
                            "names are the impacters' ids, e.g. A1.forward, or give "
                            "--test-map)")
-            dies.append((int(x), int(y), part))
+            if skipped is not None:
+                skipped.extend(notes)
+            dies.append((int(x), int(y), rows))
     # pystdf stops quietly at a record cut short: a file that ends inside a part, or
     # before its Master Results Record, was cut off (a copy or a test run interrupted)
     if open_parts:

@@ -290,8 +290,8 @@ def read_motion(path) -> list:
     ------
     planner.core.errors.SpecError
         ``FILE: row N, column C: ...`` for a missing or unknown column, an empty name,
-        a number that is not finite, a tone <= 10 Hz, or an impacter with fewer than
-        :data:`MIN_TONES` distinct tones.
+        a number that is not finite, a tone <= 10 Hz, one impacter's tone given twice,
+        or an impacter with fewer than :data:`MIN_TONES` distinct tones.
     """
     from planner.lab.csv_files import csv_number, read_csv_rows, row_values
 
@@ -309,6 +309,13 @@ def read_motion(path) -> list:
                                              "these devices: frequency_hz is in Hz (was "
                                              "the sweep written in kHz?)")
         v = csv_number(values["speed_mm_s"], line, "speed_mm_s", fail)
+        # one speed per tone: a tone read twice would make the window depend on the
+        # rows' order (the fit sorts the tones) and count it twice
+        twice = next((n for n, g in lines.get(name, ()) if g == f), None)
+        if twice is not None:
+            raise fail(line, "frequency_hz", f"{name} at {values['frequency_hz']} Hz given "
+                                             f"twice (rows {twice} and {line}): one speed "
+                                             "per tone (average the readings, or drop one)")
         out.append({"impacter": name, "frequency_hz": f, "speed_m_s": v * MM, "line": line})
         lines.setdefault(name, []).append((line, f))
     if not out:
@@ -387,5 +394,18 @@ def read_windows(path, impacter_ids, tones_hz=None) -> dict:
             raise fail(line, "window_lo_hz", f"the window {lo:g}-{hi:g} Hz of {name} is more "
                                              f"than a factor 2 from its tone {tone:.6g} Hz "
                                              "(another unit, or another chip's file?)")
+        if tone is not None:
+            # a window is where its own impacter's tone moves its slider: one whose
+            # middle lies nearer another impacter's tone is that one's row (a name
+            # mistyped or rows swapped), not a chip whose impacters cannot be told apart
+            mid = 0.5 * (lo + hi)
+            other = min((n for n in tones_hz if n != name),
+                        key=lambda n: abs(math.log(mid / tones_hz[n])), default=None)
+            if other is not None and (abs(math.log(mid / tones_hz[other]))
+                                      < abs(math.log(mid / tone))):
+                raise fail(line, "impacter",
+                           f"the window {lo:g}-{hi:g} Hz given for {name} lies nearer "
+                           f"{other}'s tone ({tones_hz[other]:.6g} Hz) than {name}'s "
+                           f"({tone:.6g} Hz): a row of {other}, or a name mistyped?")
         out[name] = (lo, hi)
     return out, flagged

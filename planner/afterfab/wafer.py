@@ -17,6 +17,14 @@ runs on one chip, from its measurement only:
 4. else the die is **scrapped**, with the causes (those of a yield study's re-plan,
    :data:`planner.yield_.REPLAN_CAUSES`, and ``cannot be trimmed``).
 
+A die whose file leaves an impacter out (a row missing, a tester's test skipped) has
+that impacter taken at its design, as ``vibroplan replan`` takes it: the loop runs the
+same, but what it finds holds only if the unmeasured impacters are as designed, so a
+die that would work is counted **partly measured** (:data:`PARTLY_MEASURED`), its
+causes naming the impacters and what the loop found (``works after re-plan if
+A2.backward is at its design``), never *as designed*; a scrapped one stays scrapped, the
+unmeasured impacters among its causes.
+
 The re-plan is exactly the one a yield study makes of the same measurement (the same
 settings, phases and as-built models), so a wafer sampled by ``vibroplan yield`` and
 re-planned here gets the study's re-planned drive die by die; what this batch cannot
@@ -47,11 +55,17 @@ from planner.afterfab.wafer_file import die_name
 #: A die's outcomes, best first (a yield study's ``fails`` is ``scrapped`` here: the
 #: lab's word for a die nothing rescued).
 OUTCOMES = ("as designed", "after re-plan", "after trim", "scrapped")
+#: The outcome of a die that would work but was not measured whole (the module
+#: docstring): counted apart, listed after :data:`OUTCOMES` when a wafer has one.
+PARTLY_MEASURED = "partly measured"
+#: The cause naming a die's unmeasured impacters (followed by their ids).
+NOT_MEASURED = "not measured, taken as designed: "
 #: The summary's columns.
 SUMMARY_COLUMNS = ("die_x", "die_y", "outcome", "causes", "trimmed", "checks_passed",
                    "checks", "folder")
-#: Version of the work folder's contents: a resume reads back only its own kind.
-WORK_FORMAT = 1
+#: Version of the work folder's contents: a resume reads back only its own kind (2: a
+#: die not measured whole is "partly measured", issue 44).
+WORK_FORMAT = 2
 #: The file of a die's work folder written last: its presence says the die finished.
 RESULT_FILE = "result.json"
 
@@ -120,6 +134,25 @@ def replan_die(job: WaferJob, die_x: int, die_y: int, measured: dict) -> dict:
         pairs no drive tells apart, with their messages), and ``files`` (path relative
         to the die's folder -> bytes).
     """
+    out = _replan_measured(job, die_x, die_y, measured)
+    missing = [r.id for r in job.record.impacters if r.id not in measured]
+    if missing:
+        out["not_measured"] = missing
+        named = NOT_MEASURED + " ".join(missing)
+        if out["outcome"] == OUTCOMES[3]:
+            out["causes"] = out["causes"] + [named]
+        else:
+            # what the loop found holds only if the unmeasured impacters are as designed
+            out["causes"] = [named, f"works {out['outcome']} if {' '.join(missing)} "
+                                    + ("are at their design" if len(missing) > 1 else
+                                       "is at its design")]
+            out["outcome"] = PARTLY_MEASURED
+    return out
+
+
+def _replan_measured(job: WaferJob, die_x: int, die_y: int, measured: dict) -> dict:
+    """:func:`replan_die`'s loop on what was measured (the unmeasured impacters at
+    their design)."""
     import numba
 
     from planner.afterfab.checks import check_drive
@@ -370,18 +403,29 @@ def _csv_cell(v) -> str:
 
 
 def counts(results) -> dict:
-    """Outcome -> dies, every outcome listed in order."""
+    """Outcome -> dies, every outcome of :data:`OUTCOMES` listed in order, then
+    :data:`PARTLY_MEASURED` when a die is."""
     outcomes = [r["outcome"] for r in results]
-    return {o: outcomes.count(o) for o in OUTCOMES}
+    out = {o: outcomes.count(o) for o in OUTCOMES}
+    if PARTLY_MEASURED in outcomes:
+        out[PARTLY_MEASURED] = outcomes.count(PARTLY_MEASURED)
+    return out
+
+
+def scrapped_causes(results) -> dict:
+    """Cause -> scrapped dies it is given for, in the order first met."""
+    causes = {}
+    for r in results:
+        if r["outcome"] == OUTCOMES[3]:
+            for k in r["causes"]:
+                causes[k] = causes.get(k, 0) + 1
+    return causes
 
 
 def _report(record, results) -> str:
     n = len(results)
     c = counts(results)
-    causes = {}
-    for r in results:
-        for k in r["causes"]:
-            causes[k] = causes.get(k, 0) + 1
+    causes = scrapped_causes(results)
     lines = [f"# vibroplan replan: a wafer of {record.spec.name}", "",
              f"{n} dies re-planned from their measurement, each by the loop a lab runs on a "
              "chip: the plan's drive checked on the die's as-built models (as designed); "
@@ -392,8 +436,22 @@ def _report(record, results) -> str:
              "drive to play, trim.csv of what to cut; a scrapped die's re-plan in replan/ "
              "saying what fails); one line per die in summary.csv.", "",
              "| outcome | dies | fraction |", "|---|---|---|"]
-    lines += [f"| {o} | {c[o]} | {c[o] / n:.3f} |" for o in OUTCOMES]
+    lines += [f"| {o} | {v} | {v / n:.3f} |" for o, v in c.items()]
     lines += ["", "![wafer map](wafer_map.png)", ""]
+    partial = [r for r in results if r.get("not_measured")]
+    if partial:
+        lines += ["## Dies not measured whole", "",
+                  f"The measurement of {len(partial)} of the {n} dies leaves impacters "
+                  "out: each is taken at its design, so what the loop found holds only "
+                  f"if it is at its design; a die that would work is counted "
+                  f"{PARTLY_MEASURED}, not as designed.  Measure them to know.", "",
+                  "| die (x, y) | not measured | outcome | found |", "|---|---|---|---|"]
+        for r in partial:
+            found = r["causes"][1] if r["outcome"] == PARTLY_MEASURED else "; ".join(
+                k for k in r["causes"] if not k.startswith(NOT_MEASURED))
+            lines.append(f"| ({r['die_x']}, {r['die_y']}) | {' '.join(r['not_measured'])} "
+                         f"| {r['outcome']} | {found} |")
+        lines.append("")
     if causes:
         lines += ["## Why dies are scrapped", "", "| cause | dies |", "|---|---|"]
         lines += [f"| {k} | {v} |" for k, v in sorted(causes.items(), key=lambda kv: -kv[1])]

@@ -29,9 +29,20 @@ from planner.core.errors import SpecError
 #: The die columns in front of measured.csv's in a wafer CSV.
 DIE_COLUMNS = ("die_x", "die_y")
 #: The file name of a die's measured.csv in a ``--measured-dir`` folder.
-DIE_FILE = re.compile(r"^die_(-?\d+)_(-?\d+)\.csv$")
+DIE_FILE = re.compile(r"^die_(-?[0-9]+)_(-?[0-9]+)\.csv$", re.ASCII)
+#: A die index in a wafer CSV: ASCII digits with an optional sign.
+DIE_INDEX = re.compile(r"[+-]?[0-9]+", re.ASCII)
+#: Bytes of a file read to tell a wafer's CSV from one chip's measured.csv (its header).
+SNIFF_BYTES = 64 * 1024
 #: The first bytes of an STDF V4 file: a FAR record (REC_LEN 2, type 0, sub-type 10).
 STDF_MAGIC = (b"\x02\x00\x00\x0a", b"\x00\x02\x00\x0a")
+
+
+def not_measured(dies, impacter_ids) -> list:
+    """``(die_x, die_y, ids)`` of every die whose measurement leaves impacters out
+    (each then taken at its design), in ``dies``' order."""
+    return [(x, y, [n for n in impacter_ids if n not in measured])
+            for x, y, measured in dies if any(n not in measured for n in impacter_ids)]
 
 
 def die_name(x: int, y: int) -> str:
@@ -51,25 +62,37 @@ def is_stdf(path) -> bool:
 def is_wafer_csv(path) -> bool:
     """Whether ``path`` is a CSV whose header has the die columns (a wafer's file, not
     one chip's measured.csv); False for anything it cannot read as such (the chip's
-    reader then says what is wrong)."""
-    from planner.lab.csv_files import read_csv_rows
+    reader then says what is wrong).
+
+    Only the file's first :data:`SNIFF_BYTES` are read: what kind of file it is does not
+    depend on its size (a wafer's file over the input limit is then refused by the
+    wafer's reader, naming the limit, not taken for one chip's)."""
+    import csv
+    import io
 
     try:
-        _, header, _, _ = read_csv_rows(path, (), DIE_COLUMNS + MEASURED_REQUIRED
-                                        + MEASURED_OPTIONAL,
-                                        ignore=lambda c: True)
-    except (SpecError, OSError):
+        with open(path, "rb") as fh:
+            head = fh.read(SNIFF_BYTES)
+    except OSError:
         return False
-    # either die column makes it a wafer's file (whose reader names the other missing)
-    return any(c in header for c in DIE_COLUMNS)
+    if b"\0" in head:
+        return False
+    text = head.decode("utf-8-sig", errors="replace")
+    for row in csv.reader(io.StringIO(text, newline="")):
+        if not row or all(not v.strip() for v in row) or row[0].lstrip().startswith("#"):
+            continue
+        # either die column makes it a wafer's file (whose reader names the other missing)
+        return any(c.strip() in DIE_COLUMNS for c in row)
+    return False
 
 
 def _die_index(text, line, column, fail) -> int:
-    try:
-        return int(text.strip())
-    except ValueError:
+    # int() takes "1_0", " 1 " and other scripts' digits ("\u0661"): a prober's step
+    # index is ASCII digits with an optional sign, nothing else
+    if DIE_INDEX.fullmatch(text.strip()) is None:
         raise fail(line, column, f"{text!r} is not a die index (an integer grid step "
-                                 "of the prober)") from None
+                                 "of the prober: ASCII digits, an optional sign)")
+    return int(text.strip())
 
 
 def read_wafer_csv(path, impacter_ids, design_hz=None) -> list:
@@ -129,18 +152,27 @@ def read_measured_dir(folder, impacter_ids, design_hz=None) -> list:
         found.append((int(m.group(1)), int(m.group(2)), p))
     if not found:
         raise SpecError("no die_<x>_<y>.csv file in the folder", source=str(folder))
+    # die_0_3.csv, die_-0_3.csv and die_00_3.csv name one die: refused before any is read
+    first = {}
+    for x, y, p in found:
+        if (x, y) in first:
+            raise SpecError(f"{first[(x, y)].name} and {p.name} both name die ({x}, {y}): "
+                            "keep one file per die", source=str(folder))
+        first[(x, y)] = p
     found.sort(key=lambda t: (-t[1], t[0]))
     return [(x, y, read_measured(p, impacter_ids, design_hz=design_hz)) for x, y, p in found]
 
 
-def read_wafer_stdf(path, impacter_ids, design_hz=None, test_map=None) -> list:
+def read_wafer_stdf(path, impacter_ids, design_hz=None, test_map=None, *,
+                    notes=None) -> list:
     """A tester's STDF V4 file's dies (:func:`planner.afterfab.stdf.read_stdf`), each
-    die's resonances checked as measured.csv's, every error naming the record."""
+    die's resonances checked as measured.csv's, every error naming the record; the
+    tests skipped for their TEST_FLG are appended to ``notes`` (a list) if given."""
     from planner.afterfab.stdf import read_stdf
 
     source = str(path)
     out = []
-    for x, y, rows in read_stdf(path, impacter_ids, test_map):
+    for x, y, rows in read_stdf(path, impacter_ids, test_map, skipped=notes):
         header = ["impacter", "natural_frequency_hz", "half"]
 
         def fail(record, column, message, _x=x, _y=y):
@@ -153,10 +185,11 @@ def read_wafer_stdf(path, impacter_ids, design_hz=None, test_map=None) -> list:
     return out
 
 
-def read_wafer(path, impacter_ids, design_hz=None, *, test_map=None) -> list:
+def read_wafer(path, impacter_ids, design_hz=None, *, test_map=None, notes=None) -> list:
     """The dies of a wafer's file or folder: an STDF V4 file, a wafer CSV or a folder
     of measured.csv files (:func:`read_wafer_stdf`, :func:`read_wafer_csv`,
-    :func:`read_measured_dir`).
+    :func:`read_measured_dir`); ``notes`` (a list, optional) gets a line per test an
+    STDF file's flags say not to use.
 
     Raises
     ------
@@ -167,7 +200,7 @@ def read_wafer(path, impacter_ids, design_hz=None, *, test_map=None) -> list:
     if path.is_dir():
         dies = read_measured_dir(path, impacter_ids, design_hz)
     elif is_stdf(path):
-        dies = read_wafer_stdf(path, impacter_ids, design_hz, test_map)
+        dies = read_wafer_stdf(path, impacter_ids, design_hz, test_map, notes=notes)
     else:
         dies = read_wafer_csv(path, impacter_ids, design_hz)
     return dies

@@ -269,6 +269,12 @@ class Tolerance(Strict):
         return self.die == 0.0 and self.device == 0.0 and self.pair == 0.0
 
 
+#: Shortest correlation length of the across-wafer field [mm] (10 um, a fraction of any
+#: device): shorter, the field would vary inside a device, and its squared length
+#: underflows (1e-300 mm gives exp(-r^2 / 0) at every die).
+MIN_CORRELATION_LENGTH_MM = 0.01
+
+
 class WaferField(Strict):
     """A smooth line-width field across the wafer (a Gaussian random field).
 
@@ -279,6 +285,16 @@ class WaferField(Strict):
 
     sigma_um: NonNegFloat = 0.0
     correlation_length_mm: PositiveFloat = 30.0
+
+    @field_validator("correlation_length_mm")
+    @classmethod
+    def _a_length_on_the_wafer(cls, v):
+        if v < MIN_CORRELATION_LENGTH_MM:
+            raise ValueError(f"must be at least {MIN_CORRELATION_LENGTH_MM:g} mm, {v:g} was "
+                             "given: a field that decorrelates within a device is no "
+                             "across-wafer field (the die and device levels of "
+                             "line_width_um are that scatter)")
+        return v
 
 
 class WaferSpec(Strict):

@@ -275,7 +275,11 @@ def _with_windows(plan, measured, windows_path):
     from planner.afterfab.tune import read_windows
     from planner.core.errors import SpecError
 
-    tones = {r.id: r.frequency_hz for r in plan.impacters}
+    # each tone where the chip puts it: moved with its measured resonance, as a re-plan
+    # moves it (a window is checked against its own impacter's tone and the others')
+    design = plan.design_natural_frequency_hz
+    tones = {r.id: r.frequency_hz * (measured[r.id].natural_frequency_hz / design[r.id]
+                                     if r.id in measured else 1.0) for r in plan.impacters}
     windows, flagged = read_windows(windows_path, plan.impacter_ids, tones)
     unmeasured = sorted(set(windows) - set(measured))
     if unmeasured:

@@ -9,6 +9,9 @@ import click
 
 from planner.cli._common import check_output_folder, output_folder
 
+#: Warning lines printed at most before a batch (the report lists every die).
+MAX_WARNINGS = 20
+
 
 def replan_wafer_command(plan_path, measured, out_dir, *, trim, jobs, scheduler, test_map,
                          seed, force, quiet):
@@ -19,8 +22,9 @@ def replan_wafer_command(plan_path, measured, out_dir, *, trim, jobs, scheduler,
 
     from planner.runtime.limits import check_jobs, cores
     from planner.afterfab.stdf import read_test_map
-    from planner.afterfab.wafer import counts, replan_wafer, work_folder
-    from planner.afterfab.wafer_file import read_wafer
+    from planner.afterfab.wafer import (PARTLY_MEASURED, counts, replan_wafer,
+                                        scrapped_causes, work_folder)
+    from planner.afterfab.wafer_file import not_measured, read_wafer
     from planner.runtime.engine import check_scheduler
     from planner.planning.plan_file import read_plan
 
@@ -30,8 +34,9 @@ def replan_wafer_command(plan_path, measured, out_dir, *, trim, jobs, scheduler,
     jobs = check_jobs(cores() if jobs is None else jobs)
     plan = read_plan(plan_path)
     mapping = read_test_map(test_map, plan.impacter_ids) if test_map is not None else None
+    notes = []
     dies = read_wafer(measured, plan.impacter_ids, plan.design_natural_frequency_hz,
-                      test_map=mapping)
+                      test_map=mapping, notes=notes)
     measured = Path(measured)
     files = (sorted(p for p in measured.iterdir() if p.suffix.lower() == ".csv")
              if measured.is_dir() else [measured])
@@ -40,6 +45,17 @@ def replan_wafer_command(plan_path, measured, out_dir, *, trim, jobs, scheduler,
     if scheduler:
         check_scheduler(scheduler)
     work = work_folder(out_dir)
+    # said before any work, and whatever --quiet: the outcome of such a die rests on
+    # a design value, not on the die
+    warnings = [f"warning: {n}" for n in notes] + [
+        f"warning: die ({x}, {y}): not measured, taken as designed: {' '.join(ids)} "
+        f"(counted {PARTLY_MEASURED} if it works)"
+        for x, y, ids in not_measured(dies, plan.impacter_ids)]
+    for line in warnings[:MAX_WARNINGS]:
+        click.echo(line, err=True)
+    if len(warnings) > MAX_WARNINGS:
+        click.echo(f"warning: and {len(warnings) - MAX_WARNINGS} more such lines (every "
+                   f"die's in {out_dir}/report.md)", err=True)
 
     def progress(done, total, resumed):
         if quiet:
@@ -69,11 +85,12 @@ def replan_wafer_command(plan_path, measured, out_dir, *, trim, jobs, scheduler,
     click.echo(f"{plan.spec.name}: {len(results)} dies: " + ", ".join(
         f"{k} {v}" for k, v in c.items()) + f"; wrote {out_dir}/ (see {out_dir}/report.md, "
         f"{out_dir}/summary.csv)")
+    if c.get(PARTLY_MEASURED):
+        click.echo(f"{PARTLY_MEASURED}: {c[PARTLY_MEASURED]} dies work only if their "
+                   "unmeasured impacters are as designed (see the warnings above)",
+                   err=True)
     if c["scrapped"]:
-        causes = {}
-        for r in results:
-            for k in r["causes"]:
-                causes[k] = causes.get(k, 0) + 1
+        causes = scrapped_causes(results)
         click.echo("scrapped: " + ", ".join(f"{k} ({v} dies)" for k, v in causes.items()),
                    err=True)
         sys.exit(1)

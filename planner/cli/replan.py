@@ -97,7 +97,8 @@ def command(plan_path, measured_path, windows_path, measured_dir, trim, jobs, sc
     or --measured-dir) is re-planned die by die on Dask (--jobs, --scheduler), with
     --trim trimming the dies no drive can tell apart; OUT/ then holds dies/die_<x>_<y>/
     (each die's drive files, trim.csv), summary.csv (one line per die: as designed,
-    after re-plan, after trim or scrapped, with the causes), report.md and
+    after re-plan, after trim, scrapped, or partly measured when its file leaves an
+    impacter out, with the causes), report.md and
     wafer_map.png; exit 1 when a die is scrapped.  Each die is kept as it finishes in
     .OUT.dies/ beside OUT: run the same command again after an interruption and the
     finished dies are read back, not redone.
@@ -110,6 +111,11 @@ def command(plan_path, measured_path, windows_path, measured_dir, trim, jobs, sc
     if (measured_path is None) == (measured_dir is None):
         raise click.UsageError("give the measurement: --measured FILE (a chip's "
                                "measured.csv or a wafer's file) or --measured-dir DIR")
+    if test_map is not None and (measured_path is None or not _is_stdf(measured_path)):
+        raise click.UsageError("--test-map needs --measured with a tester's STDF file (it "
+                               "names that file's tests); "
+                               + (f"--measured {measured_path} is not one" if measured_path
+                                  else "--measured-dir holds CSV files"))
     if measured_dir is not None or _is_wafer(measured_path):
         from planner.cli._wafer import replan_wafer_command
 
@@ -161,6 +167,16 @@ def command(plan_path, measured_path, windows_path, measured_dir, trim, jobs, sc
                f"(see {out_dir}/report.md)")
     if not result.passed:
         sys.exit(1)
+
+
+def _is_stdf(path) -> bool:
+    """Whether ``path`` is a regular file that begins as an STDF V4 file."""
+    from planner.afterfab.wafer_file import is_stdf
+
+    try:
+        return Path(path).is_file() and is_stdf(path)
+    except OSError:
+        return False
 
 
 def _is_wafer(path) -> bool:

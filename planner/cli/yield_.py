@@ -134,6 +134,11 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
     if tune and not replan:
         raise click.UsageError("--tune needs --replan (the sweep is around the re-planned "
                                "tones)")
+    ctx = click.get_current_context()
+    for flag, name in (("--tune-tones", "tune_tones"), ("--tune-noise", "tune_noise")):
+        # their defaults show in --help; given without --tune they would be ignored
+        if not tune and ctx.get_parameter_source(name) is not click.core.ParameterSource.DEFAULT:
+            raise click.UsageError(f"{flag} needs --tune (it sets the tuning sweep)")
     if not 3 <= tune_tones <= 50:
         raise click.BadParameter(f"must be 3-50 tones per impacter, {tune_tones} was given",
                                  param_hint="'--tune-tones'")
@@ -188,6 +193,10 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
     for s, v in result.get("by_sigma_scale", {}).items():
         click.echo(f"  scale {s}: yield {v['yield']:.3f} [{v['ci95'][0]:.3f}, {v['ci95'][1]:.3f}]"
                    + (f", re-planned {v['replan']['yield']:.3f}" if "replan" in v else ""))
+    if "wafer" in result and len(result.get("by_sigma_scale", {})) > 1:
+        click.echo(f"the wafer map, its files and yield.json's wafer block are the dies of "
+                   f"sigma scale {scale_key(result['wafer']['sigma_scale'])}; every scale's "
+                   "outcomes are in by_sigma_scale (wafer_outcomes)")
     if result["failures"]:
         click.echo("failing checks: " + ", ".join(f"{k} ({v} chips)"
                                                  for k, v in result["failures"].items()))

@@ -118,13 +118,26 @@ def wafer_layout(array, wafer) -> WaferLayout:
     49
     """
     w, h = die_size(array, wafer)
-    if wafer.die_size_mm is not None and (w < (array.cols - 1) * array.pitch_um * UM
-                                          or h < (array.rows - 1) * array.pitch_um * UM):
+    # the array takes cols x pitch by rows x pitch (each device a pitch square, the
+    # default die): a smaller die cannot hold it
+    need_w, need_h = array.cols * array.pitch_um * UM, array.rows * array.pitch_um * UM
+    if wafer.die_size_mm is not None and (w < need_w * (1 - 1e-12)
+                                          or h < need_h * (1 - 1e-12)):
         raise ValueError(f"fabrication.wafer.die_size_mm: {list(wafer.die_size_mm)} mm cannot "
                          f"hold the {array.rows} x {array.cols} array at a pitch of "
-                         f"{array.pitch_um:g} um")
+                         f"{array.pitch_um:g} um ({need_w / MM:g} x {need_h / MM:g} mm)")
     radius = 0.5 * wafer.diameter_mm * MM
     usable = radius - wafer.edge_exclusion_mm * MM
+    # counted before the grid is built: a die whose centre lies within usable - its
+    # diagonal has its corners inside, so at least pi (usable - diagonal)^2 / (w h) dies
+    # are made (a 1e6 mm wafer would otherwise build a grid of 1e11 candidates)
+    inner = usable - math.hypot(w, h)
+    at_least = math.pi * inner * inner / (w * h) if inner > 0 else 0.0
+    if at_least > MAX_DIES:
+        raise ValueError(f"fabrication.wafer.diameter_mm: {wafer.diameter_mm:g} mm holds more "
+                         f"than {at_least:.3g} dies of {w / MM:g} x {h / MM:g} mm, at most "
+                         f"{MAX_DIES} are supported (the across-wafer field's covariance "
+                         "is dies x dies)")
     nx, ny = int(math.ceil(usable / w)) + 1, int(math.ceil(usable / h)) + 1
     ix, iy = np.meshgrid(np.arange(-nx, nx + 1), np.arange(-ny, ny + 1))
     ix, iy = ix.ravel(), iy.ravel()

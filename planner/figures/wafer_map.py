@@ -12,9 +12,12 @@ from __future__ import annotations
 from pathlib import Path
 
 #: Colour of each outcome: green works as designed, blue after a re-plan, orange after
-#: a trim, red fails (``scrapped`` in a batch re-plan).
+#: a trim, red fails (``scrapped`` in a batch re-plan), grey partly measured (a batch's
+#: die with an impacter not measured: not known to work).
 COLOURS = {"as designed": "#2ca02c", "after re-plan": "#1f77b4", "after trim": "#ff7f0e",
-           "fails": "#d62728", "scrapped": "#d62728"}
+           "fails": "#d62728", "scrapped": "#d62728", "partly measured": "#7f7f7f"}
+#: The outcomes of a die known to work.
+WORKING = ("as designed", "after re-plan", "after trim")
 #: Wafers drawn side by side at most (a study of more wafers maps its first ones).
 MAX_MAP_WAFERS = 4
 #: Dots per inch of the figures.
@@ -80,7 +83,7 @@ def plot_wafer_map(dies, die_size_mm, path, *, diameter_mm=None, edge_exclusion_
         ax.set_aspect("equal")
         ax.set_xlabel("x [mm]")
         ax.set_ylabel("y [mm]")
-        works = sum(1 for d in mine if COLOURS.get(d["outcome"]) != COLOURS["fails"])
+        works = sum(1 for d in mine if d["outcome"] in WORKING)
         ax.set_title((f"wafer {wi + 1}: " if len(wafers) > 1 or "wafer" in mine[0] else "")
                      + f"{works} of {len(mine)} dies work")
     seen = [o for o in COLOURS if any(d["outcome"] == o for d in dies)]

@@ -17,6 +17,10 @@ from planner.arrayspec import FabricationSpec, LoadedSpec
 #: (a few hundred bytes, a few KB with --replan) and, on Dask, the scheduler's and the
 #: client's bookkeeping of its task (~10 KB); an upper estimate.
 CHIP_BYTES = 16 * 1024
+#: Standard deviations of a measurement's noise a study's readings must stay sound at
+#: (:func:`check_measure_noise`): with a thousand chips of 25 impacters, a reading
+#: beyond 5 sigma comes once in ~20 studies.
+NOISE_SIGMAS = 5.0
 
 
 @dataclass(frozen=True)
@@ -81,6 +85,39 @@ def check_noise(pct, option: str = "--measure-noise") -> float:
     return x
 
 
+def check_measure_noise(pct: float, drive, option: str = "--measure-noise") -> float:
+    """``pct`` (a measurement's noise [%], :func:`check_noise`) if a reading
+    :data:`NOISE_SIGMAS` sigma high stays a measurement of the chip: within the factor
+    :data:`~planner.afterfab.measurement.MAX_MEASURED_FACTOR` of the resonance that a
+    lab's measured.csv may give, and a tone moved with it from the top of the band
+    below the Nyquist frequency of the drive's sample rate (``drive``: the spec's
+    drive section), where no waveform can play it.
+
+    Raises
+    ------
+    ValueError
+        Naming ``option``, the bound and the limit that sets it; before any work.
+    """
+    from planner.afterfab.measurement import MAX_MEASURED_FACTOR
+
+    x = check_noise(pct, option)
+    nyquist = 0.5 * float(drive.sample_rate_hz)
+    top = float(drive.band_hz[1])
+    by_factor = 100.0 * (MAX_MEASURED_FACTOR - 1.0) / NOISE_SIGMAS
+    by_nyquist = 100.0 * (nyquist / top - 1.0) / NOISE_SIGMAS
+    if x > min(by_factor, by_nyquist):
+        if by_nyquist < by_factor:
+            why = (f"a reading {NOISE_SIGMAS:g} sigma high moves a tone at the band's top "
+                   f"{top:g} Hz past the Nyquist frequency {nyquist:g} Hz of "
+                   f"drive.sample_rate_hz {float(drive.sample_rate_hz):g}")
+        else:
+            why = (f"a reading {NOISE_SIGMAS:g} sigma high is {MAX_MEASURED_FACTOR:g} x the "
+                   "resonance, the most a lab's measured.csv may be off its design")
+        raise ValueError(f"{option}: {x:g} % is beyond what a lab measures: at most "
+                         f"{min(by_factor, by_nyquist):.3g} % ({why})")
+    return x
+
+
 def make_payload(record: PlanRecord, seed: int, fabrication: FabricationSpec | None = None, *,
                  replan: bool = False, measure_noise_pct: float = 0.0,
                  allow_zero: bool = False, trim: bool = False,
@@ -102,7 +139,7 @@ def make_payload(record: PlanRecord, seed: int, fabrication: FabricationSpec | N
     ValueError
         A zero tolerance model without ``allow_zero``; noise without ``replan``.
     """
-    noise = check_noise(measure_noise_pct)
+    noise = check_measure_noise(measure_noise_pct, record.spec.drive)
     if noise and not replan:
         raise ValueError("--measure-noise needs --replan (only a re-plan measures the chip)")
     if trim and not replan:

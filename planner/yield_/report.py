@@ -274,7 +274,9 @@ def _wafer_figures(data: dict, spec: ArraySpec, folder: Path) -> list[str]:
     w = data["wafer"]
     plot_wafer_map(w["dies"], w["die_size_mm"], folder / "wafer_map.png",
                    diameter_mm=w["diameter_mm"], edge_exclusion_mm=w["edge_exclusion_mm"],
-                   title=f"{spec.name}: {data['chips']} dies, seed {data['seed']}")
+                   title=f"{spec.name}: {data['chips']} dies, seed {data['seed']}"
+                   + (f", sigma scale {w['sigma_scale']:g}"
+                      if len(data.get("by_sigma_scale", {})) > 1 else ""))
     plot_yield_by_radius(w["by_radius"], folder / "yield_radius.png",
                          title=f"{spec.name}: yield against the die's radius")
     return ["wafer_map.png", "yield_radius.png"]
@@ -297,6 +299,17 @@ def _wafer_lines(data: dict, figures: bool) -> list[str]:
              "does (after trim, with --trim); else it fails, numbered on the map by its "
              "first cause.  The dies as a prober measures them: wafer_<k>.csv and "
              "wafer_<k>.stdf (`vibroplan replan PLAN --measured wafer_1.csv`).", ""]
+    by_scale = data.get("by_sigma_scale", {})
+    if len(by_scale) > 1:
+        # the map and the tables below are one scale's dies: say which, and count all
+        lines += [f"The map, the table below and the yield against the radius are the "
+                  f"dies of sigma scale {w['sigma_scale']:g} (the headline's); every "
+                  "scale's outcomes:", "",
+                  "| sigma scale | " + " | ".join(OUTCOMES) + " |",
+                  "|---|" + "---|" * len(OUTCOMES)]
+        lines += [f"| {k} | " + " | ".join(str(v["wafer_outcomes"][o]) for o in OUTCOMES)
+                  + " |" for k, v in by_scale.items()]
+        lines.append("")
     lines += ["| outcome | dies | fraction |", "|---|---|---|"]
     lines += [f"| {o} | {w['outcomes'][o]} | {w['outcomes'][o] / data['chips']:.3f} |"
               for o in OUTCOMES]

@@ -195,9 +195,15 @@ def yield_record(payload, chips: int, scales: list[float], nominal: ChipResult,
             if payload.trim:
                 entry["trim"] = {k: out_scale[j][0]["trim"][k]
                                  for k in ("yield", "ci95", "passed", "rescued", "causes")}
+            if payload.fabrication.wafer is not None:
+                # every scale's dies counted; the wafer block maps the headline's
+                from planner.yield_.dies import chip_outcome, outcome_counts
+
+                entry["wafer_outcomes"] = outcome_counts(chip_outcome(r)[0]
+                                                         for r in out_scale[j][1])
             data["by_sigma_scale"][scale_key(s)] = entry
     if payload.fabrication.wafer is not None:
         from planner.yield_.dies import wafer_record
 
-        data["wafer"] = wafer_record(payload, mine)
+        data["wafer"] = {**wafer_record(payload, mine), "sigma_scale": scales[main]}
     return data

@@ -505,8 +505,10 @@ def test_a_test_map_names_the_testers_tests(tiny_plan_dir, tmp_path):
 
 
 @pytest.mark.parametrize("damage, needle", [
-    (lambda b: b[:-9], "without its MRR: truncated?"),
-    (lambda b: b[:70], "ends inside a part"),
+    (lambda b: b[:-9], "the file is cut short: record 9"),
+    (lambda b: b[:-11], "without its MRR: truncated?"),
+    (lambda b: b[:70], "cut short inside record 5 (PTR)"),
+    (lambda b: b[:57], "ends inside a part"),
     (lambda b: b.replace(b"\x02Hz", b"\x02kV"), "UNITS 'kV'"),
     (lambda b: b"\x02\x00\x00\x0a\x02\x03" + b[6:], "not an STDF V4 file"),
 ])
