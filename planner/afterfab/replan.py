@@ -43,6 +43,7 @@ import pandas as pd
 import model
 from model import Drive
 from planner.assignment.assign import Assignment, conflict_graph, guard_violations
+from planner.core.markdown import Section, fmt, md_table
 from planner.core.nodes import device_key, node_key
 from planner.planning.plan_file import PlanRecord, drives
 from planner.planning.record import build_record
@@ -408,30 +409,25 @@ def replan_chip(plan: PlanRecord, measured: dict, seed=None, *, settings=None, o
 
 # --------------------------------------------------------------------------- outputs
 
-def write_replan_outputs(result: Plan, out_dir, *, figures=True):
+def write_replan_outputs(result: Plan, out_dir, *, figures=True, sections=(), timings=True):
     """Write the re-plan as :func:`planner.planning.outputs.write_outputs` does (plan.json
-    with ``as_built`` and ``replan``, CSVs, waveforms, figures) and put the re-plan
-    section at the top of report.md."""
+    with ``as_built`` and ``replan``, CSVs, waveforms, figures); report.md holds the
+    re-plan's section (:func:`replan_section`) before the frequency assignment, and
+    ``sections`` (a trim's) where the plan's report places them.  ``timings=False``
+    leaves the timings out of report.md (a wafer's die: its outputs depend on its inputs
+    only)."""
     from planner.planning.outputs import write_outputs
 
-    out_dir = Path(out_dir)
-    write_outputs(result, out_dir, figures=figures)
-    report = out_dir / "report.md"
-    text = report.read_text()
-    text = text.replace("# vibroplan plan:", "# vibroplan replan:", 1)
-    head, sep, tail = text.partition("## Frequency assignment")
-    report.write_text(head + "\n".join(replan_report_lines(result.data)) + "\n\n" + sep + tail)
+    write_outputs(result, Path(out_dir), figures=figures, timings=timings,
+                  sections=[replan_section(result.data), *sections])
 
 
-def replan_report_lines(data) -> list:
+def replan_section(data) -> Section:
     """The report's re-plan section: as-built against design, tones moved, the original
     drive on this chip, impacters that can no longer be told apart."""
-    from planner.planning.report import fmt, md_table
-
     rp = data["replan"]
     od = rp["original_drive"]
-    lines = ["## As-built re-plan", "",
-             "Every impacter's as-built model is rebuilt through eqs. (2)-(4) from the "
+    lines = ["Every impacter's as-built model is rebuilt through eqs. (2)-(4) from the "
              "fabrication errors its measured resonance implies under the spec's tolerances "
              "(the die's share common to all, the rest its own): mass, stiffness, damping, "
              "gap and the sliders move together, and each model's resonance is the measured "
@@ -480,4 +476,4 @@ def replan_report_lines(data) -> list:
     if rp["inseparable"]:
         lines += ["### Impacters no drive can tell apart (the re-plan fails)", ""]
         lines += [f"- {c['message']}" for c in rp["inseparable"]] + [""]
-    return lines
+    return Section("As-built re-plan", lines)

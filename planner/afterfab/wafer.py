@@ -97,17 +97,6 @@ def _files_of(folder: Path) -> dict:
             for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-def _report_without_timings(folder: Path) -> None:
-    """A die's report.md without its wall times (they differ run to run; a batch's
-    outputs depend on its inputs only)."""
-    report = folder / "report.md"
-    if report.exists():
-        text = report.read_text()
-        head, sep, _ = text.partition("\n## Timings\n")
-        if sep:
-            report.write_text(head.rstrip("\n") + "\n")
-
-
 def _failure_causes(plan_result) -> list:
     """The causes of a die's failed re-plan (a yield study's words)."""
     rp = plan_result.data["replan"]
@@ -190,8 +179,7 @@ def _replan_measured(job: WaferJob, die_x: int, die_y: int, measured: dict) -> d
         out.update(checks=len(ver), checks_passed=int(ver["passed"].sum()),
                    inseparable=[c["message"] for c in result.data["replan"]["inseparable"]])
         if result.passed:
-            write_replan_outputs(result, folder, figures=False)
-            _report_without_timings(folder)
+            write_replan_outputs(result, folder, figures=False, timings=False)
             out["outcome"] = OUTCOMES[1]
             return _with_files(out, folder)
         causes = _failure_causes(result)
@@ -203,15 +191,13 @@ def _replan_measured(job: WaferJob, die_x: int, die_y: int, measured: dict) -> d
                 # a trim is chosen from every impacter's measured resonance
                 out.update(outcome=OUTCOMES[3], causes=causes + [
                     "cannot be trimmed: not measured: " + " ".join(missing)])
-                write_replan_outputs(result, folder / "replan", figures=False)
-                _report_without_timings(folder / "replan")
+                write_replan_outputs(result, folder / "replan", figures=False, timings=False)
                 return _with_files(out, folder)
             res = trim_chip(record, measured)
             write_trim_csv(res.rows, folder / "trim.csv")
             out["trimmed"] = list(res.trims.moved)
             if res.plan is not None:
-                write_replan_outputs(res.plan, folder / "trimmed", figures=False)
-                _report_without_timings(folder / "trimmed")
+                write_replan_outputs(res.plan, folder / "trimmed", figures=False, timings=False)
                 tv = res.plan.verification
                 out.update(checks=len(tv), checks_passed=int(tv["passed"].sum()))
             if res.passed:
@@ -220,8 +206,7 @@ def _replan_measured(job: WaferJob, die_x: int, die_y: int, measured: dict) -> d
             causes = (["cannot be trimmed"] if not res.trims.ok else
                       _failure_causes(res.plan) or ["fails on the trimmed models"])
         # the re-plan as it stands says what fails (plan.json, report.md)
-        write_replan_outputs(result, folder / "replan", figures=False)
-        _report_without_timings(folder / "replan")
+        write_replan_outputs(result, folder / "replan", figures=False, timings=False)
         out.update(outcome=OUTCOMES[3], causes=causes)
         return _with_files(out, folder)
 

@@ -53,6 +53,7 @@ def command(plan_path, measured_path, out_dir, seed, force, no_figures, quiet):
 
     {EXIT}
     """
+    from planner.core.markdown import Report
     from planner.files import output_folder
     from planner.afterfab.replan import write_replan_outputs
     from planner.afterfab.trim import trim_chip
@@ -64,9 +65,12 @@ def command(plan_path, measured_path, out_dir, seed, force, no_figures, quiet):
     with output_folder(out_dir, command="trim", inputs=inputs, force=force) as tmp:
         res = trim_chip(plan, measured, seed=seed, progress=progress)
         if res.plan is not None:
-            write_replan_outputs(res.plan, tmp, figures=not no_figures)
+            write_replan_outputs(res.plan, tmp, figures=not no_figures,
+                                 sections=[_trim_section(res)])
+        else:
+            Report(f"vibroplan trim: {plan.spec.name}", [],
+                   [_trim_section(res)]).write(tmp / "report.md")
         write_trim_csv(res.rows, tmp / "trim.csv")
-        _report(tmp / "report.md", res)
     tp = res.trims
     click.echo(f"{plan.spec.name}: {len(tp.moved)} of {len(tp.target)} impacters to trim "
                f"{res.spec.direction} (range {res.spec.range_pct:g} %, precision "
@@ -84,14 +88,6 @@ def command(plan_path, measured_path, out_dir, seed, force, no_figures, quiet):
     click.echo(f"wrote {out_dir}/trim.csv (see {out_dir}/report.md)")
     if not res.passed:
         sys.exit(1)
-
-
-def _report(path, res):
-    """report.md: the trim section first (and the re-plan's report after it, if any)."""
-    # written above the re-plan's report.md until write_replan_outputs takes sections
-    # (then: write_replan_outputs(res.plan, tmp, sections=[_trim_section(res)]))
-    old = path.read_text() if path.exists() else ""
-    path.write_text("\n".join(_trim_section(res).render()) + "\n" + old)
 
 
 def _trim_section(res):
@@ -113,7 +109,7 @@ def _trim_section(res):
         lines += [f"| {r['impacter']} | {r['measured_hz']:.1f} | {r['target_hz']:.1f} | "
                   f"{r['change_pct']:+.3f} | {r['cut_area_um2']:.1f} | "
                   f"{r['cut_length_um']:.2f} |" for r in moved]
-    else:
+    elif not tp.failures:
         lines.append("No impacter needs a trim: every pair is separable as measured.")
     lines.append("")
     if res.plan is not None:

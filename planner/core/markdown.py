@@ -134,11 +134,12 @@ class Report:
         self.sections.insert(k, section)
 
     def text(self) -> str:
-        """The whole report as markdown text, ending in a newline."""
+        """The whole report as markdown text, ending in one newline (a last section's
+        closing blank lines are not written)."""
         lines = [*self.preamble, "# " + self.title, "", *self.head]
         for s in self.sections:
             lines += s.render()
-        return "\n".join(lines) + "\n"
+        return "\n".join(lines).rstrip("\n") + "\n"
 
     def write(self, path: Path) -> None:
         """Write :meth:`text` to ``path`` (UTF-8)."""

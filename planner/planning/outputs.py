@@ -22,12 +22,13 @@ RESPONSE_PEAK_SPAN = 0.04
 RESPONSE_X0_POINTS = 5
 
 
-def write_outputs(result: Plan, out_dir: Path, *, figures=True, sections=()) -> float:
+def write_outputs(result: Plan, out_dir: Path, *, figures=True, sections=(), timings=True) -> float:
     """Write plan.json, CSVs, waveforms, figures and report.md into ``out_dir``.
 
     ``sections``: :class:`planner.core.markdown.Section` s a later command adds to report.md
     (a re-plan's, a trim's), each where :data:`planner.planning.report.SECTIONS` puts its
-    title.
+    title.  ``timings=False`` leaves report.md's timings out (outputs that must depend on
+    their inputs only).
 
     Returns
     -------
@@ -65,7 +66,8 @@ def write_outputs(result: Plan, out_dir: Path, *, figures=True, sections=()) -> 
     if figures:
         _figures(result, out_dir)
     seconds = time.perf_counter() - t0
-    write_report(result, out_dir, {**result.timings, "outputs": seconds}, sections)
+    write_report(result, out_dir, {**result.timings, "outputs": seconds} if timings else None,
+                 sections)
     return seconds
 
 

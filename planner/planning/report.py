@@ -6,7 +6,7 @@ in the order of :data:`SECTIONS`; a later command's section (a re-plan's, a trim
 is handed over as a :class:`~planner.core.markdown.Section` and takes its place there by its
 title (:func:`write_report`'s ``sections``).  :func:`md_table` and :func:`fmt` (from
 :mod:`planner.core.markdown`) also serve the re-plan's section
-(:func:`planner.afterfab.replan.replan_report_lines`).
+(:func:`planner.afterfab.replan.replan_section`).
 """
 
 from __future__ import annotations
@@ -92,8 +92,8 @@ def plan_report(result, out_dir, timings, sections=()) -> Report:
         ``out_dir/figures``.
     out_dir : Path
         Where its files are.
-    timings : dict
-        Stage -> seconds, for the last table.
+    timings : dict or None
+        Stage -> seconds, for the last table; None leaves the section out.
     sections : iterable of planner.core.markdown.Section
         A later command's sections (a re-plan's, a trim's), each placed by its title's
         place in :data:`SECTIONS`.
@@ -110,7 +110,7 @@ def plan_report(result, out_dir, timings, sections=()) -> Report:
              _alone_section(d["steps"], summary)]
     if d["scenes"]:
         parts += [_positions_section(d, ver), _scene_section(d["scenes"])]
-    parts += [_failures_section(ver), _timings_section(timings)]
+    parts += [_failures_section(ver), None if timings is None else _timings_section(timings)]
     report = Report(_title(d), _head(result), [p for p in parts if p is not None])
     for section in sections:
         place(report, section)

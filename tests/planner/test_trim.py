@@ -172,7 +172,13 @@ def test_trim_cli_moves_a_colliding_impacter_and_verifies_on_the_trimmed_models(
     assert d["trim"]["trimmed_models"]["passed"] is True
     assert d["verification"]["passed"] is True
     assert d["trim"]["moved"][0]["trimmed_hz"] != target        # the precision error
-    assert "## Trim" in (out / "report.md").read_text()
+    # report.md is one report: the re-plan's title, then the trim's section first, the
+    # re-plan's before the frequency assignment, the timings last (issue 44: no splicing)
+    report = (out / "report.md").read_text()
+    assert report.startswith("# vibroplan replan: close\n")
+    heads = [x[3:] for x in report.splitlines() if x.startswith("## ")]
+    assert heads[:4] == ["Trim", "As-built re-plan", "Frequency assignment", "Designs"]
+    assert heads[-1] == "Timings" and report.endswith("|\n")
 
 
 def test_trim_cli_names_a_chip_no_trim_in_range_can_fix(close_plan_dir, tmp_path):
@@ -216,7 +222,11 @@ def test_trim_cli_names_a_chip_no_trim_in_range_can_fix(close_plan_dir, tmp_path
     assert hi.id in line or lo.id in line
     needed = float(re.search(r"needs a ([+-][0-9.]+) % move", line).group(1))
     assert abs(needed) > 1.0
-    assert "cannot be trimmed" in (out / "report.md").read_text()
+    # the report is titled, says what cannot be trimmed, and does not say that no
+    # impacter needs a trim (it did, under the failure)
+    report = (out / "report.md").read_text()
+    assert report.startswith("# vibroplan trim: close\n\n## Trim\n")
+    assert "cannot be trimmed" in report and "No impacter needs a trim" not in report
 
 
 def test_remeasured_replaces_only_the_trimmed_rows_by_simulation(close_plan_dir):

@@ -310,7 +310,11 @@ def test_a_batch_replan_gives_each_die_the_yields_replan(wafer_yield, wafer_batc
             rec = read_plan(folder / "plan.json")
             assert rec.replanned
             assert any((folder / "waveforms").glob("*.wav"))
-            assert "## Timings" not in (folder / "report.md").read_text()
+            text = (folder / "report.md").read_text()
+            heads = [x[3:] for x in text.splitlines() if x.startswith("## ")]
+            assert "Timings" not in heads and heads[:2] == ["As-built re-plan",
+                                                            "Frequency assignment"]
+            assert text.startswith("# vibroplan replan: ") and not text.endswith("\n\n")
     report = (wafer_batch / "report.md").read_text()
     assert "| as designed |" in report and "wafer_map.png" in report
     assert (wafer_batch / "wafer_map.png").read_bytes()[:4] == b"\x89PNG"
