@@ -154,6 +154,14 @@ def _design_round(settings, steps, assignment, clock, tick, design_cache, draws=
     synthesized = clock.timed("drive", synthesize_steps, settings, steps, assignment,
                               draws=draws)
     waveforms, drive_notes = clock.timed("drive", limit_acceleration, settings, synthesized)
+    if settings.chain is not None:
+        # the amplifier input's volts: a tone the chain cannot deliver is refused, a
+        # step over the limit lowered (the designs below are made for it as lowered)
+        from planner.planning.chain import limit_input
+
+        waveforms, input_notes = clock.timed("drive", limit_input, settings, waveforms,
+                                             steps, assignment.frequencies)
+        drive_notes = {k: {**v, **input_notes[k]} for k, v in drive_notes.items()}
     tick("design", total=len(assignment.frequencies))
     designs = clock.timed("design", design_all, settings, steps, assignment, design_cache,
                           progress=lambda n: tick("design", n), waveforms=waveforms,
@@ -177,6 +185,10 @@ def _design_round(settings, steps, assignment, clock, tick, design_cache, draws=
                 "targets", place_targets, settings, run_steps, {**waveforms, **targeted},
                 assignment.frequencies, impacters, sliders,
                 progress=lambda k: tick("targets", k))
+            if settings.chain is not None:
+                from planner.planning.chain import check_bursts
+
+                check_bursts(settings, played)
         tick("verify", total=len(steps))
         ts = time.perf_counter()
         ver_rows, failures = [], []
@@ -399,6 +411,11 @@ def _finish(settings, kept: _Round, rounds, clock, scheduler, design_cache,
     data, impacter_recs, device_recs, step_recs = build_record(
         settings, run_steps, assignment, designs, kept.sliders, kept.played, ver_rows,
         passed, rounds, scene_rows, motion, manufacturability)
+    if settings.chain is not None:
+        from planner.planning.chain import chain_record
+        from planner.planning.record import round_floats
+
+        data["chain"] = round_floats(chain_record(settings, kept.played, kept.drive_notes))
     clock.timings["total"] = time.perf_counter() - clock.t0
     return Plan(
         impacters=pd.DataFrame(impacter_recs), devices=pd.DataFrame(device_recs),
