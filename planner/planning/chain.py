@@ -251,3 +251,36 @@ def chain_figure(settings: Settings, played, path, title=""):
         ax_t.set_title(f"step {key}: {len(w.frequencies)} tones", fontsize=9)
         ax_t.legend(fontsize=8, loc="upper right")
     fig.savefig(path, dpi=110)
+
+
+def chain_section(block):
+    """report.md's "Drive chain" section of plan.json's ``chain`` block."""
+    from planner.markdown import Section, md_table
+
+    tr = block["transfer"]
+    if tr["kind"] == "table":
+        what = (f"the measured table {tr['file'] or ''} ({tr['points']} points, "
+                f"{tr['band_hz'][0]:g}-{tr['band_hz'][1]:g} Hz)")
+    else:
+        res = ", ".join(f"{r['frequency_hz']:g} Hz (Q {r['q']:g})" for r in tr["resonances"])
+        what = (f"a flat {tr['gain_m_per_v'] / UM:g} um/V"
+                + (f" with resonances at {res}" if res else "")
+                + (f", low-pass {tr['low_pass_hz']:g} Hz" if tr["low_pass_hz"] else ""))
+    lim = block["input_limit_v"]
+    lines = [f"Every waveform file is the **amplifier input in volts** (sidecar "
+             f"`signal: amplifier_input_v`): each tone divided by the chain's transfer, "
+             f"{what}, so that the die feels the designed tones (figure: "
+             f"[drive_chain.png](figures/drive_chain.png)). Input limit: "
+             + (f"{lim:.4g} V." if lim is not None else "none given."), ""]
+    rows = []
+    for key, st in block["steps"].items():
+        gains = [t["gain_m_per_v"] / UM for t in st["tones"]]
+        rows.append([key, len(st["tones"]), f"{min(gains):.3g}-{max(gains):.3g}",
+                     f"{st['input_peak_v']:.4g}", f"{st['input_scale']:.4g}"])
+    lines += md_table(["step", "tones", "transfer at its tones [um/V]", "input peak [V]",
+                       "lowered for the input limit"], rows)
+    lines.append("")
+    lines.append("Not verified through the chain: the distortion (drive.chain.harmonics_db) "
+                 "is recorded, and the steps are verified with the designed die drive; "
+                 "the harmonic and intermodulation products are the guard rules' warnings.")
+    return Section("Drive chain", lines)
