@@ -241,7 +241,7 @@ def test_calibrate_chain_round_trip(tmp_path):
 def test_calibrate_chain_bad_row_exit_2_nothing_written(tmp_path):
     sweep = tmp_path / "sweep.csv"
     sweep.write_text("frequency_hz,input_v,displacement_um,phase_deg\n1000,1,1,0\n"
-                     "2000,1,x,0\n3000,1,1,0\n4000,1,1,0\n")
+                     "2000,1,-1,0\n3000,1,1,0\n4000,1,1,0\n")
     out = tmp_path / "chain.yaml"
     result = CliRunner().invoke(main, ["calibrate", "--chain", str(sweep), "--out", str(out)])
     assert result.exit_code == 2, result.output
