@@ -12,14 +12,22 @@ generator's and amplifier's volts at the input (here), ``drive.peak_limit_um`` a
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 
 import numpy as np
 
 from planner.errors import PlanningError
 from planner.nodes import Node
 from planner.planning.settings import Settings
-from planner.synthesis.chain import ChainError, compensate, input_tones
+from planner.synthesis.chain import ChainError, compensate, distort, input_tones
 from planner.units import UM
+
+#: Distortion products weaker than this fraction of a step's strongest tone are left
+#: out of what the verification simulates [-]: a product of 0.1 % of a tone, on an idle
+#: impacter's resonance (Q <= 100 in air), swings it by at most a tenth of what that
+#: tone, which it was designed to sit out, already may; and a 25-tone step has
+#: thousands of weaker 3rd-order products that would each cost the simulation a tone.
+PRODUCT_FLOOR_REL = 1e-3
 
 #: A hair under the input limit when a step is lowered to it, so that the refined peak
 #: of the lowered drive is not above it by rounding (as the acceleration limit does) [-].
@@ -164,9 +172,11 @@ def check_bursts(settings: Settings, played):
                     f"is {w.frequencies[loud]:.1f} Hz ({v.amplitudes[loud]:.4g} V)")
 
 
-def chain_record(settings: Settings, played, notes) -> dict:
+def chain_record(settings: Settings, played, notes, steps=(), frequencies=None) -> dict:
     """plan.json's ``chain`` block: the transfer and nonlinearity as used, the input
-    limit, and per step the input's peak and every tone's transfer and input."""
+    limit, per step the input's peak, every tone's transfer and input and how many
+    distortion products the verification simulated, and the products that land on an
+    idle impacter's band (:func:`products_near_idle`)."""
     chain = settings.chain
     tr = chain.transfer
     if hasattr(tr, "frequency_hz"):
@@ -177,7 +187,7 @@ def chain_record(settings: Settings, played, notes) -> dict:
                     "resonances": [{"frequency_hz": f, "q": q} for f, q in tr.resonances],
                     "low_pass_hz": tr.low_pass_hz}
     lim = chain.input_limit
-    steps = {}
+    steps_, steps = steps, {}
     for key, w in played.items():
         v = input_waveform(settings, w)
         h = chain.response(w.frequencies)
@@ -189,9 +199,17 @@ def chain_record(settings: Settings, played, notes) -> dict:
                        "input_phase_rad": float(p)}
                       for f, g, a, p in zip(w.frequencies, h, v.amplitudes, v.phases)]}
     nl = chain.nonlinearity
+    drives = die_drives(settings, played)
+    for key, d in drives.items():
+        if isinstance(d, DieDrive):
+            steps[key]["products_simulated"] = int(np.sum(d.is_product))
+    near = (products_near_idle(settings, steps_, drives, frequencies)
+            if frequencies is not None else [])
     return {"signal": "amplifier_input_v", "transfer": transfer,
-            "nonlinearity": {"a2_per_m": nl.a2, "a3_per_m2": nl.a3},
-            "input_limit_v": None if lim is None else lim[0], "steps": steps}
+            "nonlinearity": {"a2_per_m": nl.a2, "a3_per_m2": nl.a3,
+                             "product_floor_rel": PRODUCT_FLOOR_REL},
+            "input_limit_v": None if lim is None else lim[0], "steps": steps,
+            "products_near_idle": near}
 
 
 def chain_figure(settings: Settings, played, path, title=""):
@@ -280,7 +298,106 @@ def chain_section(block):
     lines += md_table(["step", "tones", "transfer at its tones [um/V]", "input peak [V]",
                        "lowered for the input limit"], rows)
     lines.append("")
-    lines.append("Not verified through the chain: the distortion (drive.chain.harmonics_db) "
-                 "is recorded, and the steps are verified with the designed die drive; "
-                 "the harmonic and intermodulation products are the guard rules' warnings.")
+    nl = block["nonlinearity"]
+    if nl["a2_per_m"] or nl["a3_per_m2"]:
+        n = sum(st.get("products_simulated", 0) for st in block["steps"].values())
+        near = block.get("products_near_idle") or []
+        lines.append(f"Every looped step was verified with the distortion simulated: its "
+                     f"tones and their harmonic and intermodulation products at the die "
+                     f"({n} products over all steps, those above "
+                     f"{nl['product_floor_rel']:.1%} of the step's strongest tone; a gated "
+                     f"burst's products are not modelled). {len(near)} products land "
+                     "within drive.guard.relative_bandwidth of an impacter idle in their "
+                     "step" + (", the strongest:" if near else "."))
+        if near:
+            lines.append("")
+            lines += md_table(["step", "idle impacter", "its tone [Hz]", "product [Hz]",
+                               "at the die [nm]"],
+                              [[r["step"], r["impacter"], f"{r['impacter_hz']:.1f}",
+                                f"{r['product_hz']:.1f}", f"{r['amplitude_m'] * 1e9:.3g}"]
+                               for r in near[:15]])
+            lines.append("")
+            lines.append("Whether one of them moves a slider is the verification's "
+                         "verdict above (every idle slider checked under these drives).")
+    else:
+        lines.append("No distortion given (drive.chain.harmonics_db): the steps are "
+                     "verified with the designed die drive.")
     return Section("Drive chain", lines)
+
+
+@dataclass(frozen=True)
+class DieDrive:
+    """What the die feels of a looped step through the chain's distortion: the designed
+    tones (with the cubic term's share) and their harmonic and intermodulation products
+    (:func:`planner.synthesis.chain.distort`), all on the step's loop.  The
+    verification reads its tones (:func:`planner.planning.drives.program_of`).
+
+    Attributes
+    ----------
+    frequencies, amplitudes, phases : ndarray, shape (n,)
+        [Hz], [m], [rad].
+    loop_length : float
+        [s].
+    is_product : ndarray of bool, shape (n,)
+        A product (True) or a designed tone.
+    """
+
+    frequencies: np.ndarray
+    amplitudes: np.ndarray
+    phases: np.ndarray
+    loop_length: float
+    is_product: np.ndarray
+
+
+def die_drive(settings: Settings, waveform):
+    """The die's drive of a step through the chain's distortion (:class:`DieDrive`);
+    a gated burst is returned as it is (its envelopes' products are not modelled), as
+    is every step of a chain without harmonics."""
+    from planner.gating import Burst
+
+    nl = settings.chain.nonlinearity
+    if isinstance(waveform, Burst) or not (nl.a2 or nl.a3) or not len(waveform.frequencies):
+        return waveform
+    cycles = np.rint(np.asarray(waveform.frequencies) * waveform.loop_length)
+    floor = PRODUCT_FLOOR_REL * float(np.max(waveform.amplitudes))
+    k, a, ph, prod = distort(cycles, waveform.amplitudes, waveform.phases, nl, floor)
+    return DieDrive(k / waveform.loop_length, a, ph, waveform.loop_length, prod)
+
+
+def die_drives(settings: Settings, played) -> dict:
+    """:func:`die_drive` of every step (step key -> drive); ``played`` itself without a
+    distorting chain."""
+    if settings.chain is None or not (settings.chain.nonlinearity.a2
+                                      or settings.chain.nonlinearity.a3):
+        return played
+    return {k: die_drive(settings, w) for k, w in played.items()}
+
+
+def products_near_idle(settings: Settings, steps, drives, frequencies):
+    """The guard rules' warnings as facts: every distortion product of a step that lands
+    within ``drive.guard.relative_bandwidth`` of an impacter idle in that step.
+
+    Returns
+    -------
+    list of dict
+        ``step``, ``impacter``, ``impacter_hz``, ``product_hz``, ``amplitude_m`` (at the
+        die, at the spec's distortion), strongest first.
+    """
+    rel = settings.tone_rules.relative_bandwidth
+    out = []
+    for st in steps:
+        d = drives.get(st.key)
+        if not isinstance(d, DieDrive):
+            continue
+        active = {Node(dv, dr) for dv, dr in st.active_nodes()}
+        pf = d.frequencies[d.is_product]
+        pa = d.amplitudes[d.is_product]
+        for n, f in frequencies.items():
+            if n in active:
+                continue
+            near = np.abs(pf - f) <= rel * f
+            for fp, ap in zip(pf[near], pa[near]):
+                out.append({"step": st.key, "impacter": n.text, "impacter_hz": float(f),
+                            "product_hz": float(fp), "amplitude_m": float(ap)})
+    out.sort(key=lambda r: (-r["amplitude_m"], r["step"], r["impacter"]))
+    return out

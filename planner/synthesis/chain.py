@@ -253,6 +253,69 @@ def die_tones(transfer, frequencies, amplitudes_v, phases):
     return a, ph
 
 
+def distort(cycles, amplitudes, phases, nonlinearity: Nonlinearity, floor: float):
+    """The die's tones after the chain's distortion: the fundamentals (with the cubic
+    term's share added) and every 2nd- and 3rd-order product (harmonics and
+    intermodulation) stronger than ``floor``.
+
+    Parameters
+    ----------
+    cycles : array_like of int, shape (n_tones,)
+        Each tone's whole cycles per loop (a loop's grid: every product is on it too).
+    amplitudes : array_like, shape (n_tones,)
+        The linear die tones ``Y_i`` [m].
+    phases : array_like, shape (n_tones,)
+        [rad].
+    nonlinearity : Nonlinearity
+        ``z = y + a2 y^2 + a3 y^3``.
+    floor : float
+        Products weaker than this are left out [m] (the fundamentals never are).
+
+    Returns
+    -------
+    (cycles, amplitudes, phases, is_product) : ndarrays, shape (n_out,)
+        Sorted by frequency; ``is_product`` False for a fundamental's own line.
+
+    Notes
+    -----
+    Exact for the polynomial: with ``y = sum_k S_k exp(j k w0 t)`` over the two-sided
+    lines ``S_{+-k_i} = Y_i exp(+-j phi_i) / 2``, ``y^2`` and ``y^3`` are the line
+    spectra's self-convolutions; the one-sided amplitude at ``k > 0`` is ``2 |Z_k|``.
+    The DC term (a static offset of the die) is left out.
+    """
+    k = [int(c) for c in cycles]
+    spec = {}
+    for c, a, p in zip(k, amplitudes, phases):
+        z = 0.5 * float(a) * complex(math.cos(p), math.sin(p))
+        spec[c] = spec.get(c, 0j) + z
+        spec[-c] = spec.get(-c, 0j) + z.conjugate()
+    out = dict(spec)
+    if nonlinearity.a2 or nonlinearity.a3:
+        sq = _convolve(spec, spec)
+        if nonlinearity.a2:
+            for c, z in sq.items():
+                out[c] = out.get(c, 0j) + nonlinearity.a2 * z
+        if nonlinearity.a3:
+            for c, z in _convolve(sq, spec).items():
+                out[c] = out.get(c, 0j) + nonlinearity.a3 * z
+    own = set(k)
+    keep = sorted(c for c, z in out.items()
+                  if c > 0 and (c in own or 2 * abs(z) >= floor))
+    z = np.array([out[c] for c in keep], dtype=complex)
+    return (np.array(keep, dtype=np.int64), 2 * np.abs(z), np.angle(z),
+            np.array([c not in own for c in keep], dtype=bool))
+
+
+def _convolve(a, b):
+    """The line spectrum of the product of two signals given as {line: complex}."""
+    out = {}
+    for ka, za in a.items():
+        for kb, zb in b.items():
+            c = ka + kb
+            out[c] = out.get(c, 0j) + za * zb
+    return out
+
+
 def compensate(waveform: Waveform, transfer) -> Waveform:
     """The amplifier input [V] that plays ``waveform`` (the die's displacement [m]).
 
@@ -283,4 +346,4 @@ def compensate(waveform: Waveform, transfer) -> Waveform:
 
 
 __all__ = ["ChainError", "DriveChain", "ModelTransfer", "Nonlinearity", "TableTransfer",
-           "compensate", "die_tones", "input_tones"]
+           "compensate", "die_tones", "distort", "input_tones"]

@@ -281,3 +281,43 @@ def test_plan_with_chain_exports_the_amplifier_input(tmp_path):
             for (a, p), tone in zip(got, step["tones"]):
                 assert abs(a / tone["amplitude_m"] - 1) < 0.01, (fmt, tone)
                 assert _phase_error_deg(p, tone["phase_rad"]) < 1.0, (fmt, tone)
+
+
+# ----------------------------------------------------------------------------- distortion
+
+
+def test_distortion_products_at_the_stated_levels():
+    from planner.synthesis.chain import distort
+
+    nl = Nonlinearity.from_harmonics({2: -40.0, 3: -50.0}, 10e-6)
+    # one tone at the stated stroke: its harmonics at the stated levels
+    k, a, _, prod = distort([100], [10e-6], [0.3], nl, 1e-15)
+    assert list(k) == [100, 200, 300] and list(prod) == [False, True, True]
+    assert abs(20 * math.log10(a[1] / 10e-6) + 40.0) < 1e-9
+    assert abs(20 * math.log10(a[2] / 10e-6) + 50.0) < 1e-9
+    # two tones: the 2nd-order intermodulation f1 + f2 and f2 - f1 at a2 Y1 Y2, the
+    # 3rd-order 2 f1 - f2 at 3/4 a3 Y1^2 Y2 (the polynomial expanded by hand)
+    y1, y2 = 3e-6, 2e-6
+    k, a, _, _ = distort([100, 130], [y1, y2], [0.0, 0.0], nl, 1e-15)
+    amp = dict(zip(k.tolist(), a))
+    assert abs(amp[230] / (nl.a2 * y1 * y2) - 1) < 1e-9
+    assert abs(amp[30] / (nl.a2 * y1 * y2) - 1) < 1e-9
+    assert abs(amp[70] / (0.75 * nl.a3 * y1 * y1 * y2) - 1) < 1e-9
+
+
+def test_products_on_an_idle_impacters_band_are_named():
+    from planner.planning.chain import die_drives, products_near_idle
+
+    _, settings = _tiny_settings("  chain:\n    transfer: {gain_um_per_v: 1.0}\n"
+                                 "    harmonics_db: {2: -30}\n")
+    # A1's tone's 2nd harmonic lands 0.5 % from A2's own tone, idle in step push
+    tones = {Node("A1", "forward"): 5000.0, Node("A2", "backward"): 10050.0}
+    played = synthesize_steps(settings, settings.steps, tones)
+    drives = die_drives(settings, played)
+    near = products_near_idle(settings, settings.steps, drives, tones)
+    assert [(r["step"], r["impacter"]) for r in near] == [("s/push", "A2.backward")]
+    assert abs(near[0]["product_hz"] - 2 * played["s/push"].frequencies[0]) < 1e-6
+    # -30 dB at the 10 um stroke: a2 Y^2 / 2 with Y the push tone's amplitude
+    y = played["s/push"].amplitudes[0]
+    expected = Nonlinearity.from_harmonics({2: -30.0}, 10e-6).a2 * y * y / 2
+    assert abs(near[0]["amplitude_m"] / expected - 1) < 1e-9
