@@ -74,9 +74,32 @@ def load_spec(path_or_text: str | Path, *, source: str | None = None) -> LoadedS
         raise SpecError("an array spec must be a YAML mapping", line=1, source=src)
     check_kind(data, "array spec", source=src)
     _check_units(data, lines, src)
+    _read_chain_table(data, lines, src, path_or_text)
     spec = validate(ArraySpec, data, lines, source=src)
     check_sections(spec, lines, src)
     return LoadedSpec(spec, resolve_steps(spec, lines, src), src, lines)
+
+
+def _read_chain_table(data, lines, source, path_or_text):
+    """``drive.chain.transfer: chain.csv``: the CSV, relative to the spec's folder (the
+    working folder for a spec given as text), read into the inline table in ``data``;
+    an error in it names the CSV's row and column and the spec's line."""
+    from planner.arrayspec.chain_table import read_transfer_table
+
+    chain = ((data or {}).get("drive") or {}).get("chain") if isinstance(
+        (data or {}).get("drive"), dict) else None
+    if not isinstance(chain, dict) or not isinstance(chain.get("transfer"), str):
+        return
+    is_path = isinstance(path_or_text, Path) or "\n" not in str(path_or_text)
+    base = Path(path_or_text).resolve().parent if is_path else Path.cwd()
+    loc = ("drive", "chain", "transfer")
+    try:
+        table = read_transfer_table(base / chain["transfer"])
+        # the path as the spec gives it: plan.json is the same wherever the spec lies
+        chain["transfer"] = {**table, "file": chain["transfer"]}
+    except SpecError as exc:
+        raise SpecError(exc.message, path=format_loc(loc), line=line_of(lines, loc),
+                        source=source) from None
 
 
 def check_sections(spec: ArraySpec, lines=None, source: str | None = None,

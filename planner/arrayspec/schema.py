@@ -12,9 +12,10 @@ and placing an error on its line is :mod:`planner.arrayspec.load`'s.
 from __future__ import annotations
 
 import string
-from typing import Annotated, Literal
+from typing import Annotated, Literal, Union
 
-from pydantic import Field, field_validator, model_serializer, model_validator
+from pydantic import (Discriminator, Field, Tag, field_validator, model_serializer,
+                      model_validator)
 
 from planner.core.strict import Strict
 from planner.config import (
@@ -142,6 +143,122 @@ class GuardRules(Strict):
     intermodulation: bool = True
 
 
+class ResonanceSpec(Strict):
+    """One resonance of the drive chain (a piezo stack's mode): a second-order peak
+    ``1 / (1 - u^2 + j u / q)``, ``u = f / frequency_hz``, 1 far below it, ``q`` at it."""
+
+    frequency_hz: PositiveFloat
+    q: Annotated[float, Field(gt=0.5, le=1e4, allow_inf_nan=False)]
+
+
+class TransferModelSpec(Strict):
+    """The chain's transfer as a model: a flat gain [um/V], times every resonance, times
+    an optional first-order low-pass at ``low_pass_hz``."""
+
+    gain_um_per_v: PositiveFloat
+    resonances: tuple[ResonanceSpec, ...] = ()
+    low_pass_hz: PositiveFloat | None = None
+
+
+class TransferTableSpec(Strict):
+    """The chain's transfer as a measured table, written inline: what
+    :func:`planner.arrayspec.load_spec` makes of ``transfer: chain.csv`` (and what
+    plan.json records, so that a plan read back needs no CSV).  ``file``: the CSV it
+    was read from (for messages only)."""
+
+    frequency_hz: tuple[PositiveFloat, ...]
+    gain_um_per_v: tuple[PositiveFloat, ...]
+    phase_deg: tuple[FiniteFloat, ...]
+    file: str | None = None
+
+    @model_validator(mode="after")
+    def _table_shape(self):
+        n = len(self.frequency_hz)
+        if n < 2:
+            raise ValueError(f"a transfer table needs at least 2 frequencies, {n} given")
+        for name in ("gain_um_per_v", "phase_deg"):
+            if len(getattr(self, name)) != n:
+                raise ValueError(f"{name} has {len(getattr(self, name))} values for {n} "
+                                 "frequencies")
+        for i in range(1, n):
+            if self.frequency_hz[i] <= self.frequency_hz[i - 1]:
+                raise ValueError(f"frequency_hz must increase: row {i + 1} "
+                                 f"({self.frequency_hz[i]:g} Hz) after "
+                                 f"{self.frequency_hz[i - 1]:g} Hz")
+        return self
+
+
+def _transfer_kind(value):
+    if isinstance(value, str):
+        return "file"
+    if isinstance(value, dict):
+        return "table" if "frequency_hz" in value else "model"
+    if isinstance(value, TransferTableSpec):
+        return "table"
+    return "model"
+
+
+def _no_unread_file(value):
+    raise ValueError(f"the transfer CSV {value!r} is read relative to the spec file when "
+                     "the spec is loaded (planner.arrayspec.load_spec); here give the "
+                     "table inline ({frequency_hz: [...], gain_um_per_v: [...], "
+                     "phase_deg: [...]}) or a model")
+
+
+class ChainSpec(Strict):
+    """``drive.chain``: what stands between the waveform file and the die (issue 46).
+
+    transfer : the die's displacement per volt of the amplifier input, a complex
+        function of frequency: a CSV path relative to the spec
+        (``frequency_hz,gain_um_per_v,phase_deg``, interpolated in log frequency and
+        refused outside the frequencies it covers), a model
+        (:class:`TransferModelSpec`) or the table inline (:class:`TransferTableSpec`).
+    harmonics_db : the 2nd and 3rd harmonics' levels below the fundamental [dB, < 0]
+        at the stroke ``at_stroke_um``: the nonlinearity, a polynomial of the die's
+        displacement ``z = y + a2 y^2 + a3 y^3`` fitted to them.
+    at_stroke_um : the die's amplitude the harmonic levels were measured at [um]
+        (default ``drive.peak_limit_um``: full stroke).
+    max_input_v : the largest peak voltage the generator may put on the amplifier's
+        input [V] (None: no limit).
+    max_output_v : the largest peak voltage of the amplifier's output [V]: the input
+        times ``drive.amplifier_gain`` (None: no limit).
+
+    With a chain every exported waveform is the amplifier input in volts, each tone
+    divided by the transfer at its frequency so that the die feels the designed tones.
+    """
+
+    transfer: Annotated[Union[Annotated[TransferTableSpec, Tag("table")],
+                              Annotated[TransferModelSpec, Tag("model")],
+                              Annotated[str, Tag("file")]],
+                        Discriminator(_transfer_kind)]
+    harmonics_db: dict[int, Annotated[float, Field(lt=0, allow_inf_nan=False)]] = {}
+    at_stroke_um: PositiveFloat | None = None
+    max_input_v: PositiveFloat | None = None
+    max_output_v: PositiveFloat | None = None
+
+    @field_validator("harmonics_db", mode="before")
+    @classmethod
+    def _orders(cls, value):
+        # YAML writes {2: -40} with int keys, JSON (plan.json) with string ones
+        if isinstance(value, dict):
+            out = {}
+            for k, v in value.items():
+                key = int(k) if isinstance(k, str) and k.strip().isdigit() else k
+                if key not in (2, 3):
+                    raise ValueError(f"harmonics_db has the 2nd and 3rd harmonics (keys 2 "
+                                     f"and 3), {k!r} was given")
+                out[key] = v
+            return out
+        return value
+
+    @field_validator("transfer")
+    @classmethod
+    def _read(cls, value):
+        if isinstance(value, str):
+            _no_unread_file(value)
+        return value
+
+
 class DriveSpec(Strict):
     """The piezo drive: band, tone amplitude convention, limits and sampling."""
 
@@ -158,6 +275,30 @@ class DriveSpec(Strict):
     guard: GuardRules = GuardRules()
     piezo_um_per_v: PositiveFloat | None = None
     amplifier_gain: PositiveFloat | None = None
+    #: The measured drive chain (:class:`ChainSpec`); None: the ideal, flat, linear
+    #: chain of ``piezo_um_per_v`` (the waveforms are the die's displacement).
+    chain: ChainSpec | None = None
+
+    @model_serializer(mode="wrap")
+    def _no_chain_unwritten(self, handler):
+        # a spec without a chain dumps as before: plan.json and the design cache's keys
+        # of today's specs stay byte for byte what they were
+        data = handler(self)
+        if self.chain is None:
+            data.pop("chain", None)
+        return data
+
+    @model_validator(mode="after")
+    def _chain_rules(self):
+        if self.chain is None:
+            return self
+        if self.piezo_um_per_v is not None:
+            raise ValueError("piezo_um_per_v and chain cannot be given together: the "
+                             "chain's transfer is the die's um per volt of the input")
+        if self.chain.max_output_v is not None and self.amplifier_gain is None:
+            raise ValueError("chain.max_output_v needs amplifier_gain (the amplifier's "
+                             "output is its input times the gain)")
+        return self
 
     @field_validator("band_hz")
     @classmethod

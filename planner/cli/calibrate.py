@@ -17,11 +17,17 @@ from planner.cli._common import (FORCE_FILES_HELP, Finite, check_output_files,
               help="SWEEP.csv is a speed-against-tone sweep (impacter,frequency_hz,"
                    "speed_mm_s): fit each impacter's working window and write windows.csv "
                    "(for `vibroplan replan --windows`).")
+@click.option("--chain", is_flag=True,
+              help="SWEEP.csv is a sweep of the drive chain (frequency_hz,input_v,"
+                   "displacement_um,phase_deg[,harmonic2_um,harmonic3_um]): fit the "
+                   "transfer from the amplifier input to the die, flag its resonances and "
+                   "write the drive.chain block (chain.yaml) and its table (chain.csv).")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), callback=output_file,
               default=None,
               help="The CSV to write: measured.csv (for `vibroplan replan --measured`; the "
                    "default) or, with --motion, windows.csv (for `vibroplan replan "
-                   "--windows`; the default). Never the sweep; an existing file only if "
+                   "--windows`; the default) or, with --chain, chain.yaml (the drive.chain "
+                   "block; its table goes beside it, NAME.csv). Never the sweep; an existing file only if "
                    "`vibroplan calibrate` wrote it (see --force).")
 @click.option("--fraction", type=click.FloatRange(0.0, 1.0, min_open=True, max_open=True),
               default=0.5, show_default=True,
@@ -36,7 +42,7 @@ from planner.cli._common import (FORCE_FILES_HELP, Finite, check_output_files,
                    "are written, so a doubtful value never reaches a plan).")
 @click.option("--force", is_flag=True, help=FORCE_FILES_HELP)
 @handle_errors
-def command(sweep_csv, motion, out, fraction, min_speed_mm_s, keep_flagged, force):
+def command(sweep_csv, motion, chain, out, fraction, min_speed_mm_s, keep_flagged, force):
     """Fit each impacter's natural frequency and Q to a measured frequency sweep
     (or, with --motion, its working window to a speed-against-tone sweep).
 
@@ -102,11 +108,35 @@ def command(sweep_csv, motion, out, fraction, min_speed_mm_s, keep_flagged, forc
                  points,status
 
     \b
+    With --chain, SWEEP.csv is a sweep of the drive chain (generator, amplifier,
+    piezo) with a vibrometer on the substrate, one tone at a time:
+      frequency_hz        the tone [Hz]
+      input_v             its amplitude at the amplifier input [V]
+      displacement_um     the substrate's displacement amplitude [um]
+      phase_deg           its phase against the input [deg] (a lag < 0)
+      harmonic2_um        optional: the displacement's 2nd harmonic [um]
+      harmonic3_um        optional: its 3rd harmonic [um]
+    The transfer (displacement / input) is written as a table, chain.csv
+    (frequency_hz,gain_um_per_v,phase_deg; repeats averaged), and a flat gain
+    with one resonance per peak of the gain (and a low-pass if it fits much
+    better) is fitted to it: each resonance is printed with its frequency and
+    Q.  chain.yaml is the drive.chain block a spec takes (transfer: chain.csv,
+    relative to the spec: keep the two side by side), with the harmonics'
+    levels at the sweep's largest displacement and the fitted model as a
+    comment.  A spec's drive.band_hz must lie inside the swept range.
+
+    \b
     Examples:
       vibroplan calibrate sweep.csv --out measured.csv
       vibroplan calibrate --motion motion.csv --out windows.csv
+      vibroplan calibrate --chain chain_sweep.csv --out chain.yaml
       vibroplan replan plan_out --measured measured.csv --windows windows.csv
     """
+    if motion and chain:
+        raise click.UsageError("--motion and --chain are two kinds of sweep: give one")
+    if chain:
+        _chain(sweep_csv, out or Path("chain.yaml"), force)
+        return
     if motion:
         _motion(sweep_csv, out or Path("windows.csv"), fraction, min_speed_mm_s,
                 keep_flagged, force)
@@ -189,3 +219,34 @@ def _motion(sweep_csv, out, fraction, min_speed_mm_s, keep_flagged, force):
     with output_files([out], command="calibrate", inputs=[sweep_csv], force=force) as (tmp,):
         write_windows(keep, tmp)
     click.echo(f"wrote {out} ({len(keep)} window{'s' if len(keep) != 1 else ''})")
+
+
+def _chain(sweep_csv, out, force):
+    """``calibrate --chain``: the drive chain fitted to a sweep; chain.yaml and its
+    table beside it."""
+    from planner.lab.chain_sweep import chain_yaml, fit_sweep, read_chain_sweep, write_table
+
+    table = out.with_suffix(".csv")
+    check_output_files("calibrate", [("--out", out), ("the table", table)],
+                       inputs=[sweep_csv], force=force)
+    cal = fit_sweep(read_chain_sweep(sweep_csv))
+    fit = cal.fit
+    click.echo(f"{len(fit.frequency_hz)} frequencies, {fit.frequency_hz[0]:g}-"
+               f"{fit.frequency_hz[-1]:g} Hz; gain at the lowest "
+               f"{abs(fit.response[0]) * 1e6:.4g} um/V")
+    for r in fit.resonances:
+        click.echo(f"resonance: {r['frequency_hz']:.1f} +- {r['frequency_std_hz']:.2g} Hz, "
+                   f"Q = {r['q']:.4g} +- {r['q_std']:.2g} (gain peak at {r['peak_hz']:.1f} Hz)")
+    if not fit.resonances:
+        click.echo("no resonance found in the sweep")
+    if fit.model.low_pass_hz is not None:
+        click.echo(f"low-pass: {fit.model.low_pass_hz:.4g} Hz")
+    click.echo(f"model fit: rms {fit.gain_rms:.2%} in gain, "
+               f"{fit.phase_rms * 57.29577951308232:.2g} deg in phase")
+    for order, level in cal.harmonics_db.items():
+        click.echo(f"harmonic {order}: {level:.1f} dB at {cal.stroke_m * 1e6:.4g} um")
+    with output_files([out, table], command="calibrate", inputs=[sweep_csv],
+                      force=force) as (tmp_yaml, tmp_table):
+        write_table(fit, tmp_table)
+        Path(tmp_yaml).write_text(chain_yaml(cal, table.name))
+    click.echo(f"wrote {out} and {table} (the drive.chain block and its table)")

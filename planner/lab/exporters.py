@@ -139,14 +139,16 @@ def _read_wav(path, sidecar):
         fraction = data.astype(float)
     else:
         raise ValueError(f"{path}: WAV data type {data.dtype} is not one vibroplan writes")
-    return fraction * sidecar["full_scale_m"], float(rate)
+    return fraction * full_scale_of(sidecar), float(rate)
 
 
 def _write_csv(path, waveform, full_scale_m, volts_full_scale):
     table = np.column_stack([waveform.times, waveform.samples])
+    # a drive chain's file is the amplifier input in volts (its full scale is in volts)
+    column = "input_v" if volts_full_scale == full_scale_m else "displacement_m"
     np.savetxt(path, table, fmt=("%.12g", "%.12e"), delimiter=",",
-               header="time_s,displacement_m", comments="")
-    return {"columns": ["time_s", "displacement_m"]}
+               header=f"time_s,{column}", comments="")
+    return {"columns": ["time_s", column]}
 
 
 def _read_csv(path, sidecar):
@@ -199,7 +201,7 @@ def _read_arb(path, sidecar):
                          f"values follow")
     if np.any(np.abs(codes) > INT16_FULL_SCALE):
         raise ValueError(f"{path}: values outside -32767..32767")
-    samples = codes.astype(float) / INT16_FULL_SCALE * sidecar["full_scale_m"]
+    samples = codes.astype(float) / INT16_FULL_SCALE * full_scale_of(sidecar)
     return samples, float(header["Sample Rate"])
 
 
@@ -236,7 +238,7 @@ def sidecar_path(path) -> Path:
 
 
 def export(waveform: Waveform, path, format, *, um_per_v=None, amplifier_gain=None,
-           band_hz=None, memory_points=None) -> Path:
+           band_hz=None, memory_points=None, die=None) -> Path:
     """Write a drive file and its JSON sidecar.
 
     Parameters
@@ -258,6 +260,14 @@ def export(waveform: Waveform, path, format, *, um_per_v=None, amplifier_gain=No
     memory_points : int, optional
         The instrument's waveform memory [points]; default the format's (1 M for .arb,
         a Keysight 33500B; 16 M with its memory option).
+    die : Waveform, optional
+        With a drive chain (issue 46): ``waveform`` is then the amplifier input [V]
+        and ``die`` the die's displacement [m] it gives, tone for tone.  The sidecar
+        says so (``signal: amplifier_input_v``) and gives volts (``full_scale_v``,
+        ``peak_v``, ``rms_v``, each tone's ``amplitude_v``) and, per tone, the die's
+        ``die_amplitude_m`` and ``die_phase_rad`` and the transfer between them
+        (``gain_m_per_v``, ``transfer_phase_rad``); ``volts_full_scale`` is the full
+        scale itself.  ``um_per_v`` cannot be given with it.
 
     Returns
     -------
@@ -276,6 +286,14 @@ def export(waveform: Waveform, path, format, *, um_per_v=None, amplifier_gain=No
     path = Path(path)
     volts_full_scale = None
     full_scale = max(float(waveform.peak), float(np.max(np.abs(waveform.samples))))
+    if die is not None:
+        if um_per_v is not None:
+            raise ValueError("um_per_v cannot be given with die: the waveform is already "
+                             "the amplifier input in volts")
+        if len(die.frequencies) != len(waveform.frequencies):
+            raise ValueError("die must have the input waveform's tones, one for one")
+        um_per_v, gain = None, amplifier_gain
+        amplifier_gain = None        # the volts are the input's: no piezo scale applies
     if (um_per_v is None) != (amplifier_gain is None):
         missing = "amplifier_gain" if amplifier_gain is None else "um_per_v"
         raise ValueError(f"{missing} is needed too: volts need both um_per_v and amplifier_gain")
@@ -291,7 +309,12 @@ def export(waveform: Waveform, path, format, *, um_per_v=None, amplifier_gain=No
         _warnings.warn(message, DriveWarning, stacklevel=2)
 
     path.parent.mkdir(parents=True, exist_ok=True)
+    if die is not None:
+        volts_full_scale, amplifier_gain = full_scale, gain
     extra = _atomic_write(path, lambda tmp: exporter(tmp, waveform, full_scale, volts_full_scale))
+    if die is not None:
+        _input_sidecar(path, format, waveform, die, full_scale, amplifier_gain, new, extra)
+        return path
     sidecar = {
         "format": format,
         "file": path.name,
@@ -324,6 +347,54 @@ def export(waveform: Waveform, path, format, *, um_per_v=None, amplifier_gain=No
     text = json.dumps(sidecar, indent=2) + "\n"
     _atomic_write(sidecar_path(path), lambda tmp: Path(tmp).write_text(text))
     return path
+
+
+def _input_sidecar(path, format, waveform, die, full_scale, amplifier_gain, new, extra):
+    """The sidecar of a drive chain's file: the amplifier input in volts (:func:`export`
+    with ``die``)."""
+    gain = np.asarray(die.amplitudes) / np.asarray(waveform.amplitudes)
+    turn = np.angle(np.exp(1j * (np.asarray(die.phases) - np.asarray(waveform.phases))))
+    sidecar = {
+        "format": format,
+        "file": path.name,
+        "signal": "amplifier_input_v",
+        "tones": [
+            {"frequency_hz": float(f), "amplitude_v": float(a), "phase_rad": float(p),
+             "frequency_shift_hz": float(s), "die_amplitude_m": float(z),
+             "die_phase_rad": float(q), "gain_m_per_v": float(g),
+             "transfer_phase_rad": float(t)}
+            for f, a, p, s, z, q, g, t in zip(waveform.frequencies, waveform.amplitudes,
+                                              waveform.phases, waveform.frequency_shift,
+                                              die.amplitudes, die.phases, gain, turn)
+        ],
+        "sample_rate_hz": float(waveform.sample_rate),
+        "loop_length_s": float(waveform.loop_length),
+        "loop_points": waveform.loop_points,
+        "points": len(waveform.samples),
+        "full_scale_v": full_scale,
+        "volts_full_scale": full_scale,
+        "amplifier_gain": amplifier_gain,
+        "peak_v": float(waveform.peak),
+        "rms_v": float(waveform.rms),
+        "crest_factor": float(waveform.crest_factor),
+        "die_peak_m": float(die.peak),
+        "scale": float(waveform.scale),
+        "playback": "once" if isinstance(waveform, Burst) else "loop",
+        "warnings": list(waveform.warnings) + new,
+        **(extra or {}),
+    }
+    if isinstance(waveform, Burst):
+        sidecar["starts_s"] = [float(g) for g in waveform.starts_s]
+        sidecar["gates_s"] = [float(g) for g in waveform.gates_s]
+        sidecar["ramp_s"] = float(waveform.ramp_s)
+    text = json.dumps(sidecar, indent=2) + "\n"
+    _atomic_write(sidecar_path(path), lambda tmp: Path(tmp).write_text(text))
+
+
+def full_scale_of(sidecar) -> float:
+    """A drive file's full scale: [m] (``full_scale_m``), or [V] for a drive chain's
+    amplifier input (``full_scale_v``)."""
+    return sidecar["full_scale_v"] if "full_scale_v" in sidecar else sidecar["full_scale_m"]
 
 
 def _player_warnings(waveform, band_hz, memory_points) -> list[str]:
@@ -384,7 +455,8 @@ def read_waveform(path) -> tuple[np.ndarray, float]:
     Returns
     -------
     samples : ndarray, shape (n_samples,)
-        Displacement [m] (the file's values times the sidecar's ``full_scale_m``).
+        Displacement [m] (the file's values times the sidecar's ``full_scale_m``), or
+        for a drive chain's file the amplifier input [V] (``full_scale_v``).
     sample_rate : float
         [Hz].
     """
@@ -530,14 +602,15 @@ def verify_export(path, *, amplitude_rtol=AMPLITUDE_RTOL, phase_atol=PHASE_ATOL)
     sidecar = read_sidecar(path)
     samples, rate = read_waveform(path)
     f = np.array([t["frequency_hz"] for t in sidecar["tones"]])
-    a = np.array([t["amplitude_m"] for t in sidecar["tones"]])
+    a = np.array([t["amplitude_v" if "amplitude_v" in t else "amplitude_m"]
+                  for t in sidecar["tones"]])
     ph = np.array([t["phase_rad"] for t in sidecar["tones"]])
     if sidecar.get("playback") == "once":
         return _verify_burst(sidecar, samples, rate, f, a, ph)
     a_meas, ph_meas = measure_tones(samples, rate, f)
     amplitude_error = float(np.max(np.abs(a_meas / a - 1)))
     phase_error = float(np.max(np.abs(np.angle(np.exp(1j * (ph_meas - ph))))))
-    resolution = get_exporter(sidecar["format"]).resolution * sidecar["full_scale_m"]
+    resolution = get_exporter(sidecar["format"]).resolution * full_scale_of(sidecar)
     loop_bound = float(np.sum(2 * np.pi * f * a)) / rate + 2 * resolution
     loop_jump = float(abs(samples[0] - samples[-1]))
     cycles = f * len(samples) / rate
@@ -551,7 +624,7 @@ def _verify_burst(sidecar, samples, rate, f, a, ph) -> Verification:
     """:func:`verify_export` of a gated burst: every sample against the exact sum of
     its gated tones (:func:`planner.synthesis.gating.burst_samples`), within half a code of
     rounding plus the float32 WAV's relative precision; first and last samples at 0."""
-    resolution = get_exporter(sidecar["format"]).resolution * sidecar["full_scale_m"]
+    resolution = get_exporter(sidecar["format"]).resolution * full_scale_of(sidecar)
     exact = burst_samples(f, a, ph, sidecar["starts_s"], sidecar["gates_s"], sidecar["ramp_s"],
                           np.arange(len(samples)) / rate)
     error = float(np.max(np.abs(samples - exact)))
@@ -563,4 +636,5 @@ def _verify_burst(sidecar, samples, rate, f, a, ph) -> Verification:
 
 
 __all__ = ["EXPORTERS", "Exporter", "DriveWarning", "export", "get_exporter", "read_waveform",
-           "read_sidecar", "sidecar_path", "measure_tones", "verify_export", "Verification"]
+           "read_sidecar", "sidecar_path", "measure_tones", "verify_export", "Verification",
+           "full_scale_of"]

@@ -58,11 +58,20 @@ def write_outputs(result: Plan, out_dir: Path, *, figures=True, sections=(), tim
     (out_dir / "waveforms").mkdir(exist_ok=True)
     for rec in result.data["steps"]:
         w = result.waveforms[f"{rec['scene']}/{rec['name']}"]
+        if settings.chain is not None:
+            # the amplifier input [V] that gives the die this drive (issue 46)
+            from planner.planning.chain import input_waveform
+
+            die, w = w, input_waveform(settings, w)
         for fmt, rel in rec["files"].items():
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                export(w, out_dir / rel, fmt, um_per_v=settings.um_per_v,
-                       amplifier_gain=settings.amplifier_gain)
+                if settings.chain is not None:
+                    export(w, out_dir / rel, fmt, die=die,
+                           amplifier_gain=settings.amplifier_gain)
+                else:
+                    export(w, out_dir / rel, fmt, um_per_v=settings.um_per_v,
+                           amplifier_gain=settings.amplifier_gain)
     if figures:
         _figures(result, out_dir)
     seconds = time.perf_counter() - t0
@@ -102,6 +111,11 @@ def _figures(result, out_dir):
     shown = shown or list(result.waveforms)[:1]
     for k in shown:
         rp.waveform_and_spectrum(result.waveforms[k], figs / drive_figure_name(k), k)
+    if settings.chain is not None:
+        from planner.planning.chain import chain_figure
+
+        chain_figure(settings, result.waveforms, figs / "drive_chain.png",
+                     f"{settings.name}: drive chain and the plan's tones")
     if result.data["scenes"]:
         rp.slider_positions(result.data["scenes"], figs / "slider_positions.png")
     for scene, rows in target_scenes(result.data["scenes"]).items():

@@ -154,6 +154,14 @@ def _design_round(settings, steps, assignment, clock, tick, design_cache, draws=
     synthesized = clock.timed("drive", synthesize_steps, settings, steps, assignment,
                               draws=draws)
     waveforms, drive_notes = clock.timed("drive", limit_acceleration, settings, synthesized)
+    if settings.chain is not None:
+        # the amplifier input's volts: a tone the chain cannot deliver is refused, a
+        # step over the limit lowered (the designs below are made for it as lowered)
+        from planner.planning.chain import limit_input
+
+        waveforms, input_notes = clock.timed("drive", limit_input, settings, waveforms,
+                                             steps, assignment.frequencies)
+        drive_notes = {k: {**v, **input_notes[k]} for k, v in drive_notes.items()}
     tick("design", total=len(assignment.frequencies))
     designs = clock.timed("design", design_all, settings, steps, assignment, design_cache,
                           progress=lambda n: tick("design", n), waveforms=waveforms,
@@ -177,10 +185,20 @@ def _design_round(settings, steps, assignment, clock, tick, design_cache, draws=
                 "targets", place_targets, settings, run_steps, {**waveforms, **targeted},
                 assignment.frequencies, impacters, sliders,
                 progress=lambda k: tick("targets", k))
+            if settings.chain is not None:
+                from planner.planning.chain import check_bursts
+
+                check_bursts(settings, played)
         tick("verify", total=len(steps))
         ts = time.perf_counter()
         ver_rows, failures = [], []
-        for rows, fails in check_steps(settings, run_steps, played, impacters, sliders,
+        # with a distorting chain, what the die feels: the tones and their products
+        checked = played
+        if settings.chain is not None:
+            from planner.planning.chain import die_drives
+
+            checked = die_drives(settings, played)
+        for rows, fails in check_steps(settings, run_steps, checked, impacters, sliders,
                                        progress=lambda k: tick("verify", k),
                                        scheduler=design_kw.get("scheduler")):
             ver_rows += rows
@@ -372,12 +390,17 @@ def _finish(settings, kept: _Round, rounds, clock, scheduler, design_cache,
     manufacturability and record, as a :class:`Plan` (``design_cache``: its
     ``design_cache``; ``free_cores``: as :func:`run_plan`'s)."""
     ts = time.perf_counter()
+    felt = kept.played
+    if settings.chain is not None:
+        from planner.planning.chain import die_drives
+
+        felt = die_drives(settings, kept.played)
     with stage_threads(free_cores):
         # the scenes carry every impacter's and slider's state from step to step, each
         # step followed by its settle dwell; what they find counts in the verification,
         # and the motion repair acts on it (shorter bursts, longer dwells)
         (run_steps, ver_rows, failures, scene_rows, motion_repairs,
-         step_settle) = scenes_and_motion(settings, kept.run_steps, kept.played,
+         step_settle) = scenes_and_motion(settings, kept.run_steps, felt,
                                           kept.impacters, kept.sliders, kept.ver_rows,
                                           kept.failures, scheduler=scheduler)
         assignment, designs = kept.assignment, kept.designs
@@ -399,6 +422,12 @@ def _finish(settings, kept: _Round, rounds, clock, scheduler, design_cache,
     data, impacter_recs, device_recs, step_recs = build_record(
         settings, run_steps, assignment, designs, kept.sliders, kept.played, ver_rows,
         passed, rounds, scene_rows, motion, manufacturability)
+    if settings.chain is not None:
+        from planner.planning.chain import chain_record
+        from planner.planning.record import round_floats
+
+        data["chain"] = round_floats(chain_record(settings, kept.played, kept.drive_notes,
+                                                  run_steps, assignment.frequencies))
     clock.timings["total"] = time.perf_counter() - clock.t0
     return Plan(
         impacters=pd.DataFrame(impacter_recs), devices=pd.DataFrame(device_recs),

@@ -31,6 +31,7 @@ SECTIONS = (
     "Manufacturability",
     "Cross-coupling",
     "Steps",
+    "Drive chain",
     "Every impacter alone",
     "Positions asked and got",
     "Scenes (state carried across steps)",
@@ -76,6 +77,15 @@ def _moves(rec):
     return f"{len(rec['forward'])} fwd, {len(rec['backward'])} bwd"
 
 
+def _chain_section(d):
+    """The drive chain's section (issue 46), for a plan with ``drive.chain`` only."""
+    if "chain" not in d:
+        return None
+    from planner.planning.chain import chain_section
+
+    return chain_section(d["chain"])
+
+
 def write_report(result, out_dir, timings, sections=()):
     """Write ``out_dir/report.md`` of a :class:`~planner.planning.result.Plan`
     (:func:`plan_report`)."""
@@ -107,7 +117,7 @@ def plan_report(result, out_dir, timings, sections=()) -> Report:
     parts = [_motion_notes(d), _assignment_section(d["assignment"]),
              _designs_section(d["impacters"]), _manufacturability_section(d),
              _coupling_section(), _steps_section(d["steps"], summary, out_dir),
-             _alone_section(d["steps"], summary)]
+             _chain_section(d), _alone_section(d["steps"], summary)]
     if d["scenes"]:
         parts += [_positions_section(d, ver), _scene_section(d["scenes"])]
     parts += [_failures_section(ver), None if timings is None else _timings_section(timings)]

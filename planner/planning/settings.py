@@ -229,6 +229,10 @@ class Settings:
         from the channels.  No stage reads a setting from it.
     spec_record : dict
         The spec as plan.json records it.
+    chain : planner.synthesis.chain.DriveChain or None
+        The measured drive chain (``drive.chain``, issue 46): the exported waveforms
+        are then the amplifier input [V], each tone divided by its transfer; None: the
+        ideal, flat, linear chain (the waveforms are the die's displacement).
     """
 
     name: str
@@ -281,6 +285,7 @@ class Settings:
     trim: TrimSpec
     chip_spec: ArraySpec = field(repr=False)
     spec_record: dict = field(repr=False)
+    chain: object = field(default=None, repr=False)
 
     def design_kwargs(self, node: Node) -> dict:
         """Keyword arguments of :func:`planner.designer.design_impacter` for ``node``,
@@ -512,7 +517,38 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
         trim=spec.trim or TrimSpec(),
         chip_spec=spec,
         spec_record=json.loads(spec.model_dump_json()),
+        chain=_chain(loaded),
     )
+
+
+def _chain(loaded):
+    """``drive.chain`` in SI (:class:`planner.synthesis.chain.DriveChain`), or None;
+    a table that does not cover the band is refused, naming the field and its line."""
+    from planner.synthesis.chain import (DriveChain, ModelTransfer, Nonlinearity,
+                                         TableTransfer)
+
+    drive = loaded.spec.drive
+    spec = drive.chain
+    if spec is None:
+        return None
+    tr = spec.transfer
+    if hasattr(tr, "frequency_hz"):
+        transfer = TableTransfer(tr.frequency_hz, [g * UM for g in tr.gain_um_per_v],
+                                 [math.radians(p) for p in tr.phase_deg], tr.file)
+        lo, hi = transfer.band_hz
+        if lo > drive.band_hz[0] or hi < drive.band_hz[1]:
+            _refuse(loaded, ("drive", "chain", "transfer"),
+                    f"the transfer table{' ' + tr.file if tr.file else ''} covers "
+                    f"{lo:g}-{hi:g} Hz, not the whole band {drive.band_hz[0]:g}-"
+                    f"{drive.band_hz[1]:g} Hz (drive.band_hz): a tone outside it cannot "
+                    "be compensated; measure the chain over the band")
+    else:
+        transfer = ModelTransfer(tr.gain_um_per_v * UM,
+                                 tuple((r.frequency_hz, r.q) for r in tr.resonances),
+                                 tr.low_pass_hz)
+    stroke = (spec.at_stroke_um if spec.at_stroke_um is not None else drive.peak_limit_um)
+    return DriveChain(transfer, Nonlinearity.from_harmonics(spec.harmonics_db, stroke * UM),
+                      spec.max_input_v, spec.max_output_v, drive.amplifier_gain)
 
 
 def plan_settings(record, seed=None) -> Settings:

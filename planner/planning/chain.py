@@ -1,0 +1,403 @@
+"""The drive chain's stage (issue 46): every step's drive compensated for the measured
+chain, its voltage limits enforced, what plan.json records of it, and its figure.
+
+The designs and the verification see the die's displacement, as without a chain; the
+chain changes what is *played*: the amplifier input [V], each tone divided by the
+chain's transfer at its frequency (:func:`planner.synthesis.chain.compensate`), so that
+the die feels the designed tones.  The limits are checked where they apply: the
+generator's and amplifier's volts at the input (here), ``drive.peak_limit_um`` and
+``drive.max_acceleration_g`` at the die (:mod:`planner.planning.drives`, unchanged).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from planner.core.errors import PlanningError
+from planner.core.nodes import Node
+from planner.planning.settings import Settings
+from planner.synthesis.chain import ChainError, compensate, distort, input_tones
+from planner.core.units import UM
+
+#: Distortion products weaker than this fraction of a step's strongest tone are left
+#: out of what the verification simulates [-]: a product of 0.1 % of a tone, on an idle
+#: impacter's resonance (Q <= 100 in air), swings it by at most a tenth of what that
+#: tone, which it was designed to sit out, already may; and a 25-tone step has
+#: thousands of weaker 3rd-order products that would each cost the simulation a tone.
+PRODUCT_FLOOR_REL = 1e-3
+
+#: A hair under the input limit when a step is lowered to it, so that the refined peak
+#: of the lowered drive is not above it by rounding (as the acceleration limit does) [-].
+LIMIT_MARGIN = 1e-6
+
+
+def input_waveform(settings: Settings, waveform):
+    """What the generator plays for the die's ``waveform``: the amplifier input [V]
+    (a loop or a gated burst alike, its gates kept).
+
+    Raises
+    ------
+    PlanningError
+        A tone outside the chain's measured transfer, naming it.
+    """
+    from planner.synthesis.gating import Burst, burst_samples
+
+    transfer = settings.chain.transfer
+    try:
+        if isinstance(waveform, Burst):
+            a, ph = input_tones(transfer, waveform.frequencies, waveform.amplitudes,
+                                waveform.phases)
+            samples = burst_samples(waveform.frequencies, a, ph, waveform.starts_s,
+                                    waveform.gates_s, waveform.ramp_s, waveform.times)
+            rms = float(np.sqrt(np.sum(a ** 2) / 2))
+            peak = max(_burst_input_peak(waveform, a, ph), float(np.max(np.abs(samples))))
+            return dataclasses.replace(
+                waveform, samples=samples, amplitudes=a, phases=ph, peak=peak, rms=rms,
+                crest_factor=peak / rms if rms > 0 else 0.0,
+                warnings=waveform.warnings + ("the samples are the amplifier input [V]: "
+                                              "every tone divided by the chain's transfer",))
+        return compensate(waveform, transfer)
+    except ChainError as exc:
+        raise PlanningError(f"drive.chain: {exc}") from None
+
+
+def _burst_input_peak(burst, amplitudes_v, phases):
+    from planner.synthesis.gating import burst_peaks
+
+    return burst_peaks(dataclasses.replace(burst, amplitudes=amplitudes_v,
+                                           phases=phases))[0]
+
+
+def _tone_names(steps, frequencies):
+    """Tone [Hz] -> the impacters it drives, as text (for messages)."""
+    names = {}
+    for st in steps:
+        for d, dr in st.active_nodes():
+            n = Node(d, dr)
+            names.setdefault(float(frequencies[n]), set()).add(n.text)
+    return names
+
+
+def limit_input(settings: Settings, waveforms, steps, frequencies):
+    """Enforce the chain's voltage limits on every step's loop (``waveforms``: step key
+    -> the die's :class:`~planner.synthesis.Waveform`, after the acceleration limit).
+
+    A tone whose own input, at the amplitude its convention asks for, is above the
+    limit cannot be delivered: an error naming it, the impacters it drives, the
+    transfer there and the volts it needs.  A step whose summed input peaks above the
+    limit has every tone lowered by one factor (as ``drive.max_acceleration_g`` does),
+    which the designs and the verification then see.
+
+    Returns
+    -------
+    (waveforms, notes)
+        ``notes``: step key -> {"input_peak_v" (after any lowering), "input_scale"}.
+
+    Raises
+    ------
+    PlanningError
+        A tone the chain cannot deliver (outside a measured transfer, or beyond the
+        limit by itself).
+    """
+    from planner.planning.drives import scaled
+
+    chain = settings.chain
+    limit = chain.input_limit
+    names = _tone_names(steps, frequencies)
+    out, notes = {}, {}
+    for key, w in waveforms.items():
+        v = input_waveform(settings, w)
+        scale = 1.0
+        if limit is not None:
+            lim, field = limit
+            # each tone at its convention's amplitude, before any lowering of the sum
+            wanted = v.amplitudes / (w.scale if w.scale > 0 else 1.0)
+            for f, need in zip(w.frequencies, wanted):
+                if need > lim:
+                    h = chain.response(float(f))
+                    who = ", ".join(sorted(_near(names, f))) or "its impacter"
+                    raise PlanningError(
+                        f"drive.chain cannot deliver the tone {f:.1f} Hz ({who}, step "
+                        f"{key}): the transfer there is {abs(h) / UM:.4g} um/V at "
+                        f"{np.degrees(np.angle(h)):.1f} deg, so its "
+                        f"{need * abs(h) / UM:.4g} um at the die need {need:.4g} V at the "
+                        f"amplifier input, above {lim:.4g} V ({field}): a higher limit, "
+                        "a lower drive.power_m2_s3 or amplitude_um, or a band that keeps "
+                        "the tones off the chain's weak frequencies")
+            if v.peak > lim:
+                scale = lim / v.peak * (1.0 - LIMIT_MARGIN)
+                w = scaled(w, scale, f"every amplitude lowered by x{scale:.4g} to meet "
+                                     f"{field} at the amplifier input")
+                v = input_waveform(settings, w)
+        out[key] = w
+        notes[key] = {"input_peak_v": float(v.peak), "input_scale": scale}
+    return out, notes
+
+
+def _near(names, f):
+    """The impacters of the tone nearest ``f`` (a tone as snapped to its loop)."""
+    if not names:
+        return set()
+    best = min(names, key=lambda t: abs(t - float(f)))
+    return names[best]
+
+
+def check_bursts(settings: Settings, played):
+    """A gated burst (a ``targets_um`` step) plays its tones at their amplitudes as
+    synthesised, one after the other: its input peak must be within the limit as it
+    is (it is not lowered: its gates were found for these amplitudes).
+
+    Raises
+    ------
+    PlanningError
+        Naming the step, its input peak and the limit.
+    """
+    from planner.synthesis.gating import Burst
+
+    limit = settings.chain.input_limit
+    if limit is None:
+        return
+    lim, field = limit
+    for key, w in played.items():
+        if isinstance(w, Burst):
+            v = input_waveform(settings, w)
+            if v.peak > lim:
+                loud = int(np.argmax(v.amplitudes))
+                raise PlanningError(
+                    f"drive.chain: the gated burst of step {key} peaks at {v.peak:.4g} V at "
+                    f"the amplifier input, above {lim:.4g} V ({field}); its loudest tone "
+                    f"is {w.frequencies[loud]:.1f} Hz ({v.amplitudes[loud]:.4g} V)")
+
+
+def chain_record(settings: Settings, played, notes, steps=(), frequencies=None) -> dict:
+    """plan.json's ``chain`` block: the transfer and nonlinearity as used, the input
+    limit, per step the input's peak, every tone's transfer and input and how many
+    distortion products the verification simulated, and the products that land on an
+    idle impacter's band (:func:`products_near_idle`)."""
+    chain = settings.chain
+    tr = chain.transfer
+    if hasattr(tr, "frequency_hz"):
+        transfer = {"kind": "table", "file": tr.source, "band_hz": list(tr.band_hz),
+                    "points": len(tr.frequency_hz)}
+    else:
+        transfer = {"kind": "model", "gain_m_per_v": tr.gain_m_per_v,
+                    "resonances": [{"frequency_hz": f, "q": q} for f, q in tr.resonances],
+                    "low_pass_hz": tr.low_pass_hz}
+    lim = chain.input_limit
+    steps_, steps = steps, {}
+    for key, w in played.items():
+        v = input_waveform(settings, w)
+        h = chain.response(w.frequencies)
+        steps[key] = {
+            "input_peak_v": float(v.peak),
+            "input_scale": float((notes.get(key) or {}).get("input_scale", 1.0)),
+            "tones": [{"frequency_hz": float(f), "gain_m_per_v": float(abs(g)),
+                       "phase_rad": float(np.angle(g)), "input_amplitude_v": float(a),
+                       "input_phase_rad": float(p)}
+                      for f, g, a, p in zip(w.frequencies, h, v.amplitudes, v.phases)]}
+    nl = chain.nonlinearity
+    drives = die_drives(settings, played)
+    for key, d in drives.items():
+        if isinstance(d, DieDrive):
+            steps[key]["products_simulated"] = int(np.sum(d.is_product))
+    near = (products_near_idle(settings, steps_, drives, frequencies)
+            if frequencies is not None else [])
+    return {"signal": "amplifier_input_v", "transfer": transfer,
+            "nonlinearity": {"a2_per_m": nl.a2, "a3_per_m2": nl.a3,
+                             "product_floor_rel": PRODUCT_FLOOR_REL},
+            "input_limit_v": None if lim is None else lim[0], "steps": steps,
+            "products_near_idle": near}
+
+
+def chain_figure(settings: Settings, played, path, title=""):
+    """Save a PNG: the chain's gain and phase over the band with every tone of the plan
+    on it, and the compensated input of the step with the most tones against the ideal
+    sum (the die's drive in volts of the chain's gain at the band's bottom).
+
+    Parameters
+    ----------
+    settings : Settings
+        With a chain.
+    played : dict
+        Step key -> the die's drive (Waveform or gated Burst).
+    path : path
+        The PNG.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    chain = settings.chain
+    lo, hi = settings.band_hz
+    tr_band = getattr(chain.transfer, "band_hz", None)
+    f_lo, f_hi = (max(lo / 1.5, tr_band[0]), min(hi * 1.5, tr_band[1])) if tr_band else (
+        lo / 1.5, hi * 1.5)
+    f = np.geomspace(f_lo, f_hi, 800)
+    h = chain.response(f)
+    tones = np.array(sorted({float(t) for w in played.values() for t in w.frequencies}))
+    ht = chain.response(tones) if len(tones) else np.zeros(0, complex)
+
+    fig = Figure(figsize=(9, 9), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax_g, ax_p, ax_t = fig.subplots(3, 1)
+    ax_g.loglog(f, np.abs(h) / UM, color="C0", lw=1.2, label="|H| (chain)")
+    ax_g.plot(tones, np.abs(ht) / UM, "o", ms=3, color="C3", label="the plan's tones")
+    ax_g.axvspan(lo, hi, color="0.9", zorder=0, label="drive.band_hz")
+    ax_g.set_ylabel("gain [um/V]")
+    ax_g.legend(fontsize=8)
+    ax_g.set_title(title or "drive chain: amplifier input to die displacement")
+    ax_p.semilogx(f, np.degrees(np.unwrap(np.angle(h))), color="C0", lw=1.2)
+    ax_p.plot(tones, np.degrees(np.angle(ht)), "o", ms=3, color="C3")
+    ax_p.axvspan(lo, hi, color="0.9", zorder=0)
+    ax_p.set_ylabel("phase [deg]")
+    ax_p.set_xlabel("frequency [Hz]")
+    if played:
+        key = max(played, key=lambda k: (len(played[k].frequencies), k))
+        w = played[key]
+        v = input_waveform(settings, w)
+        span = min(w.loop_length, 2e-3)
+        t = np.linspace(0.0, span, 4000)
+        g0 = abs(chain.response(lo))
+        ax_t.plot(t * 1e3, w.evaluate(t) / g0, color="0.5", lw=0.8,
+                  label=f"ideal sum (die drive / {g0 / UM:.3g} um/V)")
+        ax_t.plot(t * 1e3, v.evaluate(t), color="C1", lw=0.8,
+                  label=f"compensated input (peak {v.peak:.3g} V)")
+        ax_t.set_xlabel("time [ms]")
+        ax_t.set_ylabel("amplifier input [V]")
+        ax_t.set_title(f"step {key}: {len(w.frequencies)} tones", fontsize=9)
+        ax_t.legend(fontsize=8, loc="upper right")
+    fig.savefig(path, dpi=110)
+
+
+def chain_section(block):
+    """report.md's "Drive chain" section of plan.json's ``chain`` block."""
+    from planner.core.markdown import Section, md_table
+
+    tr = block["transfer"]
+    if tr["kind"] == "table":
+        what = (f"the measured table {tr['file'] or ''} ({tr['points']} points, "
+                f"{tr['band_hz'][0]:g}-{tr['band_hz'][1]:g} Hz)")
+    else:
+        res = ", ".join(f"{r['frequency_hz']:g} Hz (Q {r['q']:g})" for r in tr["resonances"])
+        what = (f"a flat {tr['gain_m_per_v'] / UM:g} um/V"
+                + (f" with resonances at {res}" if res else "")
+                + (f", low-pass {tr['low_pass_hz']:g} Hz" if tr["low_pass_hz"] else ""))
+    lim = block["input_limit_v"]
+    lines = [f"Every waveform file is the **amplifier input in volts** (sidecar "
+             f"`signal: amplifier_input_v`): each tone divided by the chain's transfer, "
+             f"{what}, so that the die feels the designed tones (figure: "
+             f"[drive_chain.png](figures/drive_chain.png)). Input limit: "
+             + (f"{lim:.4g} V." if lim is not None else "none given."), ""]
+    rows = []
+    for key, st in block["steps"].items():
+        gains = [t["gain_m_per_v"] / UM for t in st["tones"]]
+        rows.append([key, len(st["tones"]), f"{min(gains):.3g}-{max(gains):.3g}",
+                     f"{st['input_peak_v']:.4g}", f"{st['input_scale']:.4g}"])
+    lines += md_table(["step", "tones", "transfer at its tones [um/V]", "input peak [V]",
+                       "lowered for the input limit"], rows)
+    lines.append("")
+    nl = block["nonlinearity"]
+    if nl["a2_per_m"] or nl["a3_per_m2"]:
+        n = sum(st.get("products_simulated", 0) for st in block["steps"].values())
+        near = block.get("products_near_idle") or []
+        lines.append(f"Every looped step was verified with the distortion simulated: its "
+                     f"tones and their harmonic and intermodulation products at the die "
+                     f"({n} products over all steps, those above "
+                     f"{nl['product_floor_rel']:.1%} of the step's strongest tone; a gated "
+                     f"burst's products are not modelled). {len(near)} products land "
+                     "within drive.guard.relative_bandwidth of an impacter idle in their "
+                     "step" + (", the strongest:" if near else "."))
+        if near:
+            lines.append("")
+            lines += md_table(["step", "idle impacter", "its tone [Hz]", "product [Hz]",
+                               "at the die [nm]"],
+                              [[r["step"], r["impacter"], f"{r['impacter_hz']:.1f}",
+                                f"{r['product_hz']:.1f}", f"{r['amplitude_m'] * 1e9:.3g}"]
+                               for r in near[:15]])
+            lines.append("")
+            lines.append("Whether one of them moves a slider is the verification's "
+                         "verdict above (every idle slider checked under these drives).")
+    else:
+        lines.append("No distortion given (drive.chain.harmonics_db): the steps are "
+                     "verified with the designed die drive.")
+    return Section("Drive chain", lines)
+
+
+@dataclass(frozen=True)
+class DieDrive:
+    """What the die feels of a looped step through the chain's distortion: the designed
+    tones (with the cubic term's share) and their harmonic and intermodulation products
+    (:func:`planner.synthesis.chain.distort`), all on the step's loop.  The
+    verification reads its tones (:func:`planner.planning.drives.program_of`).
+
+    Attributes
+    ----------
+    frequencies, amplitudes, phases : ndarray, shape (n,)
+        [Hz], [m], [rad].
+    loop_length : float
+        [s].
+    is_product : ndarray of bool, shape (n,)
+        A product (True) or a designed tone.
+    """
+
+    frequencies: np.ndarray
+    amplitudes: np.ndarray
+    phases: np.ndarray
+    loop_length: float
+    is_product: np.ndarray
+
+
+def die_drive(settings: Settings, waveform):
+    """The die's drive of a step through the chain's distortion (:class:`DieDrive`);
+    a gated burst is returned as it is (its envelopes' products are not modelled), as
+    is every step of a chain without harmonics."""
+    from planner.synthesis.gating import Burst
+
+    nl = settings.chain.nonlinearity
+    if isinstance(waveform, Burst) or not (nl.a2 or nl.a3) or not len(waveform.frequencies):
+        return waveform
+    cycles = np.rint(np.asarray(waveform.frequencies) * waveform.loop_length)
+    floor = PRODUCT_FLOOR_REL * float(np.max(waveform.amplitudes))
+    k, a, ph, prod = distort(cycles, waveform.amplitudes, waveform.phases, nl, floor)
+    return DieDrive(k / waveform.loop_length, a, ph, waveform.loop_length, prod)
+
+
+def die_drives(settings: Settings, played) -> dict:
+    """:func:`die_drive` of every step (step key -> drive); ``played`` itself without a
+    distorting chain."""
+    if settings.chain is None or not (settings.chain.nonlinearity.a2
+                                      or settings.chain.nonlinearity.a3):
+        return played
+    return {k: die_drive(settings, w) for k, w in played.items()}
+
+
+def products_near_idle(settings: Settings, steps, drives, frequencies):
+    """The guard rules' warnings as facts: every distortion product of a step that lands
+    within ``drive.guard.relative_bandwidth`` of an impacter idle in that step.
+
+    Returns
+    -------
+    list of dict
+        ``step``, ``impacter``, ``impacter_hz``, ``product_hz``, ``amplitude_m`` (at the
+        die, at the spec's distortion), strongest first.
+    """
+    rel = settings.tone_rules.relative_bandwidth
+    out = []
+    for st in steps:
+        d = drives.get(st.key)
+        if not isinstance(d, DieDrive):
+            continue
+        active = {Node(dv, dr) for dv, dr in st.active_nodes()}
+        pf = d.frequencies[d.is_product]
+        pa = d.amplitudes[d.is_product]
+        for n, f in frequencies.items():
+            if n in active:
+                continue
+            near = np.abs(pf - f) <= rel * f
+            for fp, ap in zip(pf[near], pa[near]):
+                out.append({"step": st.key, "impacter": n.text, "impacter_hz": float(f),
+                            "product_hz": float(fp), "amplitude_m": float(ap)})
+    out.sort(key=lambda r: (-r["amplitude_m"], r["step"], r["impacter"]))
+    return out
