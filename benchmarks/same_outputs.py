@@ -68,8 +68,10 @@ def _cli(out: Path, *args) -> int:
     """Run ``python -m planner.cli ARGS`` in ``out``; its exit status (logged)."""
     cmd = [sys.executable, "-m", "planner.cli", *map(str, args)]
     proc = subprocess.run(cmd, cwd=out, capture_output=True, text=True)
+    shown = " ".join(str(a).replace(str(out) + "/", "").replace(str(ROOT), "CHECKOUT")
+                     for a in args)
     with (out / "commands.log").open("a") as log:
-        log.write(f"$ vibroplan {' '.join(map(str, args))}\n-> exit {proc.returncode}\n")
+        log.write(f"$ vibroplan {shown}\n-> exit {proc.returncode}\n")
     if proc.returncode not in (0, 1):
         sys.exit(f"vibroplan {' '.join(map(str, args))}: exit {proc.returncode}\n{proc.stderr}")
     return proc.returncode
@@ -115,7 +117,7 @@ def run(out: Path, default: bool) -> None:
 
 
 #: Lines that hold a time: report.md's timings table rows and "... in 12.3 s" phrases.
-_TIME = re.compile(r"\d+(\.\d+)? ?(s|min|ms)\b")
+_TIME = re.compile(r"\d+(\.\d+)?(-\d+(\.\d+)?)? ?(s|min|ms|chips/min)\b")
 
 
 def _normalised(path: Path) -> bytes:
@@ -143,6 +145,8 @@ def _normalised(path: Path) -> bytes:
         return json.dumps(strip(doc), sort_keys=True).encode()
     if path.suffix in (".md", ".log", ".txt"):
         text = data.decode(errors="replace")
+        # a command's paths in the log: the folder and the checkout it ran from
+        text = re.sub(r"/\S*/(configs/|replan\.csv|trim\.csv)", r"\1", text)
         text = text.split("## Timings")[0]
         return _TIME.sub("<time>", text).encode()
     return data
