@@ -276,7 +276,8 @@ def _with_windows(plan, measured, windows_path):
     from planner.errors import SpecError
 
     tones = {r.id: r.frequency_hz for r in plan.impacters}
-    windows, flagged = read_windows(windows_path, plan.impacter_ids, tones)
+    windows, flagged = read_windows(windows_path, plan.impacter_ids, tones,
+                                    band_hz=tuple(plan.spec.drive.band_hz))
     unmeasured = sorted(set(windows) - set(measured))
     if unmeasured:
         raise SpecError(f"a working window for {', '.join(unmeasured)}, which measured.csv "
