@@ -540,3 +540,28 @@ def test_a_window_outside_the_band_is_refused_naming_the_row(plan_data, tiny_pla
     assert str(windows) in res.output and "row 2" in res.output
     assert "outside the drive band 5000-14000 Hz" in res.output
     assert "Traceback" not in res.output and not out.exists()
+
+
+@pytest.mark.parametrize("q", ["1e-6", "0.5", "1e9"])
+def test_a_meaningless_quality_factor_is_refused_naming_row_and_column(plan_data,
+                                                                       tiny_plan_dir,
+                                                                       tmp_path, q):
+    """Issue 44 case 6: Q 1e-6 was accepted, and the re-plan crawled for minutes (the
+    default's showed no progress for 3.5 min).  No resonance peak has Q <= 1/sqrt(2);
+    none reaches 1e7: exit 2 naming the file, row and column, at once.  The wafer's
+    readers share the check (a die file of a --measured-dir)."""
+    nat = {i["id"]: i["natural_frequency_hz"] for i in plan_data["impacters"]}
+    text = ("impacter,natural_frequency_hz,quality_factor\n"
+            f"A1.forward,{nat['A1.forward']},20\nA2.backward,{nat['A2.backward']},{q}\n")
+    measured = _write(tmp_path / "m.csv", text)
+    out = tmp_path / "r"
+    res = _cli(tiny_plan_dir, "--measured", measured, "--out", out)
+    assert res.exit_code == 2, res.output
+    assert f"{measured}: row 3, column quality_factor" in res.output, res.output
+    assert "Traceback" not in res.output and not out.exists()
+    folder = tmp_path / "dies"
+    folder.mkdir()
+    die = _write(folder / "die_0_0.csv", text)
+    res = _cli(tiny_plan_dir, "--measured-dir", folder, "--jobs", 1, "--out", out)
+    assert res.exit_code == 2 and f"{die}: row 3, column quality_factor" in res.output, \
+        res.output
