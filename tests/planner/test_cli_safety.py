@@ -379,13 +379,14 @@ def _stage_cmd(stage, tiny_plan_dir, tmp_path):
                        "--chips", "100000", "--jobs", "1", "--quiet"], ".y.lock", 3.0)
     spec = tmp_path / "tiny.yaml"
     spec.write_text(TINY)
-    # the reach probes and designs of a plan that reads nothing from a design cache
+    # the reach probes of a plan that reads nothing from a design cache (its designs
+    # end too soon on the tiny spec to be hit reliably: not tested here)
     return (cli + ["plan", str(spec), "--out", "p", "--no-cache", "--jobs", "1",
-                   "--no-figures", "--quiet"], ".p.lock", 3.0 if stage == "reach" else 8.0)
+                   "--no-figures", "--quiet"], ".p.lock", 3.0)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("stage", ["kernel", "yield chips", "reach", "designs"])
+@pytest.mark.parametrize("stage", ["kernel", "yield chips", "reach"])
 def test_sigterm_is_answered_in_every_long_stage(tiny_plan_dir, tmp_path, stage):
     """Python answers a signal only between bytecodes of its main thread: a numba call
     held SIGTERM off for its whole length (issue 44: > 60 s, SIGKILL needed, leaving
