@@ -67,7 +67,7 @@ BEAT_DETUNING = 1e-2
 N_COEF = 6
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def homogeneous_regime(wn, sigma):
     """Regime and characteristic numbers of x'' + 2 sigma x' + wn^2 x = 0.
 
@@ -91,7 +91,7 @@ def homogeneous_regime(wn, sigma):
         return OVER, g, g * g
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def homogeneous_basis(regime, sigma, freq, tau):
     """(E C, E S) at tau [s]: the two basis functions of the homogeneous part."""
     if regime == UNDER:
@@ -107,13 +107,13 @@ def homogeneous_basis(regime, sigma, freq, tau):
         return 0.5 * (slow + fast), slow * (-math.expm1(-2.0 * freq * tau)) / (2.0 * freq)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def derive(p, q, sigma, kappa):
     """Coefficients of the derivative of E (p C + q S): same basis, new (p, q)."""
     return q - sigma * p, kappa * p - sigma * q
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def homogeneous_bound(regime, sigma, freq, p, q, tau_a, tau_b):
     """Bound on |E(tau) (p C(tau) + q S(tau))| for tau in [tau_a, tau_b].
 
@@ -142,7 +142,7 @@ def homogeneous_bound(regime, sigma, freq, p, q, tau_a, tau_b):
     return abs(p) * decay + abs(q) * te
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def tone_coefficients(wn, sigma, w, a, phi):
     """Particular-solution coefficients of every tone of the drive.
 
@@ -227,13 +227,13 @@ def _beat_terms(w, sigma, delta, t, t_ref):
     return rot * e1, (1.0 + em) * rot * complex(cy, sy)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def particular(coef, t):
     """x_p, x_p', x_p'' at absolute time t [s] (units m, m/s, m/s^2)."""
     return particular_ref(coef, t, 0.0)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def particular_ref(coef, t, t_ref):
     """x_p, x_p', x_p'' at t [s], beat tones referred to t_ref [s] (see _beat_terms)."""
     x = 0.0
@@ -261,7 +261,7 @@ def particular_ref(coef, t, t_ref):
     return x, v, acc
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def particular_jet(coef, t):
     """x_p and its first three derivatives at absolute time t [s].
 
@@ -309,7 +309,7 @@ def particular_jet_ref(coef, t, t_ref):
     return x, v, acc, jerk
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def particular_bound(coef, order, tmax):
     """Bound on |x_p^(order)| over t in [0, tmax] [m/s^order].
 
@@ -335,7 +335,7 @@ def particular_bound(coef, order, tmax):
     return total
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def forcing(w, a, phi, t):
     """Forcing per unit mass f(t) = sum a_i cos(w_i t + phi_i) and its derivative."""
     f = 0.0
@@ -347,7 +347,7 @@ def forcing(w, a, phi, t):
     return f, df
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def forcing_bound(w, a, order):
     """Bound on |f^(order)| for all t [m/s^(2+order)]."""
     total = 0.0

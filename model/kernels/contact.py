@@ -50,7 +50,7 @@ TAIL_REL = 1e-17
 TAIL_MAX_IMPACTS = 1000
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def two_body_impact(V, v, s, g, c, e):
     """One two-body impact of the pair on the slider.
 
@@ -84,7 +84,7 @@ def two_body_impact(V, v, s, g, c, e):
     return s * (1.0 + e) * g * u / one_q, v - (1.0 + e) * u / one_q
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def two_body_kick(V, rec):
     """Slider velocity after the kick (or chatter tail) of one per-kick record [m/s].
 

@@ -83,7 +83,7 @@ from model.kernels.impacter_steps import (  # noqa: F401
 )
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
                  stop_after, max_events, max_steps, imp_t, imp_v, imp_kind,
                  sample_t, sample_x):
@@ -446,7 +446,7 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
     return status, n_events, sum_v, t, x, v, stuck, steps
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _response_one(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0,
                   stop_after, max_events, max_steps):
     empty = np.empty(0)
@@ -457,7 +457,7 @@ def _response_one(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0,
                         empty, empty)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, nogil=True)
 def response_grid(wn, sigma, gap, e, w, a, phi, starts, x0s, v0s, t_end, stop_after,
                   max_events, max_steps):
     """Sums of v- (eq. 12 numerator / m) of every drive from every initial state, in parallel.
@@ -542,7 +542,7 @@ def _vector(x):
     return x
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def response_single(wn, sigma, gap, e, w, a, phi, t_end, x0, v0, stop_after,
                     max_events, max_steps):
     """One response-only run (no events kept, no trajectory): (status, n_events, sum_v)."""

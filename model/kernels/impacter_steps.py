@@ -92,7 +92,7 @@ def _window_step(g, v, acc, jerk, m2, m4, big_h):
     return min(big_h, safe_step(g, v, min(m2e, m2)))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _window_tables(coef):
     """Constants of :func:`_window_bounds`, per run.
 
@@ -174,7 +174,7 @@ def _landing(g, v, acc, jerk, m4, tola, tolj, tolx):
     return s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _leave_step(v, m2, tol):
     """Larger root of tol + v h + m2 h^2 / 2 for v < 0: a safe step off the wall [s].
 
@@ -189,7 +189,7 @@ def _leave_step(v, m2, tol):
     return (-v + math.sqrt(disc)) / m2
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _push_event(imp_t, imp_v, imp_kind, n, t, v, kind, max_events):
     """Record event n (if there is room); EVENT_CAP when the caps forbid it."""
     if n >= max_events:
@@ -204,7 +204,7 @@ def _push_event(imp_t, imp_v, imp_kind, n, t, v, kind, max_events):
     return OK
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _wall_flight(w, a, phi, t, wn, sigma, gap, v, rate, series):
     """A short flight from the wall by the Taylor series of x at t [s, m/s].
 
@@ -281,7 +281,7 @@ def _wall_flight(w, a, phi, t, wn, sigma, gap, v, rate, series):
     return s, v_minus
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _series_value(series, s, order):
     """order-th derivative (0 or 1) of sum_{k>=1} series[k] s^k / k! at s."""
     n = series.shape[0]
@@ -293,7 +293,7 @@ def _series_value(series, s, order):
     return total * s if order == 0 else total
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _fill_series(sample_t, sample_x, si, t_b, t_a, series):
     """Positions gap + g(t - t_a) from a wall series at the samples below t_b."""
     ns = sample_t.shape[0]
@@ -377,7 +377,7 @@ def _amplitude(regime, fr, p, q, tau_end):
     return min(a, abs(p) + abs(q) * tau_end)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _fill_free(sample_t, sample_x, si, t_b, regime, sigma, fr, p, q, seg_t0, coef):
     """Closed-form positions at the sample times below t_b; returns the next index."""
     ns = sample_t.shape[0]
@@ -390,7 +390,7 @@ def _fill_free(sample_t, sample_x, si, t_b, regime, sigma, fr, p, q, seg_t0, coe
     return si
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _fill_const(sample_t, sample_x, si, t_b, value):
     ns = sample_t.shape[0]
     while si < ns and sample_t[si] < t_b:

@@ -20,7 +20,7 @@ from numba import njit
 from model.kernels.impacter import EVENT_CAP, NONFINITE, OK
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _accel(wn, sigma, w, a, phi, t, x, v):
     f = 0.0
     for i in range(w.shape[0]):
@@ -28,7 +28,7 @@ def _accel(wn, sigma, w, a, phi, t, x, v):
     return f - 2.0 * sigma * v - wn * wn * x
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _rk4_step(wn, sigma, w, a, phi, t, x, v, h):
     k1x = v
     k1v = _accel(wn, sigma, w, a, phi, t, x, v)
@@ -42,7 +42,7 @@ def _rk4_step(wn, sigma, w, a, phi, t, x, v, h):
             v + h / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _hermite_crossing(x0, v0, x1, v1, h, c):
     """Fraction s in (0, 1] where the cubic Hermite interpolant reaches c."""
     lo = 0.0
@@ -73,7 +73,7 @@ def _hermite_crossing(x0, v0, x1, v1, h, c):
     return s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def run_rk4(wn, sigma, gap, e, w, a, phi, t0, t_end, x0, v0, h, max_events,
             imp_t, imp_v):
     """Fixed-step RK4 with impact detection per step (the paper's method).
@@ -135,7 +135,7 @@ def run_rk4(wn, sigma, gap, e, w, a, phi, t0, t_end, x0, v0, h, max_events,
     return OK, n, sum_v, x, v, steps
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def rk4_response(wn, sigma, gap, e, w, a, phi, t_end, x0, v0, h, max_events):
     """sum_v (eq. 12 numerator over m) by the paper's RK4; returns (status, n, sum_v)."""
     empty = np.empty(0)

@@ -49,7 +49,7 @@ SILENT = 1
 ONE_IMPACT = 2
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _tone_parts(wn, sigma, wd, w, a):
     """Per tone: X (complex forced amplitude), A, B (free part from rest), and the
     bounds R = |(A, B)|, Rd = |(A, B)'| of the free part and of its derivative."""
@@ -70,7 +70,7 @@ def _tone_parts(wn, sigma, wd, w, a):
     return X, A, B, R, Rd
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _envelope_at(t, c, wn, sigma, wd, w, X, A, B):
     """W(t): the largest |x(t)| over x0 in [-c, c] and every phasing of the tones."""
     e = math.exp(-sigma * t)
@@ -82,7 +82,7 @@ def _envelope_at(t, c, wn, sigma, wd, w, X, A, B):
     return total
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def linear_envelope(wn, sigma, c, w, a, t):
     """W(t) at every t (array) for starts x0 in [-c, c] at rest; NaN unless
     0 < sigma < wn (the under-damped regime the formula is written for)."""
@@ -97,7 +97,7 @@ def linear_envelope(wn, sigma, c, w, a, t):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _velocity_at(t, c, wn, sigma, wd, w, X, P1, Q1):
     """V(t): the largest |x'(t)| over x0 in [-c, c] and every phasing of the tones
     (P1, Q1: the free part's derivative coefficients)."""
@@ -111,7 +111,7 @@ def _velocity_at(t, c, wn, sigma, wd, w, X, P1, Q1):
     return total
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _after_impact_at(t, c, kick, sigma, wd, w, X, A, B):
     """W_B(t): the largest x(t) after an impact at t = 0 that left the impacter at the
     wall moving away at any speed up to ``kick`` (= e v-), for every phasing."""
@@ -124,7 +124,7 @@ def _after_impact_at(t, c, kick, sigma, wd, w, X, A, B):
     return total
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def linear_silence(wn, sigma, c, e, w, a, margin, max_steps):
     """Prove that the impacter responds to no start x0 in [-c, c] (v0 = 0) and no phasing.
 

@@ -29,7 +29,7 @@ from model.kernels.contact import PAPER, two_body_kick
 from model.kernels.impacter import EPS, NOISE, NONFINITE, OK, STEP_CAP, safe_step
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _phi12(beta, tau):
     """phi1 = (1 - e^{-beta tau}) / beta and phi2 = (tau - phi1) / beta [s, s^2]."""
     bt = beta * tau
@@ -43,7 +43,7 @@ def _phi12(beta, tau):
     return phi1, phi2
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _slip_state(beta, fd, s, w, cr, ci, t_a, z_a, v_a, t):
     """Position [m] and velocity [m/s] at t of a slip started at (t_a, z_a, v_a)."""
     tau = t - t_a
@@ -65,7 +65,7 @@ def _slip_state(beta, fd, s, w, cr, ci, t_a, z_a, v_a, t):
     return z, v
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _kicked(contact, v, k, kick_dv, kick_rec):
     """Slider velocity [m/s] after kick k, from v [m/s] just before it."""
     if contact == PAPER:
@@ -73,7 +73,7 @@ def _kicked(contact, v, k, kick_dv, kick_rec):
     return two_body_kick(v, kick_rec[k])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def run_slider(contact, beta, fs, fd, w, a, phi, kick_t, kick_dv, kick_rec, t0, t_end,
                z0, v0, max_steps, sample_t, sample_z):
     """Simulate the slider exactly from t0 to t_end under forcing and kicks.

@@ -143,9 +143,11 @@ def inseparable(seps: Separations, measured: dict, pairs) -> list:
     return out
 
 
-def choose_tones(seps: Separations, tones: dict, measured: dict, pairs, windows=None) -> tuple:
-    """Each impacter's tone inside its window and outside the silent band of every
-    impacter it must be told apart from, nearest the window's middle.
+def choose_tones(seps: Separations, tones: dict, measured: dict, pairs, windows=None,
+                 band=None) -> tuple:
+    """Each impacter's tone inside its window, inside the drive band and outside the
+    silent band of every impacter it must be told apart from, nearest the window's
+    middle.
 
     Parameters
     ----------
@@ -160,12 +162,17 @@ def choose_tones(seps: Separations, tones: dict, measured: dict, pairs, windows=
         Impacter id -> its working window (lo, hi) [Hz] measured on the chip (a tuning
         sweep: :mod:`planner.afterfab.tune`), instead of the design's scaled to its
         measured resonance.
+    band : (float, float), optional
+        The drive band (lo, hi) [Hz] (``drive.band_hz``): no tone is chosen outside it.
 
     Returns
     -------
-    (tones, blocked)
+    (tones, blocked, outside)
         ``blocked``: impacter id -> the impacters whose silent bands cover its whole
-        window (no tone drives it without one of them answering).
+        window (no tone drives it without one of them answering).  ``outside``:
+        impacter id -> the tone it would need [Hz], for an impacter whose free window
+        lies wholly outside ``band``: its tone is the band edge nearest that window (it
+        plays, and nothing says it drives the impacter: the re-plan fails).
     """
     index = {n: k for k, n in enumerate(seps.ids)}
     partners = {n: set() for n in seps.ids}
@@ -173,7 +180,9 @@ def choose_tones(seps: Separations, tones: dict, measured: dict, pairs, windows=
         partners[a].add(b)
         partners[b].add(a)
     nu = {n: measured_frequency(measured[n]) for n in seps.ids}
-    out, blocked = dict(tones), {}
+    # the loop below names a neighbour's silent band ``band``: the drive band is this
+    drive_band = None if band is None else (float(band[0]), float(band[1]))
+    out, blocked, outside = dict(tones), {}, {}
     for n in seps.ids:
         k = index[n]
         if windows and n in windows:
@@ -200,6 +209,16 @@ def choose_tones(seps: Separations, tones: dict, measured: dict, pairs, windows=
         if not free:
             blocked[n] = sorted(set(covers))
             continue
+        if drive_band is not None:
+            b_lo, b_hi = drive_band
+            in_band = [(max(lo, b_lo), min(hi, b_hi)) for lo, hi in free
+                       if max(lo, b_lo) < min(hi, b_hi)]
+            if not in_band:
+                # no tone of the band lies in its window: the band edge nearest it plays
+                outside[n] = min(max(tones[n], free[0][0]), free[-1][1])
+                out[n] = min(max(outside[n], b_lo), b_hi)
+                continue
+            free = in_band
         # the free point nearest the middle, kept off a band's edge by what the edge's
         # measurement and the synthesis' snapping may be off (or the middle of a
         # narrower free interval)
@@ -207,7 +226,7 @@ def choose_tones(seps: Separations, tones: dict, measured: dict, pairs, windows=
                    min(abs(iv[0] - tones[n]), abs(iv[1] - tones[n])))
         edge = min(0.5 * (best[1] - best[0]), EDGE_MARGIN_HZ + EDGE_MARGIN_REL * tones[n])
         out[n] = min(max(tones[n], best[0] + edge), best[1] - edge)
-    return out, blocked
+    return out, blocked, outside
 
 
 def _sub_steps(step, groups):
@@ -326,6 +345,9 @@ class RescuedDrive:
     weak: dict = dataclasses.field(default_factory=dict)
     synthesize_and_limit: Callable | None = None
     gating: dict = dataclasses.field(default_factory=dict)
+    #: impacter id -> the tone it would need [Hz], beyond the drive band (it plays at
+    #: the band edge, ``tones``; :func:`choose_tones`)
+    outside_band: dict = dataclasses.field(default_factory=dict)
 
 
 def rescue(plan, measured: dict, settings, models: dict, sliders: dict,
@@ -364,7 +386,8 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict,
     if remeasure:
         by_id = {rec.id: models[rec.node] for rec in plan.impacters}
         seps = remeasured(seps, remeasure, by_id, middle, settings)
-    chosen, blocked = choose_tones(seps, middle, measured, pairs, windows)
+    chosen, blocked, outside = choose_tones(seps, middle, measured, pairs, windows,
+                                            band=tuple(settings.band_hz))
     tones = {rec.node: chosen[rec.id] for rec in plan.impacters}
     # what blocks a tone is named pair by pair, with the separation each would need
     bad = inseparable(seps, measured, pairs)
@@ -392,7 +415,8 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict,
     steps, sizing = size_bursts(settings, tuple(base), waveforms, models, sliders)
     dwells = {st.key: plan.dwells.get(st.key, 0.0) for st in steps}
     return RescuedDrive(steps, waveforms, notes, dwells, tones, bad, {}, sizing,
-                        weakened(steps, notes, scales), synthesize_and_limit)
+                        weakened(steps, notes, scales), synthesize_and_limit,
+                        outside_band=outside)
 
 
 def split_weak(settings, drive: RescuedDrive, rows, failures, models, sliders, check):

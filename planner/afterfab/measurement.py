@@ -31,6 +31,14 @@ MAX_MEASURED_FACTOR = 4.0
 #: The smallest gap a measurement may give [um]: the process's gaps are microns; a
 #: smaller number is a gap typed in metres (3e-6) or nm.
 MIN_GAP_UM = 0.05
+#: The quality factors a measurement may give [-].  A resonance is measured as a peak of
+#: the amplitude against frequency, and a damped oscillator's amplitude has a peak only
+#: for Q > 1/sqrt(2): a smaller Q is no resonance one could have measured (and Q 1e-6
+#: makes every simulation crawl in steps of picoseconds: a re-plan ran for minutes).
+#: Above, the best MEMS resonators reach ~1e6 in vacuum and these impacters 10-1000 in
+#: air: 1e7 and more is a typo.
+MIN_QUALITY = 1.0 / math.sqrt(2.0)
+MAX_QUALITY = 1e7
 
 
 @dataclass(frozen=True)
@@ -215,6 +223,11 @@ def measurements_from_rows(header_line, header, rows, fail, impacter_ids, design
             x = csv_number(text, line, column, fail)
             if x <= 0:
                 raise fail(line, column, f"must be > 0, {text} was given")
+            if column == "quality_factor" and not MIN_QUALITY < x <= MAX_QUALITY:
+                raise fail(line, column, f"{text} is no quality factor of a measured "
+                                         f"resonance: a resonance peak needs Q > 1/sqrt(2) "
+                                         f"({MIN_QUALITY:.3f}), and no MEMS resonator "
+                                         f"reaches {MAX_QUALITY:g}")
             if column == "gap_um" and x < MIN_GAP_UM:
                 raise fail(line, column, f"{text} um is no gap of this process (at least "
                                          f"{MIN_GAP_UM:g} um): a gap in metres? gap_um is "

@@ -251,7 +251,9 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
         scene_rows = []
     timings["coupling"] = time.perf_counter() - ts
     ver = pd.DataFrame(ver_rows)
-    passed = bool(ver["passed"].all()) and not drive.inseparable
+    # an impacter no tone of the band drives fails the re-plan, whatever its
+    # simulation at the band edge says (its window lies beyond the band)
+    passed = bool(ver["passed"].all()) and not drive.inseparable and not drive.outside_band
     motion = {"sizing": drive.sizing, "drive": drive.notes, "settle_s": settle,
               "repairs": repairs, "design_problems": [], "gating": drive.gating}
     rounds = [{"round": 0, "span": assignment.span,
@@ -345,7 +347,7 @@ def _replan_record(plan, settings, params, drive, orig_passed, orig_rows, window
         if windows and n in windows:
             moved[-1]["working_window_hz"] = [float(x) for x in windows[n]]
     fails = [r for r in orig_rows if not r["passed"]]
-    lo, hi = settings.band_hz
+    outside = getattr(drive, "outside_band", {}) or {}
     return {
         "moved": moved,
         "original_drive": {
@@ -355,8 +357,30 @@ def _replan_record(plan, settings, params, drive, orig_passed, orig_rows, window
                           "cause": r["cause"]} for r in fails]},
         "inseparable": [{**c, "message": inseparable_message(c)} for c in drive.inseparable],
         "split_steps": drive.splits,
-        "outside_band": [m["id"] for m in moved if not lo <= m["frequency_hz"] <= hi],
+        # the impacters whose window lies beyond the band: their tone (frequency_hz)
+        # is the band edge, the one they would need is outside_band_hz
+        "outside_band": [m["id"] for m in moved if m["id"] in outside],
+        "outside_band_hz": {m["id"]: float(outside[m["id"]]) for m in moved
+                            if m["id"] in outside},
     }
+
+
+def outside_band_message(data) -> str:
+    """One line on the impacters whose window lies beyond the drive band (plan.json's
+    ``replan.outside_band``): the tone each needs, the tone played, and that the
+    re-plan fails."""
+    rp = data["replan"]
+    lo, hi = data["spec"]["drive"]["band_hz"]
+    played = {m["id"]: m["frequency_hz"] for m in rp["moved"]}
+    need = rp.get("outside_band_hz", {})
+    each = "; ".join(
+        f"{n}'s working window is around {need[n]:.1f} Hz" if n in need else n
+        for n in rp["outside_band"])
+    plays = ", ".join(f"{n} at {played[n]:.1f} Hz" for n in rp["outside_band"])
+    return (f"{each}, beyond the drive band {lo:g}-{hi:g} Hz (drive.band_hz), where no "
+            f"tone is played; the drive plays the band edge ({plays}), where the slider "
+            "is not known to move: the re-plan fails (trim the impacter, or widen the "
+            "band if the piezo allows)")
 
 
 def inseparable_message(c) -> str:
@@ -462,11 +486,7 @@ def replan_section(data) -> Section:
                       + (["working window [Hz]"] if tuned else []), rows)
     lines.append("")
     if rp.get("outside_band"):
-        lo, hi = data["spec"]["drive"]["band_hz"]
-        lines += [f"**Outside the drive band {lo:g}-{hi:g} Hz**: the as-built resonance of "
-                  + ", ".join(rp["outside_band"]) + " moved its tone beyond the band; its "
-                  "tone is the band edge nearest to it (drive.band_hz limits the piezo's "
-                  "drive).", ""]
+        lines += [f"**Outside the drive band**: {outside_band_message(data)}", ""]
     if rp.get("split_steps"):
         lines += ["### Steps split", "",
                   "The acceleration limit would have lowered these steps' tones further than "

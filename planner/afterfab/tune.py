@@ -343,7 +343,7 @@ def write_windows(fitted: dict, path) -> None:
                         f"{win.peak_speed_m_s / MM:.6g}", win.points, win.status])
 
 
-def read_windows(path, impacter_ids, tones_hz=None) -> dict:
+def read_windows(path, impacter_ids, tones_hz=None, band_hz=None) -> dict:
     """Read and check windows.csv (``replan --windows``).
 
     Parameters
@@ -357,6 +357,9 @@ def read_windows(path, impacter_ids, tones_hz=None) -> dict:
     tones_hz : dict, optional
         Impacter id -> its planned tone [Hz]: a window further than a factor 2 from it
         is refused (another unit, another chip).
+    band_hz : (float, float), optional
+        The plan's drive band (lo, hi) [Hz] (``drive.band_hz``): a window reaching
+        outside it is refused (its middle, the tone, may be one the drive never plays).
 
     Returns
     -------
@@ -394,6 +397,12 @@ def read_windows(path, impacter_ids, tones_hz=None) -> dict:
             raise fail(line, "window_lo_hz", f"the window {lo:g}-{hi:g} Hz of {name} is more "
                                              f"than a factor 2 from its tone {tone:.6g} Hz "
                                              "(another unit, or another chip's file?)")
+        if band_hz is not None and not (band_hz[0] <= lo and hi <= band_hz[1]):
+            column = "window_lo_hz" if lo < band_hz[0] else "window_hi_hz"
+            raise fail(line, column, f"the window {lo:g}-{hi:g} Hz of {name} reaches outside "
+                                     f"the drive band {band_hz[0]:g}-{band_hz[1]:g} Hz "
+                                     "(drive.band_hz): a tone there is never played (a "
+                                     "sweep beyond the band: give the part inside it)")
         if tone is not None:
             # a window is where its own impacter's tone moves its slider: one whose
             # middle lies nearer another impacter's tone is that one's row (a name

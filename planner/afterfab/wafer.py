@@ -32,9 +32,15 @@ know is the chip's truth, which the study verifies the drive on.
 
 **Resuming.**  Each die's result and files are written, as the die finishes, into a
 work folder beside the output (``.OUT.dies/``, one ``die_<x>_<y>/`` per die, renamed
-into place whole); an interrupted run leaves it, and the next run with the same plan,
-measurement and options reads the finished dies back instead of redoing them (a run
-with other inputs starts afresh).  The output folder itself is written at the end and
+into place whole); an interrupted run leaves it, and the next run reads a finished die
+back instead of redoing it only when that die's own key matches: the SHA-256 of the
+plan.json's bytes, the options, the die's place, its measurement as read and, for a
+folder of measured.csv files, its own file's bytes (:func:`die_key`).  A die whose file
+was renamed, edited or swapped with another's is redone; a batch-wide key alone would
+let a renamed file's die pass for another.  The work folder carries a marker
+(:data:`WORK_MARKER`) from the moment it exists: a folder of that name without it (a
+user's, or the ``--measured-dir`` itself) is refused, never emptied
+(:func:`check_work_folder`).  The output folder itself is written at the end and
 swapped in atomically (:func:`planner.files.output_folder`), and the work folder removed.
 Every output depends on the inputs only: ``--jobs 1`` and ``--jobs 2`` (or a cluster)
 write the same bytes.
@@ -42,6 +48,7 @@ write the same bytes.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -63,11 +70,17 @@ NOT_MEASURED = "not measured, taken as designed: "
 #: The summary's columns.
 SUMMARY_COLUMNS = ("die_x", "die_y", "outcome", "causes", "trimmed", "checks_passed",
                    "checks", "folder")
-#: Version of the work folder's contents: a resume reads back only its own kind (2: a
-#: die not measured whole is "partly measured", issue 44).
-WORK_FORMAT = 2
+#: Version of the work folder's contents: a resume reads back only its own kind (3: a
+#: die not measured whole is "partly measured"; each die keyed on its own input, issue 44).
+WORK_FORMAT = 3
 #: The file of a die's work folder written last: its presence says the die finished.
 RESULT_FILE = "result.json"
+#: The marker of a work folder vibroplan made (its format and the batch's key): a folder
+#: at the work folder's place without it is not vibroplan's, and is refused.
+WORK_MARKER = ".vibroplan-work"
+#: In a finished die's work folder, the die's own key (:func:`die_key`); taken out
+#: before the folder moves into the output.
+KEY_FILE = ".die-key"
 
 
 @dataclass(frozen=True)
@@ -232,6 +245,21 @@ def inputs_digest(plan_path, measured_paths, options: dict) -> str:
     return h.hexdigest()
 
 
+def die_key(batch: str, die_x: int, die_y: int, measured: dict, source=None) -> str:
+    """SHA-256 of what one die's result depends on: ``batch`` (:func:`inputs_digest`
+    of the plan and options), the die's place, its measurement as read (every
+    impacter's resonances, Q, gaps, in the file's order) and, when the die has a file
+    of its own (``--measured-dir``), that file's bytes."""
+    h = hashlib.sha256()
+    h.update(f"{batch}\n{int(die_x)} {int(die_y)}\n".encode())
+    for name, m in measured.items():
+        h.update(json.dumps([name, list(m.halves_hz), list(m.quality), list(m.gap_m),
+                             m.damping_ns_per_m, m.window_hz]).encode() + b"\n")
+    if source is not None:
+        h.update(hashlib.sha256(Path(source).read_bytes()).hexdigest().encode())
+    return h.hexdigest()
+
+
 def work_folder(out_dir) -> Path:
     """Where a batch keeps its finished dies until its output is written:
     ``.NAME.dies`` beside the output folder ``NAME``."""
@@ -239,35 +267,77 @@ def work_folder(out_dir) -> Path:
     return out.parent / f".{out.name}.dies"
 
 
+def _work_marker(work: Path) -> dict | None:
+    """The marker of a work folder vibroplan made, or None (a work folder of format 1,
+    before the marker, is known by its ``inputs.json`` stamp)."""
+    for name, ours in ((WORK_MARKER, lambda d: d.get("written_by") == "vibroplan"),
+                       ("inputs.json", lambda d: d.get("format") == 1 and "digest" in d)):
+        try:
+            data = json.loads((work / name).read_text())
+        except (OSError, ValueError):
+            continue
+        if isinstance(data, dict) and ours(data):
+            return data
+    return None
+
+
+def check_work_folder(work, inputs=()) -> None:
+    """Refuse, before any work, a work folder vibroplan may not use: one that holds an
+    input or lies inside an input folder (``--measured-dir .OUT.dies``), or one that
+    exists without vibroplan's marker (a user's folder: it would be emptied).
+
+    Raises
+    ------
+    planner.core.errors.OutputError
+        Naming the folder and what to do instead.
+    """
+    from planner.core.errors import OutputError
+
+    work = Path(work).absolute()
+    for inp in inputs:
+        if inp is None:
+            continue
+        p = Path(inp).absolute().resolve()
+        if p.is_relative_to(work.resolve()) or work.resolve().is_relative_to(p):
+            raise OutputError(f"{work}: the batch keeps its finished dies in this folder, "
+                              f"which is (or holds) the input {inp}; choose another --out")
+    if work.is_symlink() or (work.exists() and not work.is_dir()):
+        raise OutputError(f"{work}: the batch keeps its finished dies here, and it is not "
+                          "a folder vibroplan made; move it away or choose another --out")
+    if work.is_dir() and _work_marker(work) is None:
+        raise OutputError(f"{work}: the batch keeps its finished dies here, and this folder "
+                          f"was not written by vibroplan (no {WORK_MARKER}); it is not "
+                          "removed: move it away or choose another --out")
+
+
 def _open_work(work: Path, digest: str) -> dict:
-    """The finished dies of a work folder of this digest (name -> result without files);
-    a folder of another digest, or of none, is emptied first."""
-    stamp = work / "inputs.json"
-    try:
-        same = json.loads(stamp.read_text()).get("digest") == digest
-    except (OSError, ValueError):
-        same = False
-    if not same:
-        shutil.rmtree(work, ignore_errors=True)
-        work.mkdir(parents=True)
-        stamp.write_text(json.dumps({"format": WORK_FORMAT, "digest": digest}) + "\n")
+    """The finished dies of the work folder (name -> (key, result without files)),
+    made with its marker if it does not exist (a folder without the marker is refused,
+    :func:`check_work_folder`).  The dies are kept whatever ``digest``: each is matched
+    on its own key (:func:`die_key`)."""
+    check_work_folder(work)
+    if not work.exists():
+        # made whole with its marker: a run killed here leaves no unmarked folder
+        tmp = Path(tempfile.mkdtemp(prefix=f".{work.name}.", dir=work.parent))
+        (tmp / WORK_MARKER).write_text(json.dumps(
+            {"written_by": "vibroplan", "format": WORK_FORMAT, "digest": digest}) + "\n")
+        os.rename(tmp, work)
         return {}
     done = {}
     for d in sorted(work.iterdir()):
-        res = d / RESULT_FILE
-        if d.is_dir() and not d.name.startswith(".") and res.is_file():
-            try:
-                done[d.name] = json.loads(res.read_text())
-            except ValueError:      # a result cut short: the die runs again
-                shutil.rmtree(d, ignore_errors=True)
-        elif d.is_dir():            # a die's folder caught mid-write by a killed run
-            shutil.rmtree(d, ignore_errors=True)
+        if not d.is_dir() or d.is_symlink() or not d.name.startswith("die_"):
+            continue
+        res, key = d / RESULT_FILE, d / KEY_FILE
+        try:
+            done[d.name] = (key.read_text().strip(), json.loads(res.read_text()))
+        except (OSError, ValueError):   # a die of an older format, or cut short: redone
+            continue
     return done
 
 
-def _keep(work: Path, result: dict) -> dict:
+def _keep(work: Path, result: dict, key: str) -> dict:
     """Write a finished die into the work folder atomically (a hidden folder renamed
-    into place whole); returns its result without its files."""
+    into place whole, its key inside); returns its result without its files."""
     name = die_name(result["die_x"], result["die_y"])
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", dir=work))
     files = result.pop("files")
@@ -276,6 +346,7 @@ def _keep(work: Path, result: dict) -> dict:
         p.parent.mkdir(parents=True, exist_ok=True)
         p.write_bytes(data)
     (tmp / RESULT_FILE).write_text(json.dumps(result, indent=2) + "\n")
+    (tmp / KEY_FILE).write_text(key + "\n")
     final = work / name
     if final.exists():
         shutil.rmtree(final)
@@ -284,7 +355,7 @@ def _keep(work: Path, result: dict) -> dict:
 
 
 def replan_wafer(record, dies, out_tmp, *, plan_path, measured_paths, trim=False,
-                 jobs=1, scheduler=None, progress=None, work=None) -> list:
+                 jobs=1, scheduler=None, progress=None, work=None, sources=None) -> list:
     """Re-plan every die of a wafer and write the batch's outputs into ``out_tmp``.
 
     Parameters
@@ -296,7 +367,11 @@ def replan_wafer(record, dies, out_tmp, *, plan_path, measured_paths, trim=False
     out_tmp : path
         The output folder being written (:func:`planner.files.output_folder`'s temporary).
     plan_path, measured_paths :
-        The inputs, whose bytes key the work folder (:func:`inputs_digest`).
+        The inputs (the plan's bytes key the work folder, :func:`inputs_digest`;
+        ``measured_paths`` is kept for callers, each die is keyed on its own input).
+    sources : dict, optional
+        ``(die_x, die_y) -> path`` of a die's own file (``--measured-dir``), whose bytes
+        enter the die's key (:func:`die_key`).
     trim : bool
         Trim the dies whose pairs no drive tells apart.
     jobs, scheduler :
@@ -314,10 +389,14 @@ def replan_wafer(record, dies, out_tmp, *, plan_path, measured_paths, trim=False
     from planner.runtime.engine import run_tasks
 
     work = Path(work)
-    digest = inputs_digest(plan_path, measured_paths, {"trim": bool(trim),
-                                                       "seed": record.seed})
-    done = _open_work(work, digest)
+    # the batch's key holds the plan and the options; each die adds its own input
+    batch = inputs_digest(plan_path, [], {"trim": bool(trim), "seed": record.seed})
+    sources = sources or {}
     names = [die_name(x, y) for x, y, _ in dies]
+    keys = {n: die_key(batch, x, y, m, sources.get((x, y)))
+            for (x, y, m), n in zip(dies, names)}
+    kept = _open_work(work, batch)
+    done = {n: r for n, (k, r) in kept.items() if keys.get(n) == k}
     todo = [(x, y, m) for (x, y, m), n in zip(dies, names) if n not in done]
     total, resumed = len(dies), len(dies) - len(todo)
     tick = progress or (lambda done, total, resumed: None)
@@ -325,7 +404,8 @@ def replan_wafer(record, dies, out_tmp, *, plan_path, measured_paths, trim=False
     count = {"n": resumed}
 
     def keep(_index, result):
-        done[die_name(result["die_x"], result["die_y"])] = _keep(work, result)
+        name = die_name(result["die_x"], result["die_y"])
+        done[name] = _keep(work, result, keys[name])
         count["n"] += 1
         tick(count["n"], total, resumed)
 
@@ -379,7 +459,17 @@ def write_outputs(record, results, work: Path, out: Path) -> None:
     dies_dir.mkdir(parents=True, exist_ok=True)
     for r in results:
         name = die_name(r["die_x"], r["die_y"])
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(work / name / KEY_FILE)
         os.rename(work / name, dies_dir / name)
+
+
+def remove_work(work) -> None:
+    """Remove a batch's work folder once its output is written (only a folder that
+    carries vibroplan's marker)."""
+    work = Path(work)
+    if work.is_dir() and not work.is_symlink() and _work_marker(work) is not None:
+        shutil.rmtree(work, ignore_errors=True)
 
 
 def _csv_cell(v) -> str:

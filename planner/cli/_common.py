@@ -19,6 +19,7 @@ Exit codes (the same for every command, listed in ``vibroplan --help`` and the R
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import signal
@@ -60,6 +61,14 @@ if hasattr(signal, "SIGHUP"):
     _NAMES[signal.SIGHUP] = "SIGHUP"
 
 
+#: Seconds a run has to answer a signal before its watchdog ends it: the main thread
+#: stuck in a long compiled call (a numba kernel, which Python cannot interrupt) gets
+#: :data:`STUCK_S`; one already unwinding (closing workers, removing temporaries) gets
+#: :data:`UNWIND_S`, beyond a Dask cluster's close timeout.
+STUCK_S = 3.0
+UNWIND_S = 30.0
+
+
 class _SignalGuard:
     """Turn the first SIGINT, SIGTERM or SIGHUP into :class:`Interrupted` in the main
     thread (SIGHUP: the terminal went away; its default would end the process without
@@ -67,15 +76,28 @@ class _SignalGuard:
 
     Later signals are only recorded, so that the clean-up the first one started
     (terminating workers, removing temporaries) runs to its end.
+
+    Python runs a signal handler only between two bytecodes of the main thread: a
+    compiled call (a numba kernel's simulation, tens of seconds on a hostile chip) holds
+    it off.  A watchdog thread wakes on the signal itself (``signal.set_wakeup_fd``; the
+    kernels release the GIL, ``nogil=True``) and, if the main thread has not answered
+    within :data:`STUCK_S` (or finished unwinding within :data:`UNWIND_S`), removes this
+    process's temporaries and locks (:func:`planner.files.swap.remove_held`) and ends it
+    with the signal's exit code; worker processes follow their parent.
     """
 
     def __init__(self):
         self.signum = None
         self.saved = {}
+        self._wakeup = None
+        self._done = None
 
     def _handler(self, signum, frame):
+        from planner.files.swap import note_interrupt
+
         if self.signum is None:
             self.signum = signum
+            note_interrupt(signum)
             raise Interrupted(signum)
 
     def __enter__(self):
@@ -84,11 +106,75 @@ class _SignalGuard:
                 self.saved[sig] = signal.signal(sig, self._handler)
             except ValueError:  # not the main thread (e.g. a test runner's worker)
                 pass
+        if self.saved:
+            self._start_watchdog()
         return self
 
+    def _start_watchdog(self):
+        import os
+        import threading
+
+        r, w = os.pipe()
+        os.set_blocking(w, False)
+        try:
+            old = signal.set_wakeup_fd(w, warn_on_full_buffer=False)
+        except ValueError:
+            os.close(r)
+            os.close(w)
+            return
+        self._wakeup = (r, w, old)
+        self._done = threading.Event()
+        threading.Thread(target=self._watch, args=(r, self._done), daemon=True,
+                         name="vibroplan-signal-watchdog").start()
+
+    def _watch(self, r, done):
+        import os
+        import time
+
+        try:
+            signum = None
+            while signum is None:   # the wakeup fd carries every handled signal's number
+                data = os.read(r, 1)
+                if not data or done.is_set():
+                    return
+                if data[0] in _NAMES:
+                    signum = data[0]
+        except OSError:
+            return
+        finally:
+            if done.is_set() or signum is None:
+                with contextlib.suppress(OSError):
+                    os.close(r)
+        start = time.monotonic()
+        while not done.wait(0.1):
+            waited = time.monotonic() - start
+            if waited > (UNWIND_S if self.signum is not None else STUCK_S):
+                from planner.files.swap import remove_held
+
+                remove_held()
+                name = _NAMES.get(signum, signum)
+                try:
+                    os.write(2, f"interrupted ({name}): stopped, nothing written\n".encode())
+                finally:
+                    os._exit(128 + signum)
+        with contextlib.suppress(OSError):
+            os.close(r)
+
     def __exit__(self, *exc):
+        import os
+
+        from planner.files.swap import clear_interrupt
+
+        if self._wakeup is not None:
+            r, w, old = self._wakeup
+            self._done.set()
+            with contextlib.suppress(ValueError, OSError):
+                signal.set_wakeup_fd(old)
+            os.close(w)         # the watchdog's read ends
+            self._wakeup = None
         for sig, old in self.saved.items():
             signal.signal(sig, old)
+        clear_interrupt()
         return False
 
 
@@ -280,7 +366,8 @@ def _with_windows(plan, measured, windows_path):
     design = plan.design_natural_frequency_hz
     tones = {r.id: r.frequency_hz * (measured[r.id].natural_frequency_hz / design[r.id]
                                      if r.id in measured else 1.0) for r in plan.impacters}
-    windows, flagged = read_windows(windows_path, plan.impacter_ids, tones)
+    windows, flagged = read_windows(windows_path, plan.impacter_ids, tones,
+                                    band_hz=tuple(plan.spec.drive.band_hz))
     unmeasured = sorted(set(windows) - set(measured))
     if unmeasured:
         raise SpecError(f"a working window for {', '.join(unmeasured)}, which measured.csv "

@@ -22,9 +22,9 @@ def replan_wafer_command(plan_path, measured, out_dir, *, trim, jobs, scheduler,
 
     from planner.runtime.limits import check_jobs, cores
     from planner.afterfab.stdf import read_test_map
-    from planner.afterfab.wafer import (PARTLY_MEASURED, counts, replan_wafer,
-                                        scrapped_causes, work_folder)
-    from planner.afterfab.wafer_file import not_measured, read_wafer
+    from planner.afterfab.wafer import (PARTLY_MEASURED, check_work_folder, counts, remove_work,
+                                        replan_wafer, scrapped_causes, work_folder)
+    from planner.afterfab.wafer_file import DIE_FILE, not_measured, read_wafer
     from planner.runtime.engine import check_scheduler
     from planner.planning.plan_file import read_plan
 
@@ -42,9 +42,10 @@ def replan_wafer_command(plan_path, measured, out_dir, *, trim, jobs, scheduler,
              if measured.is_dir() else [measured])
     inputs = [plan.path, *files] + ([test_map] if test_map is not None else [])
     check_output_folder(out_dir, command="replan", inputs=inputs, force=force)
+    work = work_folder(out_dir)
+    check_work_folder(work, [measured, *inputs])
     if scheduler:
         check_scheduler(scheduler)
-    work = work_folder(out_dir)
     # said before any work, and whatever --quiet: the outcome of such a die rests on
     # a design value, not on the die
     warnings = [f"warning: {n}" for n in notes] + [
@@ -56,6 +57,12 @@ def replan_wafer_command(plan_path, measured, out_dir, *, trim, jobs, scheduler,
     if len(warnings) > MAX_WARNINGS:
         click.echo(f"warning: and {len(warnings) - MAX_WARNINGS} more such lines (every "
                    f"die's in {out_dir}/report.md)", err=True)
+    # a die of a folder of measured.csv files is keyed on its own file's bytes too
+    sources = {}
+    for p in files if measured.is_dir() else ():
+        m = DIE_FILE.match(p.name)
+        if m is not None:
+            sources[(int(m.group(1)), int(m.group(2)))] = p
 
     def progress(done, total, resumed):
         if quiet:
@@ -71,16 +78,14 @@ def replan_wafer_command(plan_path, measured, out_dir, *, trim, jobs, scheduler,
             results = replan_wafer(plan, dies, tmp, plan_path=plan.path,
                                    measured_paths=files + ([test_map] if test_map else []),
                                    trim=trim, jobs=jobs, scheduler=scheduler,
-                                   progress=progress, work=work)
+                                   progress=progress, work=work, sources=sources)
     except KeyboardInterrupt:
         kept = sum(1 for p in work.glob("die_*") if (p / "result.json").is_file()) \
             if work.is_dir() else 0
         click.echo(f"{kept} finished dies kept in {work}: run the same command again to "
                    "resume", err=True)
         raise
-    import shutil
-
-    shutil.rmtree(work, ignore_errors=True)
+    remove_work(work)
     c = counts(results)
     click.echo(f"{plan.spec.name}: {len(results)} dies: " + ", ".join(
         f"{k} {v}" for k, v in c.items()) + f"; wrote {out_dir}/ (see {out_dir}/report.md, "

@@ -106,7 +106,7 @@ def command(plan_path, measured_path, windows_path, measured_dir, trim, jobs, sc
     {EXIT}
     """
     from planner.files import output_folder
-    from planner.afterfab.replan import replan, write_replan_outputs
+    from planner.afterfab.replan import outside_band_message, replan, write_replan_outputs
 
     if (measured_path is None) == (measured_dir is None):
         raise click.UsageError("give the measurement: --measured FILE (a chip's "
@@ -153,9 +153,7 @@ def command(plan_path, measured_path, windows_path, measured_dir, trim, jobs, sc
     click.echo(f"original drive on this chip: {'PASSES' if od['passed'] else 'FAILS'} "
                f"({od['checks'] - od['failed_checks']}/{od['checks']} checks)")
     if rp.get("outside_band"):
-        click.echo("warning: the as-built resonance moved the tone of "
-                   f"{', '.join(rp['outside_band'])} outside the drive band "
-                   f"{d['spec']['drive']['band_hz']} Hz: driven at the band edge", err=True)
+        click.echo(f"error: {outside_band_message(d)}", err=True)
     for key, subs in rp.get("split_steps", {}).items():
         click.echo(f"note: {key} plays as {len(subs)} sub-steps ({', '.join(subs)}): the "
                    "acceleration limit would have weakened its tones", err=True)

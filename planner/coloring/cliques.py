@@ -22,7 +22,7 @@ from numba import njit  # noqa: E402
 # --------------------------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _clique_span_kernel(w, best):  # pragma: no cover - jit
     """Exact span of a clique with separations, by branch and bound.
 
@@ -117,7 +117,7 @@ def _clique_span_kernel(w, best):  # pragma: no cover - jit
     return best
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _clique_greedy_span_kernel(w):  # pragma: no cover - jit
     """A span achievable on a clique: best nearest-neighbour colour order.
 
@@ -164,7 +164,7 @@ def _clique_greedy_span_kernel(w):  # pragma: no cover - jit
     return best
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _held_karp_kernel(w, steps):  # pragma: no cover - jit
     """Lagrangian (1-tree) lower bound on the shortest Hamiltonian path.
 

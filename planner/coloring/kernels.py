@@ -24,7 +24,7 @@ from numba import njit  # noqa: E402
 # --------------------------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _dsatur_kernel(indptr, adj, adjsep, weight, tiebreak, mode, width):  # pragma: no cover - jit
     """DSATUR generalised to separations.
 
@@ -110,7 +110,7 @@ def _dsatur_kernel(indptr, adj, adjsep, weight, tiebreak, mode, width):  # pragm
     return colours
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _first_fit_kernel(indptr, adj, adjsep, order, width):  # pragma: no cover - jit
     """Greedy first fit in a given vertex order.
 
@@ -161,7 +161,7 @@ def _first_fit_kernel(indptr, adj, adjsep, order, width):  # pragma: no cover - 
     return colours
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _order_search_kernel(indptr, adj, adjsep, order, n_iters, seed, history, width,
                          target):  # pragma: no cover - jit
     """Late-acceptance hill climbing over vertex orders decoded by first fit.
@@ -250,7 +250,7 @@ def _order_search_kernel(indptr, adj, adjsep, order, n_iters, seed, history, wid
     return best, best_cost // scale
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _violation_table(indptr, adj, adjsep, colours, n_colours):  # pragma: no cover - jit
     """gamma[v, k]: total separation shortfall of vertex v if it had colour k.
 
@@ -279,7 +279,7 @@ def _violation_table(indptr, adj, adjsep, colours, n_colours):  # pragma: no cov
     return gamma
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _tabu_kernel(indptr, adj, adjsep, colours, tabu, it0, n_iters, n_colours, seed,
                  tenure_random, tenure_factor):  # pragma: no cover - jit
     """Tabu search for a colouring with colours in [0, n_colours) and no conflict.

@@ -15,7 +15,8 @@ import tempfile
 from pathlib import Path
 
 from planner.files.marks import folder_marker, marked_ancestor, record_all, written_by
-from planner.files.swap import clean_stale, signals_deferred, temp_prefix
+from planner.files.swap import (check_interrupt, clean_stale, hold, release, signals_deferred,
+                              temp_prefix)
 from planner.files.targets import check_not_input, check_parent
 from planner.core.errors import OutputError
 
@@ -112,8 +113,10 @@ def output_files(targets, *, command: str, inputs=(), force: bool = False, stale
             parent = t.absolute().parent
             if parent not in dirs:
                 dirs[parent] = Path(tempfile.mkdtemp(prefix=temp_prefix(t, "new"), dir=parent))
+                hold(dirs[parent])
             tmps.append(dirs[parent] / t.name)
         yield tmps
+        check_interrupt()   # an interrupt whose exception was swallowed
         written = [(t, tmp) for t, tmp in zip(targets, tmps) if tmp.exists()]
         gone = [Path(p) for p in stale
                 if Path(p).is_file() and Path(p) not in targets and written_by(p) == command]
@@ -121,6 +124,7 @@ def output_files(targets, *, command: str, inputs=(), force: bool = False, stale
     finally:
         for d in dirs.values():
             shutil.rmtree(d, ignore_errors=True)
+            release(d)
 
 
 def _swap(written, gone, dirs, command):

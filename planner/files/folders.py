@@ -14,7 +14,8 @@ import tempfile
 from pathlib import Path
 
 from planner.files.marks import MARKER, folder_marker, marked_ancestor, marker_text, sha256
-from planner.files.swap import clean_stale, lock, signals_deferred, temp_prefix, umask
+from planner.files.swap import (check_interrupt, clean_stale, hold, lock, release,
+                              signals_deferred, temp_prefix, umask)
 from planner.files.targets import check_parent, names
 from planner.core.errors import OutputError
 
@@ -132,11 +133,13 @@ def output_folder(out_dir: str | os.PathLike, *, command: str = "plan", inputs=(
         # re-check under the lock: another run may have changed the folder meanwhile
         target = check_output_folder(out_dir, command=command, inputs=inputs, force=force)
         tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(target, "new"), dir=target.parent))
+        hold(tmp)
         os.chmod(tmp, 0o777 & ~umask())  # mkdtemp's 0700 is for the temporary only
         old = None
         try:
             yield tmp
             (tmp / MARKER).write_text(marker_text(command, tmp), encoding="utf-8")
+            check_interrupt()   # an interrupt whose exception was swallowed
             with signals_deferred():
                 if target.exists():
                     old = Path(tempfile.mkdtemp(prefix=temp_prefix(target, "old"),
@@ -152,5 +155,6 @@ def output_folder(out_dir: str | os.PathLike, *, command: str = "plan", inputs=(
                     raise
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
+            release(tmp)
             if old is not None:
                 shutil.rmtree(old, ignore_errors=True)

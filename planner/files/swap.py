@@ -20,6 +20,68 @@ from pathlib import Path
 from planner.core.errors import OutputError
 
 
+#: The temporaries and locks this process holds now: what a run stopped by force
+#: (:func:`remove_held`, the CLI's last resort when a signal is not answered) must not
+#: leave behind.  Only the main thread adds and removes; the remover runs at the end.
+_HELD: dict = {}
+
+
+def hold(path) -> None:
+    """Note a temporary or lock ``path`` this process made (see :func:`remove_held`)."""
+    _HELD[str(path)] = True
+
+
+def release(path) -> None:
+    """Forget ``path`` (it was removed, or swapped in as an output)."""
+    _HELD.pop(str(path), None)
+
+
+#: The signal that interrupted this process, once one did (:func:`note_interrupt`).
+_INTERRUPT: list = []
+
+
+def note_interrupt(signum: int) -> None:
+    """Record that a signal interrupted the run (the CLI's handler calls this)."""
+    if not _INTERRUPT:
+        _INTERRUPT.append(int(signum))
+
+
+def clear_interrupt() -> None:
+    """Forget a recorded interrupt (a command's end: the next command in this process,
+    a test runner's, starts afresh)."""
+    _INTERRUPT.clear()
+
+
+def check_interrupt() -> None:
+    """Raise :class:`planner.core.errors.Interrupted` if a signal interrupted the run.
+
+    Called before an output is swapped in: the handler's exception can be swallowed
+    where Python cannot raise it (a finalizer, a callback: "Exception ignored in ..."),
+    and the run would then go on and write its outputs (issue 44:
+    ``test_sigint_while_outputs_are_written`` ended with exit 0)."""
+    if _INTERRUPT:
+        from planner.core.errors import Interrupted
+
+        raise Interrupted(_INTERRUPT[0])
+
+
+def remove_held() -> list:
+    """Remove every temporary and lock this process holds; returns their paths.  For a
+    process about to end without its clean-up (``os._exit``): a dead run's leftovers
+    would be cleaned by the next run anyway, but none should be left at all."""
+    removed = []
+    for path in list(_HELD):
+        p = Path(path)
+        with contextlib.suppress(OSError):
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p, ignore_errors=True)
+            else:
+                p.unlink()
+            removed.append(path)
+        _HELD.pop(path, None)
+    return removed
+
+
 def umask() -> int:
     """The process's file-mode creation mask (read without changing it)."""
     mask = os.umask(0)
@@ -150,12 +212,14 @@ def lock(target: Path):
             pass
         os.close(fd)
     try:
+        hold(path)
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()}\n".encode())
         yield
     finally:
         with contextlib.suppress(OSError):
             os.unlink(path)
+        release(path)
         os.close(fd)
 
 

@@ -172,6 +172,36 @@ def dask_client(jobs: int = 1, scheduler: str | None = None):
 
 
 @contextlib.contextmanager
+def _signals_held():
+    """Hold SIGINT, SIGTERM and SIGHUP back (recorded, not raised) for the block, and
+    deliver the first one after it.
+
+    A ``LocalCluster`` interrupted while it starts is left half-made with no name to
+    close it by: its workers were orphaned, ``distributed``'s exit hook printed
+    tracebacks, and a run could wait minutes for them (issue 44: ``yield --chips
+    100000`` ignoring SIGTERM).  Held back, the signal arrives once the cluster is
+    bound and inside the block that closes it.  Not in the main thread: nothing to do.
+    """
+    import signal
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    sigs = [signal.SIGINT, signal.SIGTERM] + ([signal.SIGHUP] if hasattr(signal, "SIGHUP")
+                                              else [])
+    got = []
+    saved = {sig: signal.signal(sig, lambda signum, frame: got.append(signum))
+             for sig in sigs}
+    try:
+        yield
+    finally:
+        for sig, old in saved.items():
+            signal.signal(sig, old)
+        if got:
+            signal.raise_signal(got[0])
+
+
+@contextlib.contextmanager
 def _client(jobs, scheduler):
     from distributed import Client, LocalCluster
 
@@ -188,16 +218,22 @@ def _client(jobs, scheduler):
             with contextlib.suppress(Exception):
                 client.close(timeout=CLOSE_TIMEOUT_S)
         return
-    cluster = LocalCluster(n_workers=int(jobs), threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=logging.ERROR)
+    cluster = client = None
     try:
-        client = Client(cluster)
-        try:
-            yield client
-        finally:
-            client.close(timeout=CLOSE_TIMEOUT_S)
+        # a signal while they start is delivered once both are bound (to be closed)
+        with _signals_held():
+            cluster = LocalCluster(n_workers=int(jobs), threads_per_worker=1,
+                                   processes=True, dashboard_address=None,
+                                   silence_logs=logging.ERROR)
+            client = Client(cluster)
+        yield client
     finally:
-        cluster.close(timeout=CLOSE_TIMEOUT_S)
+        try:
+            if client is not None:
+                client.close(timeout=CLOSE_TIMEOUT_S)
+        finally:
+            if cluster is not None:
+                cluster.close(timeout=CLOSE_TIMEOUT_S)
 
 
 #: Seconds between looks at the finished tasks.

@@ -360,3 +360,56 @@ def test_unusual_values_warn():
 
     with pytest.warns(model.UnitWarning):
         model.Drive([6200.0], [2e-3])
+
+
+# ----------------------------------------------------------------------------------
+# issue 44 case 6: a signal answered in every long stage
+
+
+def _stage_cmd(stage, tiny_plan_dir, tmp_path):
+    """(command, the file whose appearance says the run is under way, seconds to let
+    it get into its stage after that) of each long stage."""
+    cli = [sys.executable, "-m", "planner.cli"]
+    if stage == "kernel":
+        # one RK4 simulation of 10^4 s below resonance: one compiled call of minutes
+        return (cli + ["simulate", str(CONFIGS / "paper_fig7.yaml"), "--freq", "500",
+                       "--method", "rk4", "--duration", "1e7"], None, 12.0)
+    if stage == "yield chips":
+        return (cli + ["yield", str(tiny_plan_dir), "--out", "y", "--allow-zero",
+                       "--chips", "100000", "--jobs", "1", "--quiet"], ".y.lock", 3.0)
+    spec = tmp_path / "tiny.yaml"
+    spec.write_text(TINY)
+    # the reach probes of a plan that reads nothing from a design cache (its designs
+    # end too soon on the tiny spec to be hit reliably: not tested here)
+    return (cli + ["plan", str(spec), "--out", "p", "--no-cache", "--jobs", "1",
+                   "--no-figures", "--quiet"], ".p.lock", 3.0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("stage", ["kernel", "yield chips", "reach"])
+def test_sigterm_is_answered_in_every_long_stage(tiny_plan_dir, tmp_path, stage):
+    """Python answers a signal only between bytecodes of its main thread: a numba call
+    held SIGTERM off for its whole length (issue 44: > 60 s, SIGKILL needed, leaving
+    .OUT.lock and .new-*).  Sent inside each long stage, the run ends with 143, leaving
+    no lock, no temporary and no output.  The timeout is a hang guard, not a target."""
+    cmd, started, settle = _stage_cmd(stage, tiny_plan_dir, tmp_path)
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        if started is not None:
+            for _ in range(30000):
+                if (tmp_path / started).exists() or proc.poll() is not None:
+                    break
+                time.sleep(0.01)
+        time.sleep(settle)
+        assert proc.poll() is None, proc.communicate()
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 143, err
+    assert "Traceback" not in err and "interrupted (SIGTERM)" in err, err
+    left = sorted(p.name for p in tmp_path.iterdir() if p.name != "tiny.yaml")
+    assert left == [], left

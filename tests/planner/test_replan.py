@@ -458,3 +458,110 @@ def test_tones_closer_than_the_loop_resolution_play_as_one(plan):
     # the merged 4852.8-4853.6 Hz tone plays at the phase of its first impacter (R5)
     k = int(np.argmin(np.abs(np.asarray(played) - 4853.2)))
     assert w.phases[k] == pytest.approx(0.05)
+
+
+# ------------------------------------------------------------------ issue 44: the drive band
+
+def _cli(*args):
+    """``vibroplan replan ARGS`` with exceptions caught (exit codes and output checked)."""
+    from planner.cli import main
+
+    return CliRunner().invoke(main, ["replan", *map(str, args)])
+
+
+def _all_tones(out) -> list:
+    d = json.loads((out / "plan.json").read_text())
+    return [t["frequency_hz"] for st in d["steps"] for t in st["tones"]]
+
+
+@pytest.mark.parametrize("ratio, beyond", [(1.0586, False), (1.0885, True)])
+def test_a_resonance_above_the_band_is_never_played_outside_it(plan_data, tiny_plan_dir,
+                                                                tmp_path, ratio, beyond):
+    """Issue 44 case 3: A2.backward measured 13617 Hz (x1.0586 of its design) in the
+    5-14 kHz tiny plan was reported "driven at the band edge" while its waveform played
+    14292.5 Hz.  No tone of a re-plan lies outside the band: where the impacter's window
+    reaches into the band its tone is there (and the re-plan may pass); where the whole
+    window lies beyond (x1.0885), the drive plays the band edge, says so with the tone it
+    plays, and the re-plan fails (exit 1), as plan.json and report.md say."""
+    lo, hi = plan_data["spec"]["drive"]["band_hz"]
+    nat = {i["id"]: i["natural_frequency_hz"] for i in plan_data["impacters"]}
+    measured = _measured_csv(tmp_path / "m.csv", {"A1.forward": nat["A1.forward"],
+                                                  "A2.backward": nat["A2.backward"] * ratio})
+    out = tmp_path / "r"
+    res = _cli(tiny_plan_dir, "--measured", measured, "--out", out, "--no-figures")
+    assert "Traceback" not in res.output and "driven at the band edge" not in res.output
+    tones = _all_tones(out)
+    assert tones and all(lo <= f <= hi for f in tones), tones
+    d = json.loads((out / "plan.json").read_text())
+    rp = d["replan"]
+    played = {m["id"]: m["frequency_hz"] for m in rp["moved"]}
+    report = (out / "report.md").read_text()
+    if beyond:
+        assert res.exit_code == 1, res.output
+        assert rp["outside_band"] == ["A2.backward"] and played["A2.backward"] == hi
+        assert rp["outside_band_hz"]["A2.backward"] > hi
+        line = f"the drive plays the band edge (A2.backward at {hi:.1f} Hz)"
+        assert line in res.output and "the re-plan fails" in res.output
+        assert line in report
+        assert d["verification"]["passed"] is False
+    else:
+        assert rp["outside_band"] == [] and played["A2.backward"] <= hi
+        assert res.exit_code == 0, res.output
+
+
+def test_a_die_beyond_the_band_is_scrapped_in_a_wafer_batch(plan_data, tiny_plan_dir, tmp_path):
+    """The wafer batch counted such a die "after re-plan"; it is scrapped, cause
+    "outside band"."""
+    nat = {i["id"]: i["natural_frequency_hz"] for i in plan_data["impacters"]}
+    folder = tmp_path / "m"
+    folder.mkdir()
+    _measured_csv(folder / "die_0_0.csv", {"A1.forward": nat["A1.forward"],
+                                           "A2.backward": nat["A2.backward"] * 1.0885})
+    out = tmp_path / "r"
+    res = _cli(tiny_plan_dir, "--measured-dir", folder, "--jobs", 1, "--out", out, "--quiet")
+    assert res.exit_code == 1, res.output
+    summary = (out / "summary.csv").read_text().splitlines()
+    assert summary[1].startswith("0,0,scrapped,outside band"), summary
+    assert all(5000.0 <= f <= 14000.0 for f in _all_tones(out / "dies" / "die_0_0" / "replan"))
+
+
+@pytest.mark.parametrize("name, window", [("A2.backward", "14500,14600"),
+                                          ("A1.forward", "100,10000")])
+def test_a_window_outside_the_band_is_refused_naming_the_row(plan_data, tiny_plan_dir,
+                                                             tmp_path, name, window):
+    """Issue 44 case 3: windows.csv rows beyond the 5-14 kHz band were taken."""
+    nat = {i["id"]: i["natural_frequency_hz"] for i in plan_data["impacters"]}
+    measured = _measured_csv(tmp_path / "m.csv", {name: nat[name]})
+    windows = _write(tmp_path / "w.csv",
+                     f"impacter,window_lo_hz,window_hi_hz\n{name},{window}\n")
+    out = tmp_path / "r"
+    res = _cli(tiny_plan_dir, "--measured", measured, "--windows", windows, "--out", out)
+    assert res.exit_code == 2, res.output
+    assert str(windows) in res.output and "row 2" in res.output
+    assert "outside the drive band 5000-14000 Hz" in res.output
+    assert "Traceback" not in res.output and not out.exists()
+
+
+@pytest.mark.parametrize("q", ["1e-6", "0.5", "1e9"])
+def test_a_meaningless_quality_factor_is_refused_naming_row_and_column(plan_data,
+                                                                       tiny_plan_dir,
+                                                                       tmp_path, q):
+    """Issue 44 case 6: Q 1e-6 was accepted, and the re-plan crawled for minutes (the
+    default's showed no progress for 3.5 min).  No resonance peak has Q <= 1/sqrt(2);
+    none reaches 1e7: exit 2 naming the file, row and column, at once.  The wafer's
+    readers share the check (a die file of a --measured-dir)."""
+    nat = {i["id"]: i["natural_frequency_hz"] for i in plan_data["impacters"]}
+    text = ("impacter,natural_frequency_hz,quality_factor\n"
+            f"A1.forward,{nat['A1.forward']},20\nA2.backward,{nat['A2.backward']},{q}\n")
+    measured = _write(tmp_path / "m.csv", text)
+    out = tmp_path / "r"
+    res = _cli(tiny_plan_dir, "--measured", measured, "--out", out)
+    assert res.exit_code == 2, res.output
+    assert f"{measured}: row 3, column quality_factor" in res.output, res.output
+    assert "Traceback" not in res.output and not out.exists()
+    folder = tmp_path / "dies"
+    folder.mkdir()
+    die = _write(folder / "die_0_0.csv", text)
+    res = _cli(tiny_plan_dir, "--measured-dir", folder, "--jobs", 1, "--out", out)
+    assert res.exit_code == 2 and f"{die}: row 3, column quality_factor" in res.output, \
+        res.output

@@ -595,3 +595,88 @@ def test_the_gradient_costs_far_tone_neighbours_yield():
     far = collision_free_yield(**kw, sigma_gradient=5.0, positions=[[0, 0], [0.008, 0]])
     assert far.value < near.value - 0.01
     assert near.value <= base.value + 0.005
+
+
+# ------------------------------------------------------------------ issue 44: the work folder
+
+def _die_file(folder: Path, x: int, y: int, a1_hz: float, a2_hz: float) -> Path:
+    p = folder / f"die_{x}_{y}.csv"
+    p.write_text(f"impacter,natural_frequency_hz\nA1.forward,{a1_hz}\nA2.backward,{a2_hz}\n")
+    return p
+
+
+def _a1_of(die_folder: Path) -> float:
+    plan = json.loads((die_folder / "plan.json").read_text())
+    return {i["id"]: i["natural_frequency_hz"] for i in plan["impacters"]}["A1.forward"]
+
+
+def test_a_resume_reuses_a_die_only_for_its_own_measurement(tiny_plan_dir, tmp_path):
+    """Issue 44 case 1: interrupted once die_0_5 is kept, the files then renamed
+    (die_0_5.csv -> die_0_6.csv, die_0_4.csv -> die_0_5.csv: the files' bytes in name
+    order are unchanged, so a batch-wide key matched and the kept die_0_5 was read back
+    for a file that now measures another chip).  Every die's re-plan must be of its own
+    file's resonances."""
+    folder = tmp_path / "m"
+    folder.mkdir()
+    # three dies that all need a re-plan, each with its own A1 (read back from plan.json)
+    _die_file(folder, 0, 5, 4700.0, 12650.0)
+    _die_file(folder, 0, 4, 4620.5, 12500.0)
+    _die_file(folder, 0, 3, 4650.0, 12550.0)
+    work = tmp_path / ".r.dies"
+    cmd = [sys.executable, "-m", "planner.cli", "replan", str(tiny_plan_dir), "--measured-dir",
+           str(folder), "--jobs", "1", "--out", "r"]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        for _ in range(60000):      # poll the work folder (no time limit is asserted)
+            if (work / "die_0_5" / "result.json").is_file() or proc.poll() is not None:
+                break
+            time.sleep(0.005)
+        assert proc.poll() is None, "the batch ended before it could be interrupted"
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err
+    assert (work / "die_0_5" / "result.json").is_file()
+    os.rename(folder / "die_0_5.csv", folder / "die_0_6.csv")
+    os.rename(folder / "die_0_4.csv", folder / "die_0_5.csv")
+    again = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr
+    out = tmp_path / "r"
+    assert _summary(out).keys() == {(0, 6), (0, 5), (0, 3)}
+    for name, a1 in (("die_0_6", 4700.0), ("die_0_5", 4620.5), ("die_0_3", 4650.0)):
+        assert _a1_of(out / "dies" / name) == a1, name
+    assert not work.exists()
+
+
+@pytest.mark.parametrize("case", ["measured-dir", "user folder", "user file"])
+def test_a_work_folder_vibroplan_did_not_write_is_refused_not_removed(tiny_plan_dir, tmp_path,
+                                                                      case):
+    """Issue 44 case 2: `--measured-dir .r5b.dies --out r5b` removed the measurements;
+    a user's `.OUT.dies/` was emptied.  Both are refused (exit 2, naming it), untouched."""
+    name = "r5b"
+    work = tmp_path / f".{name}.dies"
+    if case == "measured-dir":
+        work.mkdir()
+        _die_file(work, 0, 5, 4700.0, 12650.0)
+        src = ["--measured-dir", work]
+    else:
+        folder = tmp_path / "m"
+        folder.mkdir()
+        _die_file(folder, 0, 5, 4700.0, 12650.0)
+        src = ["--measured-dir", folder]
+        if case == "user folder":
+            work.mkdir()
+            (work / "notes.txt").write_text("mine\n")
+        else:
+            work.write_text("mine\n")
+    before = _tree(work) if work.is_dir() else work.read_bytes()
+    res = _run("replan", tiny_plan_dir, *src, "--jobs", 1, "--out", tmp_path / name)
+    assert res.exit_code == 2, res.output
+    assert str(work) in res.output and "Traceback" not in res.output
+    assert (_tree(work) if work.is_dir() else work.read_bytes()) == before
+    assert not (tmp_path / name).exists()
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(f".{name}")) == [
+        work.name]
