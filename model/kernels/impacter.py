@@ -134,7 +134,6 @@ def run_impacter(wn, sigma, gap, e, w, a, phi, coef, t0, t_end, x0, v0, stuck0,
         over every event but the first (eq. 12); t_stop [s] is where the run
         ended (t_end unless stopped early or capped).
     """
-    capacity = imp_t.shape[0]
     regime, fr, kappa = homogeneous_regime(wn, sigma)
     tmax = max(abs(t0), abs(t_end))
     pb0 = particular_bound(coef, 0, tmax)
