@@ -76,7 +76,7 @@ def predicted(plan_json: Path, gradient: float, chips=10_000) -> dict:
     from planner.fabrication.tolerances import ERRORS, Tolerances
     from planner.manufacturability import BAND_MARGIN, collision_free_yield
     from planner.core.nodes import Node
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
     from planner.fabrication.wafer import device_positions
 
     rec = read_plan(plan_json)

@@ -26,7 +26,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
 from planner.arrayspec import FabricationSpec, Tolerance  # noqa: E402
-from planner.planning.plan_file import read_plan  # noqa: E402
+from planner.planfile.reader import read_plan  # noqa: E402
 from planner.yield_ import make_payload, run_yield  # noqa: E402
 
 sys.path.insert(0, str(HERE))

@@ -34,7 +34,7 @@ sys.path.insert(0, str(HERE.parent))
 
 from planner.fabrication.tolerances import sample_chip  # noqa: E402
 from planner.arrayspec import FabricationSpec, Tolerance, load_spec  # noqa: E402
-from planner.planning.plan_file import read_plan  # noqa: E402
+from planner.planfile.reader import read_plan  # noqa: E402
 from planner.yield_ import make_payload, run_yield  # noqa: E402
 
 sys.path.insert(0, str(HERE))

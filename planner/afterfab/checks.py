@@ -117,7 +117,7 @@ def check_drive(settings, steps, waveforms, dwells, impacters, sliders, *,
 
 def drive_of(record):
     """(steps, step key -> recorded drive, step key -> settle dwell [s]) of a plan
-    (a :class:`~planner.planning.plan_file.PlanRecord`)."""
-    from planner.planning.plan_file import drives
+    (a :class:`~planner.planfile.reader.PlanRecord`)."""
+    from planner.planfile.reader import drives
 
     return tuple(st.step for st in record.steps), drives(record), dict(record.dwells)

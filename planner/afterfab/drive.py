@@ -76,7 +76,7 @@ def rescaled_tones(plan, measured: dict, seps: Separations | None = None,
     Parameters
     ----------
     plan : PlanRecord
-        The plan (:func:`planner.planning.plan_file.read_plan`).
+        The plan (:func:`planner.planfile.reader.read_plan`).
     measured : dict
         Impacter id -> measured resonance [Hz] (or the two halves' (a, b)); an impacter
         not in it keeps its tone.

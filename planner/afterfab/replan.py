@@ -45,7 +45,7 @@ from model import Drive
 from planner.assignment.assign import Assignment, conflict_graph, guard_violations
 from planner.core.markdown import Section, fmt, md_table
 from planner.core.nodes import device_key, node_key
-from planner.planning.plan_file import PlanRecord, drives
+from planner.planfile.reader import PlanRecord, drives
 from planner.planning.record import build_record
 from planner.planning.repair import scenes_and_motion
 from planner.afterfab.as_built import AsBuilt, as_built, symmetric
@@ -61,7 +61,7 @@ def verify_drive(plan: PlanRecord, models: AsBuilt, settings=None):
     Parameters
     ----------
     plan : PlanRecord
-        A plan (:func:`planner.planning.plan_file.read_plan`; its steps' tones are the
+        A plan (:func:`planner.planfile.reader.read_plan`; its steps' tones are the
         drive).
     models : AsBuilt
         The chip's models (:func:`planner.afterfab.as_built.as_built`).
@@ -140,7 +140,7 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
     Parameters
     ----------
     plan : PlanRecord
-        The original plan (:func:`planner.planning.plan_file.read_plan`; a re-planned
+        The original plan (:func:`planner.planfile.reader.read_plan`; a re-planned
         plan is a plan too).
     measured : dict
         Impacter id -> :class:`~planner.afterfab.measurement.Measurement`

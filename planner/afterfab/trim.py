@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planner.afterfab.separations import Separations
-from planner.planning.plan_file import PlanRecord
+from planner.planfile.reader import PlanRecord
 from planner.planning.result import Plan
 from planner.arrayspec import TrimSpec
 

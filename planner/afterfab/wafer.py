@@ -96,7 +96,7 @@ class WaferJob:
 
 
 def make_job(record, *, trim: bool = False) -> WaferJob:
-    """The job of a plan (:func:`planner.planning.plan_file.read_plan`)."""
+    """The job of a plan (:func:`planner.planfile.reader.read_plan`)."""
     from planner.afterfab.checks import drive_of
     from planner.planning.settings import plan_settings
 

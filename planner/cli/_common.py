@@ -335,7 +335,7 @@ def chip_inputs(plan_path, measured_path, out_dir, *, command: str, force: bool,
     -------
     (plan, measured, inputs, progress)
     """
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
     from planner.afterfab.measurement import read_measured
 
     plan = read_plan(plan_path)

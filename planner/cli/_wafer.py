@@ -26,7 +26,7 @@ def replan_wafer_command(plan_path, measured, out_dir, *, trim, jobs, scheduler,
                                         replan_wafer, scrapped_causes, work_folder)
     from planner.afterfab.wafer_file import DIE_FILE, not_measured, read_wafer
     from planner.runtime.engine import check_scheduler
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
 
     if seed is not None:
         raise click.UsageError("--seed applies to one chip: a wafer's dies are re-planned "

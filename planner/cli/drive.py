@@ -77,7 +77,7 @@ def command(spec_or_plan, step_name, fmt, out, plot, sample_rate, seed, reoptimi
       vibroplan drive plan_out --step forward --format wav --plot forward.png
     """
     from planner.lab.exporters import EXPORTERS, export, read_sidecar, sidecar_path, verify_export
-    from planner.planning.plan_file import step_drive
+    from planner.planfile.reader import step_drive
     from planner.synthesis import MAX_LOOP_LENGTH, check_loop_memory
 
     exporter = EXPORTERS[fmt]
@@ -150,7 +150,7 @@ def command(spec_or_plan, step_name, fmt, out, plot, sample_rate, seed, reoptimi
 def _load_plan(path: Path):
     """(the plan, the files read) of a plan (plan.json or its folder) or a spec (YAML),
     which is planned first."""
-    from planner.planning.plan_file import plan_record, read_plan
+    from planner.planfile.reader import plan_record, read_plan
 
     if path.is_file() and path.suffix.lower() in (".yaml", ".yml"):
         from planner.planning import plan

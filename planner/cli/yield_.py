@@ -108,7 +108,7 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
 
     from planner.runtime.limits import check_jobs
     from planner.runtime.engine import check_scheduler
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
     from planner.arrayspec import load_spec
     from planner.yield_ import (check_chip_count, check_noise, make_payload, parse_scales,
                                 run_yield, scale_key)

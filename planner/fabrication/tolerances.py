@@ -195,7 +195,7 @@ class ChipDesign:
 
 
 def design_from_plan(record) -> ChipDesign:
-    """The nominal designs of a plan (a :class:`planner.planning.plan_file.PlanRecord`,
+    """The nominal designs of a plan (a :class:`planner.planfile.reader.PlanRecord`,
     whose reader has checked that its m, k and b follow from its geometry by these
     equations); for a re-planned plan, its as-built models (see :class:`NodeDesign`).
     """

@@ -123,7 +123,7 @@ KINDS = {
                       "vibroplan simulate or vibroplan sweep"),
 }
 
-#: Keys every plan.json has (:mod:`planner.planning.plan_file`): a file with them all is a
+#: Keys every plan.json has (:mod:`planner.planfile.reader`): a file with them all is a
 #: plan, not a YAML spec or config.
 PLAN_KEYS = frozenset({"spec", "impacters", "steps"})
 

@@ -1,7 +1,7 @@
 """What the layout reads of a plan: its designs, tones, process rules and trim section.
 
 :func:`read_layout_plan` is the layout's one reader of plan.json; it goes through the
-plan reader of the rest of vibroplan (:func:`planner.planning.plan_file.read_plan`, which
+plan reader of the rest of vibroplan (:func:`planner.planfile.reader.read_plan`, which
 checks the whole file, and :func:`planner.fabrication.tolerances.design_from_plan`).
 """
 
@@ -75,7 +75,7 @@ def read_layout_plan(plan_path, rules_spec=None) -> LayoutPlan:
     """
     from planner.config import LAYOUT_FIELDS
     from planner.fabrication.tolerances import design_from_plan
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
     from planner.planning.settings import resolve_settings
     from planner.arrayspec import load_spec
 

@@ -10,8 +10,8 @@
   ``targets_um`` steps), :mod:`~planner.planning.verify`,
   :mod:`~planner.planning.scenes`, :mod:`~planner.planning.repair`,
   :mod:`~planner.planning.manufacture` -- the stages;
-- :mod:`~planner.planning.record` -- the plan.json dict;
-  :mod:`~planner.planning.plan_file` -- plan.json read back;
+- :mod:`~planner.planning.record` -- the plan.json dict (read back by
+  :mod:`planner.planfile.reader`);
 - :mod:`~planner.planning.outputs` -- files and figures;
   :mod:`~planner.planning.report` -- report.md;
 - :mod:`~planner.planning.result` -- :class:`Plan`, the declared (frozen) result;

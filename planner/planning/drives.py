@@ -99,7 +99,7 @@ def program_of(waveform, duration):
     """
     from planner.synthesis.gating import Burst
 
-    # a gated drive read back from plan.json (planner.planning.plan_file.RecordedDrive)
+    # a gated drive read back from plan.json (planner.planfile.reader.RecordedDrive)
     # plays its gates as the Burst it was
     if isinstance(waveform, Burst) or getattr(waveform, "gates_s", None) is not None:
         return waveform.program()

@@ -3,8 +3,8 @@
 The file boundary: the stages key impacters by :class:`planner.core.nodes.Node`, plan.json
 by the node's text (``"A1.forward"``).
 
-Read back by :mod:`planner.planning.plan_file` (its ``format_version`` is that module's
-:data:`~planner.planning.plan_file.FORMAT_VERSION`).
+Read back by :mod:`planner.planfile.reader` (its ``format_version`` is that module's
+:data:`~planner.planfile.reader.FORMAT_VERSION`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from planner.files import version_string
 from planner.assignment.assign import node_order, verify_assignment
 from planner.lab.exporters import EXPORTERS
 from planner.planning.motion import PROBE_S
-from planner.planning.plan_file import FORMAT_VERSION
+from planner.planfile.reader import FORMAT_VERSION
 from planner.core.nodes import Node, device_key
 
 #: Standard gravity [m/s^2].

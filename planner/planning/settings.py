@@ -553,7 +553,7 @@ def _chain(loaded):
 
 def plan_settings(record, seed=None) -> Settings:
     """The :class:`Settings` of a recorded plan (a
-    :class:`~planner.planning.plan_file.PlanRecord`): its spec resolved once, with the
+    :class:`~planner.planfile.reader.PlanRecord`): its spec resolved once, with the
     plan's seed unless ``seed`` is given.  A re-plan, a trim and every chip of a yield
     study read this one resolution."""
     return resolve_settings(record.loaded, record.seed if seed is None else seed)

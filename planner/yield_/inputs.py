@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from planner.fabrication.tolerances import ChipDesign, design_from_plan
 from planner.core.nodes import Node
 from planner.afterfab.checks import drive_of
-from planner.planning.plan_file import PlanRecord
+from planner.planfile.reader import PlanRecord
 from planner.arrayspec import FabricationSpec, LoadedSpec
 
 #: Memory one chip's task and result hold until the end of a run [bytes]: its result
@@ -123,7 +123,7 @@ def make_payload(record: PlanRecord, seed: int, fabrication: FabricationSpec | N
                  allow_zero: bool = False, trim: bool = False,
                  trim_precision_pct: float | None = None, tune: bool = False,
                  tune_tones: int = 7, tune_noise_pct: float = 5.0) -> Payload:
-    """The worker payload of a plan (:func:`planner.planning.plan_file.read_plan`);
+    """The worker payload of a plan (:func:`planner.planfile.reader.read_plan`);
     ``fabrication`` overrides the plan's.
 
     ``replan``: measure, re-plan and re-verify every chip; ``measure_noise_pct``: one

@@ -28,7 +28,7 @@ def _cli(*args):
 def close(close_plan_dir):
     """(plan record, settings, chip design) of the close plan."""
     from planner.fabrication.tolerances import design_from_plan
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
     from planner.planning.settings import plan_settings
 
     rec = read_plan(close_plan_dir)

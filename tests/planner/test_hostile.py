@@ -177,7 +177,7 @@ def test_pair_halves_keep_each_halfs_q_and_gap(tiny_plan_dir, tmp_path):
     per-half gaps were not used.  Now each half keeps its own resonance, Q and gap (the
     other half its design's), in the models and in plan.json's as_built, and the
     re-planned plan.json reads back."""
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
 
     plan = read_plan(tiny_plan_dir)
     a1 = plan.impacter("A1.forward")
@@ -217,7 +217,7 @@ def test_trim_reckons_from_the_designs_whatever_the_plan_json(close_plan_dir, tm
     (the re-plan of the chip written by the CLI and read back)."""
     import numpy as np
 
-    from planner.planning.plan_file import plan_record, read_plan
+    from planner.planfile.reader import plan_record, read_plan
     from planner.afterfab.drive import rescaled_tones
     from planner.afterfab.separations import separations_of
     from planner.planning.settings import plan_settings
@@ -252,7 +252,7 @@ def test_trim_gives_one_answer_for_one_chip(close_plan_dir, tmp_path):
     manufacturability block and the chip's re-planned plan: one trim.csv."""
     import csv as csvmod
 
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
     from planner.afterfab.separations import separations_of
     from planner.planning.settings import plan_settings
 

@@ -533,7 +533,7 @@ def test_a_faulty_plan_json_is_refused_naming_the_key(plan_copy, tmp_path, what,
 
 
 def test_a_replanned_plan_is_a_plan(tiny_plan_dir, tmp_path, huge_spec):
-    from planner.planning.plan_file import FORMAT_VERSION, read_plan
+    from planner.planfile.reader import FORMAT_VERSION, read_plan
 
     assert json.loads((tiny_plan_dir / "plan.json").read_text())["format_version"] \
         == FORMAT_VERSION

@@ -27,7 +27,7 @@ def plan_data(tiny_plan_dir):
 @pytest.fixture(scope="module")
 def plan(tiny_plan_dir):
     """The tiny plan read back (the record the re-plan takes)."""
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
 
     return read_plan(tiny_plan_dir)
 
@@ -130,7 +130,7 @@ def test_shifted_chip_is_rescued(plan_data, plan, tmp_path):
     # and the re-planned drive, checked independently on the same models, passes
     from planner.afterfab import Measurement
     from planner.afterfab.replan import chip_models, verify_drive
-    from planner.planning.plan_file import plan_record
+    from planner.planfile.reader import plan_record
 
     chip = chip_models(plan, {n: Measurement.of(f) for n, f in freqs.items()})
     passed, rows = verify_drive(plan_record(d), chip)
@@ -182,7 +182,7 @@ def test_a_weakened_multi_tone_step_splits_into_runs_that_keep_the_scale(plan_da
     drive the limit lowers below the plan's scale splits into sub-steps of neighbouring
     tones, each synthesised and limited again and keeping at least the scale asked."""
     from planner.planning.drives import limit_acceleration, synthesize_steps
-    from planner.planning.plan_file import plan_record
+    from planner.planfile.reader import plan_record
     from planner.afterfab.drive import split_step, weakened
     from planner.planning.settings import resolve_settings
     from planner.arrayspec import Step
@@ -270,7 +270,7 @@ def test_replanned_drive_meets_the_acceleration_limit(plan_data):
     acceleration is at most the limit (before the fix the re-plan played full power)."""
     import copy
 
-    from planner.planning.plan_file import plan_record
+    from planner.planfile.reader import plan_record
     from planner.afterfab.replan import replan_chip
 
     peak = max(st["peak_acceleration_m_s2"] for st in plan_data["steps"])
@@ -293,7 +293,7 @@ def test_the_replan_keeps_a_margin_on_the_travel(plan_data):
     burst until the travel is within 85 % of it."""
     import copy
 
-    from planner.planning.plan_file import plan_record
+    from planner.planfile.reader import plan_record
     from planner.afterfab.replan import replan_chip
     from planner.afterfab.drive import REPLAN_TRAVEL_MARGIN
 
@@ -323,7 +323,7 @@ def test_a_step_an_idle_impacter_answers_is_played_weaker(plan_data):
     at full drive but not at 85 % answers the step (the real check), and the step played
     weaker no longer does; its notes say by how much, and the mover still moves."""
     from planner.planning.drives import limit_acceleration, scaled, synthesize_steps
-    from planner.planning.plan_file import plan_record
+    from planner.planfile.reader import plan_record
     from planner.afterfab import Measurement
     from planner.afterfab.drive import RescuedDrive, quieten
     from planner.afterfab.replan import chip_models
@@ -381,7 +381,7 @@ def test_the_replan_plays_the_plans_phases(plan_data):
     values an optimiser would not give a single tone)."""
     import copy
 
-    from planner.planning.plan_file import plan_record
+    from planner.planfile.reader import plan_record
     from planner.afterfab.replan import replan_chip
     from planner.afterfab.drive import plan_phases
 

@@ -306,7 +306,7 @@ def test_replan_of_a_perfectly_measured_chip_of_a_targets_plan_verifies(two_plan
     (read back) whose gated steps keep their targets.  Issue 37: the re-plan's move of
     each tone toward its measured window's middle stays inside the designed tone window
     (it had moved a tone 0.7 % down, where the slider was below the speed floor)."""
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
 
     data = json.loads((two_plan.out_dir / "plan.json").read_text())
     csv = tmp_path / "measured.csv"

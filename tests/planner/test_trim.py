@@ -143,7 +143,7 @@ def test_trim_cli_moves_a_colliding_impacter_and_verifies_on_the_trimmed_models(
     from click.testing import CliRunner
 
     from planner.cli import main
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
     from planner.afterfab.separations import separations_of
     from planner.planning.settings import resolve_settings
 
@@ -187,7 +187,7 @@ def test_trim_cli_names_a_chip_no_trim_in_range_can_fix(close_plan_dir, tmp_path
     from click.testing import CliRunner
 
     from planner.cli import main
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
 
     plan = read_plan(close_plan_dir)
     lo, hi = _neighbours(plan)
@@ -234,7 +234,7 @@ def test_remeasured_replaces_only_the_trimmed_rows_by_simulation(close_plan_dir)
     its trimmed model (widened as the plan's are), every other impacter's row as the
     plan recorded it."""
     from planner.manufacturability import BAND_MARGIN, measure_separation
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
     from planner.afterfab import Measurement
     from planner.afterfab.replan import chip_models
     from planner.afterfab.separations import remeasured, separations_of

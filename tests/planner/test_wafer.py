@@ -239,7 +239,7 @@ def test_the_wafer_file_holds_what_the_yield_measured(tiny_plan_dir, wafer_yield
     """wafer_1.csv is each die's measurement as the yield's re-plan made it (the same
     normals of the chip's own seed), read back through the wafer reader."""
     from planner.afterfab.wafer_file import read_wafer
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
     from planner.arrayspec import load_spec
     from planner.yield_ import make_payload, measured_frequencies
     from planner.yield_.dies import die_measurements
@@ -300,7 +300,7 @@ def test_a_batch_replan_gives_each_die_the_yields_replan(wafer_yield, wafer_batc
         agree += b["outcome"] == x["outcome"].replace("fails", "scrapped")
     assert agree >= DIES - 2, f"only {agree} of {DIES} dies agree"
     # each re-planned die's drive files, read back as a plan
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
 
     for (dx, dy), b in batch.items():
         folder = wafer_batch / b["folder"]
@@ -470,7 +470,7 @@ def test_stdf_round_trips_through_pystdf(tmp_path):
 def test_the_yields_stdf_wafer_replans_as_its_csv(tiny_plan_dir, wafer_yield, wafer_batch,
                                                   tmp_path):
     from planner.afterfab.wafer_file import read_wafer
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
 
     plan = read_plan(tiny_plan_dir)
     a = read_wafer(wafer_yield / "wafer_1.csv", plan.impacter_ids)

@@ -83,7 +83,7 @@ def test_huge_tolerance_fails_chips_and_names_checks(tiny_plan_dir, tmp_path):
 def test_chip_results_depend_on_seed_and_index_only(tiny_plan_dir):
     """A chip's outcome is a function of (seed, scale, chip index): verifying chips in
     another order, or fewer of them, gives each the same result."""
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
     from planner.arrayspec import load_spec
     from planner.yield_ import make_payload, verify_chip
 
@@ -117,7 +117,7 @@ def test_failure_rates_count_the_impacters_each_chip_implicates(tiny_plan_dir):
     """yield.json's per-impacter failure rate is the fraction of chips whose checks
     implicated that impacter (a Node inside, its text in the file)."""
     from planner.core.nodes import Node
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
     from planner.arrayspec import load_spec
     from planner.yield_ import make_payload, run_yield, verify_chip
 
@@ -148,7 +148,7 @@ def test_failure_rates_land_on_their_devices_cells():
 
 def test_as_built_geometry_follows_the_documented_mapping(tiny_plan_dir):
     from planner.fabrication.tolerances import ERRORS, as_built_impacter, sample_chip
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
     from planner.arrayspec import FabricationSpec
     from planner.yield_ import make_payload
 

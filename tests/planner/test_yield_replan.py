@@ -97,7 +97,7 @@ def test_replanned_drive_is_verified_on_the_true_models(tiny_plan_dir, shift_spe
 def test_chip_results_with_replan_do_not_depend_on_order(tiny_plan_dir, shift_spec):
     import dataclasses
 
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
     from planner.arrayspec import load_spec
     from planner.yield_ import make_payload, verify_chip
 

@@ -112,7 +112,7 @@ def test_verified_chips_round_trip(tiny_plan_dir, tmp_path):
     each pickles to an equal result with the same dict, and its dict holds the keys
     the chip's work made."""
     from planner.arrayspec import load_spec
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
     from planner.yield_ import make_payload, verify_chip
 
     spec = tmp_path / "broken.yaml"
