@@ -36,7 +36,7 @@ NO_COORD = -32768
 #: TEST_FLG bits of a PTR whose RESULT was measured but is not to be trusted (STDF V4,
 #: PTR: bit 2 unreliable, bit 3 timed out, bit 4 not executed, bit 5 aborted): the test
 #: is skipped, with a note naming the die, test and record, and its impacter is read
-#: as not measured (the die counted ``partly measured``, :mod:`planner.afterfab.wafer`).
+#: as not measured (the die counted ``partly measured``, :mod:`planner.afterfab.batch`).
 #: A tester sets them in its normal flow (a test the flow skipped, one stopped on a
 #: fault); bit 1 (RESULT invalid) is a damaged record and stays an error.
 SKIP_FLAGS = {0x04: "unreliable", 0x08: "timed out", 0x10: "not executed",

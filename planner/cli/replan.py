@@ -117,7 +117,7 @@ def command(plan_path, measured_path, windows_path, measured_dir, trim, jobs, sc
                                + (f"--measured {measured_path} is not one" if measured_path
                                   else "--measured-dir holds CSV files"))
     if measured_dir is not None or _is_wafer(measured_path):
-        from planner.cli._wafer import replan_wafer_command
+        from planner.cli._batch import replan_wafer_command
 
         if windows_path is not None:
             raise click.UsageError("--windows is one chip's tuning sweep (vibroplan "

@@ -113,7 +113,7 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
     from planner.yield_ import (check_chip_count, check_noise, make_payload, parse_scales,
                                 run_yield, scale_key)
     from planner.yield_.dies import write_wafer_files
-    from planner.yield_.report import write_outputs
+    from planner.yield_.report import write_yield_outputs
 
     scales = parse_scales(sigma_scale)
     if 0.0 in scales and not allow_zero:
@@ -184,7 +184,7 @@ def command(plan_path, chips, seed, out_dir, spec_file, jobs, scheduler, sigma_s
         finally:
             bar.close()
         result = {"plan": str(plan_file), **result}
-        write_outputs(result, payload.loaded.spec, tmp, str(plan_file), timings=timings)
+        write_yield_outputs(result, payload.loaded.spec, tmp, str(plan_file), timings=timings)
         if "wafer" in result:   # each wafer's dies as a prober measures them (issue 39)
             write_wafer_files(payload, result, tmp)
     lo, hi = result["ci95"]

@@ -251,7 +251,7 @@ def _report(data: dict, spec: ArraySpec, plan_path: str, figures: list[str],
     return "\n".join(lines)
 
 
-def write_outputs(data: dict, spec: ArraySpec, folder: Path, plan_path: str,
+def write_yield_outputs(data: dict, spec: ArraySpec, folder: Path, plan_path: str,
                   figures: bool = True, timings: dict | None = None) -> None:
     """``yield.json``, ``report.md`` and ``figures/`` into ``folder`` (a temporary one
     from :func:`planner.files.output_folder`); ``timings`` (:func:`run_yield`'s) adds the

@@ -419,11 +419,11 @@ def replan_wafer(record, dies, out_tmp, *, plan_path, measured_paths, trim=False
         finally:
             numba.set_num_threads(before)
     results = [done[n] for n in names]
-    write_outputs(record, results, work, Path(out_tmp))
+    write_batch_outputs(record, results, work, Path(out_tmp))
     return results
 
 
-def write_outputs(record, results, work: Path, out: Path) -> None:
+def write_batch_outputs(record, results, work: Path, out: Path) -> None:
     """The batch's output folder: every die's folder (``dies/die_<x>_<y>/``),
     ``summary.csv`` (:data:`SUMMARY_COLUMNS`), ``report.md`` and ``wafer_map.png``.
 

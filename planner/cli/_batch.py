@@ -1,5 +1,5 @@
 """``vibroplan replan`` of a whole wafer: the dies read, re-planned in batch on Dask,
-the outputs written (:mod:`planner.afterfab.wafer`)."""
+the outputs written (:mod:`planner.afterfab.batch`)."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ def replan_wafer_command(plan_path, measured, out_dir, *, trim, jobs, scheduler,
 
     from planner.runtime.limits import check_jobs, cores
     from planner.afterfab.stdf import read_test_map
-    from planner.afterfab.wafer import (PARTLY_MEASURED, check_work_folder, counts, remove_work,
+    from planner.afterfab.batch import (PARTLY_MEASURED, check_work_folder, counts, remove_work,
                                         replan_wafer, scrapped_causes, work_folder)
     from planner.afterfab.wafer_file import DIE_FILE, not_measured, read_wafer
     from planner.runtime.engine import check_scheduler
