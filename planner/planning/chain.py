@@ -29,6 +29,10 @@ from planner.core.units import UM
 #: thousands of weaker 3rd-order products that would each cost the simulation a tone.
 PRODUCT_FLOOR_REL = 1e-3
 
+#: Products of a gated burst's stretch below this are left out, as DC is: a static
+#: offset of the die over a stretch of ms (model.Drive refuses tones below 10 Hz) [Hz].
+QUASI_STATIC_HZ = 10.0
+
 #: A hair under the input limit when a step is lowered to it, so that the refined peak
 #: of the lowered drive is not above it by rounding (as the acceleration limit does) [-].
 LIMIT_MARGIN = 1e-6
@@ -466,6 +470,10 @@ def _die_burst(burst, nl):
             continue
         f, a, ph, prod = distort_tones(f0, a0, np.asarray(drive.phases, dtype=float), nl,
                                        floor)
+        # a difference product of a ramp's sidebands a few Hz above DC is a static
+        # offset of the die over the stretch, as DC is (left out)
+        keep = ~prod | (f >= QUASI_STATIC_HZ)
+        f, a, ph, prod = f[keep], a[keep], ph[keep], prod[keep]
         stretches.append((duration, model.Drive(f, a, np.mod(ph, 2.0 * np.pi))))
         for fp, ap in zip(f[prod], a[prod]):
             key = round(float(fp), 3)
