@@ -81,7 +81,11 @@ def check_drive(settings, steps, waveforms, dwells, impacters, sliders, *,
     from planner.planning.scenes import scene_failures, simulate_scenes
     from planner.planning.verify import check_step
 
+    from planner.planning.chain import die_drives
+
     impacters = by_node(impacters)
+    # through a distorting drive chain the chip feels the tones and their products
+    waveforms = die_drives(settings, waveforms)
     by_device = {}
     for node in impacters:
         by_device.setdefault(node.device, []).append(node)

@@ -46,6 +46,7 @@ from planner.assignment.assign import Assignment, conflict_graph, guard_violatio
 from planner.core.markdown import Section, fmt, md_table
 from planner.core.nodes import device_key, node_key
 from planner.planfile.reader import PlanRecord, drives
+from planner.planning.chain import die_drives
 from planner.planning.record import build_record
 from planner.planning.repair import scenes_and_motion
 from planner.afterfab.as_built import AsBuilt, as_built, symmetric
@@ -77,7 +78,8 @@ def verify_drive(plan: PlanRecord, models: AsBuilt, settings=None):
     if settings is None:
         settings = plan_settings(plan)
     impacters = {r.node: models.impacters[r.id] for r in plan.impacters}
-    waves = drives(plan)
+    # with a distorting drive chain, what the die feels: the tones and their products
+    waves = die_drives(settings, drives(plan))
     rows = []
     for st in plan.steps:
         rows += check_step(settings, st.step, waves[st.key], impacters, models.sliders)[0]
@@ -212,13 +214,18 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
     steps_, waveforms_, gating = regate(settings, drive.steps, drive.waveforms, drive.tones,
                                         models, sliders, plan_phases(plan))
     drive = dataclasses.replace(drive, steps=steps_, waveforms=waveforms_, gating=gating)
+    if settings.chain is not None:
+        # the new tones through the plan's drive chain: the amplifier input's limits
+        # (a tone it cannot deliver refused, naming it; a step over the limit lowered)
+        drive = _within_input_limit(settings, drive)
     timings["drive"] = time.perf_counter() - ts
     ts = time.perf_counter()
     tick("verify", total=len(drive.steps))
     def check(steps, waveforms, progress=None):
         rows, fails = [], []
-        for r, f in check_steps(strict, steps, waveforms, models, sliders,
-                                progress=progress):
+        # through a distorting chain the die feels the tones and their products
+        for r, f in check_steps(strict, steps, die_drives(settings, waveforms), models,
+                                sliders, progress=progress):
             rows += r
             fails += f
         return rows, fails
@@ -236,8 +243,8 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
     drive, ver_rows, failures = quieten(strict, drive, ver_rows, failures, models,
                                         sliders, check)
     steps, ver_rows, failures, scene_rows, repairs, settle = scenes_and_motion(
-        strict, drive.steps, drive.waveforms, models, sliders, ver_rows, failures,
-        dwell_floor=drive.dwells)
+        strict, drive.steps, die_drives(settings, drive.waveforms), models, sliders,
+        ver_rows, failures, dwell_floor=drive.dwells)
     timings["verify"] = time.perf_counter() - ts
 
     ts = time.perf_counter()
@@ -271,6 +278,13 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
         sections={"as_built": params,
                   "replan": _replan_record(plan, settings, params, drive, orig_passed,
                                            orig_rows, windows)})
+    if settings.chain is not None:
+        from planner.planning.chain import chain_record
+        from planner.planning.record import round_floats
+
+        # plan.json's chain block, of the re-planned tones (the report's section)
+        data["chain"] = round_floats(chain_record(settings, drive.waveforms, drive.notes,
+                                                  steps, drive.tones))
     timings["total"] = time.perf_counter() - t0
     return Plan(
         impacters=pd.DataFrame(impacter_recs), devices=pd.DataFrame(device_recs),
@@ -279,6 +293,31 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
         settings=settings, waveforms=drive.waveforms, designs=designs,
         assignment=assignment, failures=tuple(failures), run_steps=tuple(steps),
         dwells=dict(settle))
+
+
+def _within_input_limit(settings, drive):
+    """``drive`` (a :class:`~planner.afterfab.drive.RescuedDrive`) with its loops held to
+    the drive chain's input limit (:func:`planner.planning.chain.limit_input`, as the
+    plan's were) and its gated bursts checked against it; its ``synthesize_and_limit``
+    (a split's sub-steps) does the same."""
+    from planner.planning.chain import check_bursts, limit_input
+
+    def within(waveforms, notes, steps):
+        loops = {k: w for k, w in waveforms.items() if getattr(w, "gates_s", None) is None}
+        kept, input_notes = limit_input(settings, loops, steps, drive.tones)
+        check_bursts(settings, waveforms)
+        notes = {k: {**v, **input_notes.get(k, {})} for k, v in notes.items()}
+        return {**waveforms, **kept}, notes
+
+    waveforms, notes = within(drive.waveforms, drive.notes, drive.steps)
+    inner = drive.synthesize_and_limit
+
+    def synthesize_and_limit(steps, freqs):
+        w, nt = inner(steps, freqs)
+        return within(w, nt, steps)
+
+    return dataclasses.replace(drive, waveforms=waveforms, notes=notes,
+                               synthesize_and_limit=synthesize_and_limit)
 
 
 def regate(settings, steps, waveforms, tones, models, sliders, phases=None):

@@ -31,6 +31,7 @@ import pandas as pd
 from planner.core.errors import PlanningError
 from planner.core.intervals import z_for
 from planner.core.nodes import DIRECTIONS, Node, device_key
+from planner.assignment.distortion import SECOND_ORDER, product_rule
 from planner.assignment.placement import colour_blocks, neighbour_coloring
 from planner.core.separation import guard_onset_hz, position_grid
 from planner.arrayspec import LoadedSpec, Step
@@ -144,19 +145,34 @@ class Violation:
     product_hz: float
     node_hz: float
     sources: tuple
+    #: with a drive chain that distorts (issue 46): the product's amplitude at the die
+    #: [m] and whether it can move the idle impacter
+    #: (:class:`planner.assignment.distortion.ProductRule`); None without one
+    amplitude_m: float | None = None
+    moves: bool | None = None
 
     def __str__(self):
         src = ", ".join(f"{s:.1f}" for s in self.sources)
-        return (f"{self.step}: {self.kind} product {self.product_hz:.1f} Hz of tones ({src}) "
+        text = (f"{self.step}: {self.kind} product {self.product_hz:.1f} Hz of tones ({src}) "
                 f"lands in {self.node}'s band at {self.node_hz:.1f} Hz")
+        if self.amplitude_m is None:
+            return text
+        return text + (f" ({self.amplitude_m * 1e9:.3g} nm at the die at drive.chain's "
+                       + ("distortion: can move it)" if self.moves else
+                          "distortion: too weak to move it)"))
 
 
-def guard_violations(steps, frequencies: dict, rules) -> list[Violation]:
+def guard_violations(steps, frequencies: dict, rules, products=None) -> list[Violation]:
     """Harmonic and intermodulation products that land in an idle impacter's band.
 
     For every step, products of the step's tones -- n f_i and f_i / n (n = 2, 3),
     2 f_i - f_j, f_i + f_j - f_k -- are compared with the frequency of every impacter
     idle in that step; within ``rules.relative_bandwidth`` of it is a violation.
+
+    ``products`` (a drive chain's :class:`~planner.assignment.distortion.ProductRule`,
+    optional): every violation then carries its amplitude at the die and whether it can
+    move its impacter, and the 2nd-order products f_i + f_j and |f_i - f_j| of a chain
+    with a 2nd-order term are looked for too.
     """
     out = []
     bw = rules.relative_bandwidth
@@ -182,6 +198,11 @@ def guard_violations(steps, frequencies: dict, rules) -> list[Violation]:
                         if k != i and k != j:
                             prods.append(("intermodulation", tones[i] + tones[j] - tones[k],
                                           (tones[i], tones[j], tones[k])))
+        if (products is not None and products.nonlinearity.a2 and rules.intermodulation
+                and tones.size >= 2):
+            for i, j in itertools.combinations(range(tones.size), 2):
+                for fp in (tones[i] + tones[j], abs(tones[j] - tones[i])):
+                    prods.append((SECOND_ORDER, fp, (tones[i], tones[j])))
         if not prods:
             continue
         pf = np.array([p[1] for p in prods])
@@ -190,7 +211,18 @@ def guard_violations(steps, frequencies: dict, rules) -> list[Violation]:
         for pi, ni in zip(*np.nonzero(near)):
             kind, f, src = prods[pi]
             out.append(Violation(st.key, idle_names[ni], kind, float(f), float(idle_f[ni]), src))
+    if products is not None:
+        out = [products.judge(v) for v in out]
     return out
+
+
+def conflict_count(violations, products=None):
+    """How bad an assignment's violations are, least first: their number, or with a
+    drive chain's :class:`~planner.assignment.distortion.ProductRule` (the products too
+    weak to move their impacter are no conflict) the number that can, then all."""
+    if products is None:
+        return (len(violations),)
+    return (sum(1 for v in violations if v.moves), len(violations))
 
 
 @dataclass(frozen=True)
@@ -421,6 +453,9 @@ def assign(settings, steps, *, separation=None, pair_separation=None, method="au
         # tone neighbours on neighbouring devices (issue 39): a die's line-width
         # gradient then moves the closest pairs alike
         coloring = neighbour_coloring(graph, groups, coloring)
+    # with a distorting drive chain, only the products that can move an idle impacter
+    # are conflicts (issue 46): the layout keeps those apart first
+    rule = product_rule(settings, reach)
     best = None
     for q, o in mapping:
         freqs, chans, where = {}, {}, {}
@@ -429,12 +464,13 @@ def assign(settings, steps, *, separation=None, pair_separation=None, method="au
                 where[n] = o + q * colour
                 chans[n] = int(positions[where[n]])
                 freqs[n] = float(grid[chans[n]])
-        viol = guard_violations(steps, freqs, settings.tone_rules)
-        if best is None or len(viol) < len(best[4]):
-            best = (q, o, chans, freqs, viol, where)
-        if not viol:
+        viol = guard_violations(steps, freqs, settings.tone_rules, rule)
+        score = conflict_count(viol, rule)
+        if best is None or score < best[6]:
+            best = (q, o, chans, freqs, viol, where, score)
+        if not score[0]:
             break
-    q, o, chans, freqs, viol, where = best
+    q, o, chans, freqs, viol, where, _ = best
     return Assignment(graph, groups, dict(coloring), result.span, result.lower_bound,
                       result.optimal, result.method, result.seconds, q, o, chans, freqs, viol,
                       where, reach)

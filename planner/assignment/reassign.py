@@ -16,6 +16,7 @@ import dataclasses
 import numpy as np
 
 from planner.assignment.assign import Assignment, _positions, conflict_graph, guard_violations
+from planner.assignment.distortion import product_rule
 
 
 def move_groups(settings, steps, assignment: Assignment, movers, pair_separation,
@@ -95,5 +96,6 @@ def move_groups(settings, steps, assignment: Assignment, movers, pair_separation
     new = dataclasses.replace(
         assignment, graph=graph, coloring=coloring, channels=chans, frequencies=freqs,
         positions={**assignment.positions, **pos},
-        violations=guard_violations(steps, freqs, settings.tone_rules))
+        violations=guard_violations(steps, freqs, settings.tone_rules,
+                                    product_rule(settings, assignment.reach)))
     return new, moves

@@ -29,7 +29,8 @@ from planner.core.units import UM  # noqa: E402
 @click.option("--step", "step_name", required=True,
               help="The step: NAME, or SCENE/NAME when several scenes have a step NAME.")
 @click.option("--format", "fmt", type=click.Choice(FORMATS), default="wav", show_default=True,
-              help="wav: float32 WAV; wav16: int16 WAV; csv: time_s,displacement_m; "
+              help="wav: float32 WAV; wav16: int16 WAV; csv: time_s,displacement_m (time_s,input_v "
+                   "for a plan with a drive chain); "
                    "arb: Keysight 33500/33600 text file.")
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), callback=output_file,
               help="Output file (default SCENE__NAME with the format's suffix, here). "
@@ -102,9 +103,17 @@ def command(spec_or_plan, step_name, fmt, out, plot, sample_rate, seed, reoptimi
                       f"--sample-rate {rate:g}: a loop of up to {MAX_LOOP_LENGTH:g} s")
     limit_um = peak_limit_um or spec_drive.peak_limit_um
     mode = over_limit or spec_drive.over_limit or "scale"
+    from planner.planning.settings import drive_chain
+
+    # a plan with a drive chain (issue 46) plays the amplifier input in volts: each
+    # tone divided by the chain's transfer, so that the die feels the plan's tones
+    chain = drive_chain(spec_drive)
+    if chain is not None and um_per_v is not None:
+        raise ValueError("--um-per-v: the plan has a drive chain (drive.chain), whose "
+                         "transfer gives the amplifier input's volts; leave it out")
     um_per_v = um_per_v or spec_drive.piezo_um_per_v
     gain = amplifier_gain or spec_drive.amplifier_gain
-    if (um_per_v is None) != (gain is None):
+    if chain is None and (um_per_v is None) != (gain is None):
         raise ValueError("--um-per-v and --amplifier-gain go together (volts need both)")
     limit = None if limit_um is None else limit_um * UM
 
@@ -125,8 +134,12 @@ def command(spec_or_plan, step_name, fmt, out, plot, sample_rate, seed, reoptimi
                           force=force) as (tmp, _):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")   # the sidecar and the summary carry them
-                export(wf, tmp, fmt, um_per_v=um_per_v, amplifier_gain=gain,
-                       memory_points=memory_points)
+                if chain is not None:
+                    export(_amplifier_input(chain, wf, step.key), tmp, fmt, die=wf,
+                           amplifier_gain=gain, memory_points=memory_points)
+                else:
+                    export(wf, tmp, fmt, um_per_v=um_per_v, amplifier_gain=gain,
+                           memory_points=memory_points)
             sidecar = read_sidecar(tmp)
             check = verify_export(tmp)
         written.append((path, idx, wf, sidecar, check))
@@ -225,6 +238,25 @@ def _burst(step, drive, phases, rate, seed, notes):
     return [(idx, gate(wf, np.asarray(starts), np.asarray(gates), ramp))]
 
 
+def _amplifier_input(chain, wf, key):
+    """The amplifier input [V] of the die's drive ``wf`` through ``chain``, held to the
+    chain's input limit (ValueError naming the step, its peak and the limit: the plan's
+    own phases were kept under it; phases optimised afresh may not be)."""
+    from planner.core.errors import PlanningError
+    from planner.planning.chain import played_input
+
+    try:
+        v = played_input(chain, wf)
+    except PlanningError as exc:
+        raise ValueError(str(exc)) from None
+    limit = chain.input_limit
+    if limit is not None and v.peak > limit[0] * (1 + 1e-9):
+        raise ValueError(f"step {key}: the amplifier input peaks at {v.peak:.4g} V, above "
+                         f"{limit[0]:.4g} V ({limit[1]}): play the plan's phases (without "
+                         "--reoptimise) or lower the drive")
+    return v
+
+
 def _sub_path(out: Path, suffix: str, i: int) -> Path:
     name = out.name
     stem = name[: -len(suffix)] if name.endswith(suffix) else out.stem
@@ -250,9 +282,15 @@ def _summary(step, written, freqs, limit, notes):
                    f"{wf.peak / UM:.4g} um, rms {wf.rms / UM:.4g} um"
                    + (f", limit {limit / UM:g} um" if limit else "") + f"); scale {wf.scale:.4f}")
         volts = sidecar.get("volts_full_scale")
-        click.echo(f"wrote {path} (+ {path.name}.json): full scale "
-                   f"{sidecar['full_scale_m'] / UM:.6g} um"
-                   + (f" = {volts:.6g} V at the generator" if volts else ""))
+        if sidecar.get("signal") == "amplifier_input_v":
+            click.echo(f"wrote {path} (+ {path.name}.json): the amplifier input through "
+                       f"the plan's drive chain, full scale {sidecar['full_scale_v']:.6g} V "
+                       f"(peak {sidecar['peak_v']:.4g} V; the die's peak "
+                       f"{sidecar['die_peak_m'] / UM:.4g} um)")
+        else:
+            click.echo(f"wrote {path} (+ {path.name}.json): full scale "
+                       f"{sidecar['full_scale_m'] / UM:.6g} um"
+                       + (f" = {volts:.6g} V at the generator" if volts else ""))
         click.echo(f"read back: {check}")
         for message in sidecar["warnings"]:
             click.echo(f"warning: {message}")

@@ -64,6 +64,15 @@ AMPLITUDE_RTOL = 1e-3
 PHASE_ATOL = 1e-3
 
 
+#: What a drive file's samples are (the exporters' ``signal``; a sidecar's ``signal``
+#: for the amplifier input): the die's displacement [m], as without a drive chain ...
+DISPLACEMENT = "displacement_m"
+#: ... or, with a drive chain (issue 46), the amplifier's input [V].
+AMPLIFIER_INPUT = "amplifier_input_v"
+#: The CSV column of each signal.
+CSV_COLUMNS = {DISPLACEMENT: "displacement_m", AMPLIFIER_INPUT: "input_v"}
+
+
 class DriveWarning(UserWarning):
     """A drive file that a player may not reproduce faithfully."""
 
@@ -75,8 +84,11 @@ class Exporter:
     Attributes
     ----------
     write : callable
-        ``write(path, waveform, full_scale_m, volts_full_scale) -> dict`` writes the data
-        file and returns format-specific sidecar fields.
+        ``write(path, waveform, full_scale_m, volts_full_scale, signal=DISPLACEMENT)
+        -> dict`` writes the data file and returns format-specific sidecar fields;
+        ``signal`` says what the samples are (:data:`DISPLACEMENT`: the die's
+        displacement [m]; :data:`AMPLIFIER_INPUT`: a drive chain's amplifier input [V],
+        whose ``full_scale_m`` is then in volts).
     read : callable
         ``read(path, sidecar) -> (samples [m], sample_rate [Hz])``.
     description : str
@@ -102,15 +114,18 @@ class Exporter:
     memory_points: int | None = None
     default_sample_rate: float = 200e3
 
-    def __call__(self, path, waveform, full_scale_m, volts_full_scale=None):
-        return self.write(path, waveform, full_scale_m, volts_full_scale)
+    def __call__(self, path, waveform, full_scale_m, volts_full_scale=None,
+                 signal=None):
+        if signal is None or signal == DISPLACEMENT:
+            return self.write(path, waveform, full_scale_m, volts_full_scale)
+        return self.write(path, waveform, full_scale_m, volts_full_scale, signal=signal)
 
 
 # --------------------------------------------------------------------------- formats
 
 
 def _write_wav(dtype):
-    def write(path, waveform, full_scale_m, volts_full_scale):
+    def write(path, waveform, full_scale_m, volts_full_scale, signal=DISPLACEMENT):
         from scipy.io import wavfile
 
         rate = int(round(waveform.sample_rate))
@@ -142,10 +157,11 @@ def _read_wav(path, sidecar):
     return fraction * full_scale_of(sidecar), float(rate)
 
 
-def _write_csv(path, waveform, full_scale_m, volts_full_scale):
+def _write_csv(path, waveform, full_scale_m, volts_full_scale, signal=DISPLACEMENT):
     table = np.column_stack([waveform.times, waveform.samples])
-    # a drive chain's file is the amplifier input in volts (its full scale is in volts)
-    column = "input_v" if volts_full_scale == full_scale_m else "displacement_m"
+    # the column says what the samples are, as the caller states it (a drive chain's
+    # amplifier input in volts), never guessed from the scales
+    column = CSV_COLUMNS[signal]
     np.savetxt(path, table, fmt=("%.12g", "%.12e"), delimiter=",",
                header=f"time_s,{column}", comments="")
     return {"columns": ["time_s", column]}
@@ -156,7 +172,7 @@ def _read_csv(path, sidecar):
     return table[:, 1].copy(), float(sidecar["sample_rate_hz"])
 
 
-def _write_arb(path, waveform, full_scale_m, volts_full_scale):
+def _write_arb(path, waveform, full_scale_m, volts_full_scale, signal=DISPLACEMENT):
     # High/Low Level are the output at codes +-32767: volts when the piezo's um/V and the
     # amplifier's gain are known, otherwise the displacement at full scale in um.
     if volts_full_scale is not None:
@@ -311,7 +327,9 @@ def export(waveform: Waveform, path, format, *, um_per_v=None, amplifier_gain=No
     path.parent.mkdir(parents=True, exist_ok=True)
     if die is not None:
         volts_full_scale, amplifier_gain = full_scale, gain
-    extra = _atomic_write(path, lambda tmp: exporter(tmp, waveform, full_scale, volts_full_scale))
+    signal = AMPLIFIER_INPUT if die is not None else DISPLACEMENT
+    extra = _atomic_write(path, lambda tmp: exporter(tmp, waveform, full_scale, volts_full_scale,
+                                                     signal))
     if die is not None:
         _input_sidecar(path, format, waveform, die, full_scale, amplifier_gain, new, extra)
         return path
@@ -357,7 +375,7 @@ def _input_sidecar(path, format, waveform, die, full_scale, amplifier_gain, new,
     sidecar = {
         "format": format,
         "file": path.name,
-        "signal": "amplifier_input_v",
+        "signal": AMPLIFIER_INPUT,
         "tones": [
             {"frequency_hz": float(f), "amplitude_v": float(a), "phase_rad": float(p),
              "frequency_shift_hz": float(s), "die_amplitude_m": float(z),
@@ -637,4 +655,4 @@ def _verify_burst(sidecar, samples, rate, f, a, ph) -> Verification:
 
 __all__ = ["EXPORTERS", "Exporter", "DriveWarning", "export", "get_exporter", "read_waveform",
            "read_sidecar", "sidecar_path", "measure_tones", "verify_export", "Verification",
-           "full_scale_of"]
+           "full_scale_of", "DISPLACEMENT", "AMPLIFIER_INPUT"]

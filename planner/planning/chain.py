@@ -29,6 +29,10 @@ from planner.core.units import UM
 #: thousands of weaker 3rd-order products that would each cost the simulation a tone.
 PRODUCT_FLOOR_REL = 1e-3
 
+#: Products of a gated burst's stretch below this are left out, as DC is: a static
+#: offset of the die over a stretch of ms (model.Drive refuses tones below 10 Hz) [Hz].
+QUASI_STATIC_HZ = 10.0
+
 #: A hair under the input limit when a step is lowered to it, so that the refined peak
 #: of the lowered drive is not above it by rounding (as the acceleration limit does) [-].
 LIMIT_MARGIN = 1e-6
@@ -43,9 +47,15 @@ def input_waveform(settings: Settings, waveform):
     PlanningError
         A tone outside the chain's measured transfer, naming it.
     """
+    return played_input(settings.chain, waveform)
+
+
+def played_input(chain, waveform):
+    """:func:`input_waveform` of a :class:`~planner.synthesis.chain.DriveChain` (a plan's
+    as read back from plan.json: ``vibroplan drive``, a re-plan)."""
     from planner.synthesis.gating import Burst, burst_samples
 
-    transfer = settings.chain.transfer
+    transfer = chain.transfer
     try:
         if isinstance(waveform, Burst):
             a, ph = input_tones(transfer, waveform.frequencies, waveform.amplitudes,
@@ -203,6 +213,8 @@ def chain_record(settings: Settings, played, notes, steps=(), frequencies=None) 
     for key, d in drives.items():
         if isinstance(d, DieDrive):
             steps[key]["products_simulated"] = int(np.sum(d.is_product))
+        elif isinstance(d, DieBurst):
+            steps[key]["products_simulated"] = int(len(d.products_hz))
     near = (products_near_idle(settings, steps_, drives, frequencies)
             if frequencies is not None else [])
     return {"signal": "amplifier_input_v", "transfer": transfer,
@@ -212,10 +224,11 @@ def chain_record(settings: Settings, played, notes, steps=(), frequencies=None) 
             "products_near_idle": near}
 
 
-def chain_figure(settings: Settings, played, path, title=""):
+def chain_figure(settings: Settings, played, path, title="", near=None):
     """Save a PNG: the chain's gain and phase over the band with every tone of the plan
-    on it, and the compensated input of the step with the most tones against the ideal
-    sum (the die's drive in volts of the chain's gain at the band's bottom).
+    on it, the compensated input of the step with the most tones against the ideal
+    sum (the die's drive in volts of the chain's gain at the band's bottom), and, for a
+    distorting chain, the distortion products that land near idle impacters.
 
     Parameters
     ----------
@@ -225,6 +238,10 @@ def chain_figure(settings: Settings, played, path, title=""):
         Step key -> the die's drive (Waveform or gated Burst).
     path : path
         The PNG.
+    near : list of dict, optional
+        :func:`products_near_idle`'s rows (plan.json's ``chain.products_near_idle``):
+        each product's frequency and amplitude at the die, its idle impacter's tone
+        marked beside it, the strongest named.  None or empty: the panel says none.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -239,9 +256,14 @@ def chain_figure(settings: Settings, played, path, title=""):
     tones = np.array(sorted({float(t) for w in played.values() for t in w.frequencies}))
     ht = chain.response(tones) if len(tones) else np.zeros(0, complex)
 
-    fig = Figure(figsize=(9, 9), layout="constrained")
+    nl = chain.nonlinearity
+    distorting = bool(nl.a2 or nl.a3)
+    fig = Figure(figsize=(9, 12 if distorting else 9), layout="constrained")
     FigureCanvasAgg(fig)
-    ax_g, ax_p, ax_t = fig.subplots(3, 1)
+    axes = fig.subplots(4 if distorting else 3, 1)
+    ax_g, ax_p, ax_t = axes[:3]
+    if distorting:
+        _products_panel(axes[3], near or [], (lo, hi))
     ax_g.loglog(f, np.abs(h) / UM, color="C0", lw=1.2, label="|H| (chain)")
     ax_g.plot(tones, np.abs(ht) / UM, "o", ms=3, color="C3", label="the plan's tones")
     ax_g.axvspan(lo, hi, color="0.9", zorder=0, label="drive.band_hz")
@@ -269,6 +291,42 @@ def chain_figure(settings: Settings, played, path, title=""):
         ax_t.set_title(f"step {key}: {len(w.frequencies)} tones", fontsize=9)
         ax_t.legend(fontsize=8, loc="upper right")
     fig.savefig(path, dpi=110)
+
+
+#: Products the figure names (the strongest, by amplitude at the die).
+FIGURE_NAMED_PRODUCTS = 6
+
+
+def _products_panel(ax, near, band):
+    """The chain figure's panel of distortion products near idle impacters: each
+    product's amplitude at the die [nm] at its frequency, the idle impacter's tone as a
+    dotted line beside it, the strongest :data:`FIGURE_NAMED_PRODUCTS` named."""
+    ax.set_xscale("log")
+    ax.axvspan(*band, color="0.9", zorder=0)
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel("product at the die [nm]")
+    if not near:
+        ax.set_title("distortion products near idle impacters: none within "
+                     "drive.guard.relative_bandwidth", fontsize=9)
+        ax.set_xlim(band[0] / 1.5, band[1] * 1.5)
+        return
+    pf = np.array([r["product_hz"] for r in near])
+    pa = np.array([r["amplitude_m"] for r in near]) * 1e9
+    tones = sorted({r["impacter_hz"] for r in near})
+    for t in tones:
+        ax.axvline(t, color="C2", lw=0.6, ls=":", zorder=1)
+    ax.vlines(pf, 0.0, pa, color="C3", lw=1.0, zorder=2)
+    ax.plot(pf, pa, "v", ms=4, color="C3",
+            label=f"{len(near)} products within the guard band of an idle impacter")
+    ax.plot([], [], color="C2", lw=0.6, ls=":", label="that impacter's tone")
+    for r in near[:FIGURE_NAMED_PRODUCTS]:
+        ax.annotate(f"{r['impacter']} ({r['step']})", (r["product_hz"],
+                                                       r["amplitude_m"] * 1e9),
+                    textcoords="offset points", xytext=(3, 3), fontsize=7)
+    ax.set_ylim(0.0, float(pa.max()) * 1.3)
+    ax.set_title("distortion products near idle impacters (at the spec's distortion)",
+                 fontsize=9)
+    ax.legend(fontsize=8, loc="upper right")
 
 
 def chain_section(block):
@@ -302,11 +360,12 @@ def chain_section(block):
     if nl["a2_per_m"] or nl["a3_per_m2"]:
         n = sum(st.get("products_simulated", 0) for st in block["steps"].values())
         near = block.get("products_near_idle") or []
-        lines.append(f"Every looped step was verified with the distortion simulated: its "
+        lines.append(f"Every step was verified with the distortion simulated: its "
                      f"tones and their harmonic and intermodulation products at the die "
                      f"({n} products over all steps, those above "
                      f"{nl['product_floor_rel']:.1%} of the step's strongest tone; a gated "
-                     f"burst's products are not modelled). {len(near)} products land "
+                     f"burst's in each of its stretches, ramps included). {len(near)} "
+                     "products land "
                      "within drive.guard.relative_bandwidth of an impacter idle in their "
                      "step" + (", the strongest:" if near else "."))
         if near:
@@ -336,8 +395,8 @@ class DieDrive:
     ----------
     frequencies, amplitudes, phases : ndarray, shape (n,)
         [Hz], [m], [rad].
-    loop_length : float
-        [s].
+    loop_length : float or None
+        [s] (None: a drive read back from plan.json, its tones off any grid).
     is_product : ndarray of bool, shape (n,)
         A product (True) or a designed tone.
     """
@@ -349,19 +408,104 @@ class DieDrive:
     is_product: np.ndarray
 
 
-def die_drive(settings: Settings, waveform):
-    """The die's drive of a step through the chain's distortion (:class:`DieDrive`);
-    a gated burst is returned as it is (its envelopes' products are not modelled), as
-    is every step of a chain without harmonics."""
-    from planner.synthesis.gating import Burst
+@dataclass(frozen=True)
+class DieBurst:
+    """What the die feels of a gated burst (a ``targets_um`` step) through the chain's
+    distortion: each of the burst's stretches of constant tones
+    (:meth:`planner.synthesis.gating.Burst.program`, its ramps included as the exact
+    sum of constant tones they are) with its harmonic and intermodulation products
+    (:func:`planner.synthesis.chain.distort_tones`), played in turn.  The
+    verification and the scenes play :meth:`program`
+    (:func:`planner.planning.drives.program_of` dispatches on ``gates_s``).
 
+    Attributes
+    ----------
+    burst : Burst or RecordedDrive
+        The burst as designed (its tones, starts and gates).
+    stretches : tuple of (float, model.Drive)
+        (duration [s], the die's drive) of every stretch, products included.
+    products_hz, products_m : ndarray, shape (n,)
+        Every product line of any stretch [Hz] and its largest amplitude [m].
+    """
+
+    burst: object
+    stretches: tuple
+    products_hz: np.ndarray
+    products_m: np.ndarray
+
+    @property
+    def gates_s(self):
+        return self.burst.gates_s
+
+    @property
+    def frequencies(self):
+        return self.burst.frequencies
+
+    @property
+    def amplitudes(self):
+        return self.burst.amplitudes
+
+    @property
+    def phases(self):
+        return self.burst.phases
+
+    def program(self):
+        """The die's stretches, as :meth:`planner.synthesis.gating.Burst.program`'s."""
+        return self.stretches
+
+
+def _die_burst(burst, nl):
+    """:class:`DieBurst` of ``burst`` under ``nl``: every stretch distorted, its products
+    above :data:`PRODUCT_FLOOR_REL` of the burst's strongest tone."""
+    import model
+    from planner.synthesis.chain import distort_tones
+
+    floor = PRODUCT_FLOOR_REL * float(np.max(burst.amplitudes))
+    stretches, lines = [], {}
+    for duration, drive in burst.program():
+        f0 = np.asarray(drive.frequencies, dtype=float)
+        a0 = np.asarray(drive.amplitudes, dtype=float)
+        if not np.any(a0 > 0):
+            stretches.append((duration, drive))         # the drive off between tones
+            continue
+        f, a, ph, prod = distort_tones(f0, a0, np.asarray(drive.phases, dtype=float), nl,
+                                       floor)
+        # a difference product of a ramp's sidebands a few Hz above DC is a static
+        # offset of the die over the stretch, as DC is (left out)
+        keep = ~prod | (f >= QUASI_STATIC_HZ)
+        f, a, ph, prod = f[keep], a[keep], ph[keep], prod[keep]
+        stretches.append((duration, model.Drive(f, a, np.mod(ph, 2.0 * np.pi))))
+        for fp, ap in zip(f[prod], a[prod]):
+            key = round(float(fp), 3)
+            lines[key] = max(lines.get(key, 0.0), float(ap))
+    keys = sorted(lines)
+    return DieBurst(burst, tuple(stretches), np.array(keys, dtype=float),
+                    np.array([lines[k] for k in keys], dtype=float))
+
+
+def die_drive(settings: Settings, waveform):
+    """The die's drive of a step through the chain's distortion: a loop's
+    :class:`DieDrive`, a gated burst's :class:`DieBurst`; the drive as it is for a chain
+    without harmonics."""
     nl = settings.chain.nonlinearity
-    if isinstance(waveform, Burst) or not (nl.a2 or nl.a3) or not len(waveform.frequencies):
+    if not (nl.a2 or nl.a3) or not len(waveform.frequencies):
         return waveform
-    cycles = np.rint(np.asarray(waveform.frequencies) * waveform.loop_length)
+    if getattr(waveform, "gates_s", None) is not None:
+        # a gated burst (or one read back from plan.json): its stretches distorted
+        return _die_burst(waveform, nl)
     floor = PRODUCT_FLOOR_REL * float(np.max(waveform.amplitudes))
+    loop = getattr(waveform, "loop_length", None)
+    if loop is None:
+        # a loop read back from plan.json (a chip's verification of the plan's drive):
+        # its tones as they are, off any grid
+        from planner.synthesis.chain import distort_tones
+
+        f, a, ph, prod = distort_tones(waveform.frequencies, waveform.amplitudes,
+                                       waveform.phases, nl, floor)
+        return DieDrive(f, a, ph, None, prod)
+    cycles = np.rint(np.asarray(waveform.frequencies) * loop)
     k, a, ph, prod = distort(cycles, waveform.amplitudes, waveform.phases, nl, floor)
-    return DieDrive(k / waveform.loop_length, a, ph, waveform.loop_length, prod)
+    return DieDrive(k / loop, a, ph, loop, prod)
 
 
 def die_drives(settings: Settings, played) -> dict:
@@ -387,11 +531,13 @@ def products_near_idle(settings: Settings, steps, drives, frequencies):
     out = []
     for st in steps:
         d = drives.get(st.key)
-        if not isinstance(d, DieDrive):
+        if isinstance(d, DieDrive):
+            pf, pa = d.frequencies[d.is_product], d.amplitudes[d.is_product]
+        elif isinstance(d, DieBurst):
+            pf, pa = d.products_hz, d.products_m
+        else:
             continue
         active = {Node(dv, dr) for dv, dr in st.active_nodes()}
-        pf = d.frequencies[d.is_product]
-        pa = d.amplitudes[d.is_product]
         for n, f in frequencies.items():
             if n in active:
                 continue

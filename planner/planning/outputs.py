@@ -115,7 +115,8 @@ def _figures(result, out_dir):
         from planner.planning.chain import chain_figure
 
         chain_figure(settings, result.waveforms, figs / "drive_chain.png",
-                     f"{settings.name}: drive chain and the plan's tones")
+                     f"{settings.name}: drive chain and the plan's tones",
+                     near=(result.data.get("chain") or {}).get("products_near_idle"))
     if result.data["scenes"]:
         rp.slider_positions(result.data["scenes"], figs / "slider_positions.png")
     for scene, rows in target_scenes(result.data["scenes"]).items():

@@ -554,10 +554,18 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
                   tuple(bool(a) for a in allowed), tuple(float(r) for r in need),
                   tuple(probes), tuple(all_edges), ran[0], time.perf_counter() - t0, env,
                   cold, assigned=few)
-    if not reach.constrained:
+    if not reach.constrained and not _distorting(settings):
         # the reach takes nothing from the grid: the assignment made before the probes
         return reach, dataclasses.replace(unconstrained, reach=reach)
+    # (with a distorting drive chain the layout weighs each product against the
+    # reach's design family, which the assignment before the probes did not have)
     return assign_on_reach(settings, reach)
+
+
+def _distorting(settings) -> bool:
+    """Whether the spec's drive chain distorts (issue 46)."""
+    chain = settings.chain
+    return chain is not None and bool(chain.nonlinearity.a2 or chain.nonlinearity.a3)
 
 
 def _refuse_undamped(settings: Settings, assignment):

@@ -524,10 +524,29 @@ def resolve_settings(loaded: LoadedSpec, seed=None) -> Settings:
 def _chain(loaded):
     """``drive.chain`` in SI (:class:`planner.synthesis.chain.DriveChain`), or None;
     a table that does not cover the band is refused, naming the field and its line."""
+    drive = loaded.spec.drive
+    chain = drive_chain(drive)
+    if chain is None:
+        return None
+    tr = drive.chain.transfer
+    if hasattr(tr, "frequency_hz"):
+        lo, hi = chain.transfer.band_hz
+        if lo > drive.band_hz[0] or hi < drive.band_hz[1]:
+            _refuse(loaded, ("drive", "chain", "transfer"),
+                    f"the transfer table{' ' + tr.file if tr.file else ''} covers "
+                    f"{lo:g}-{hi:g} Hz, not the whole band {drive.band_hz[0]:g}-"
+                    f"{drive.band_hz[1]:g} Hz (drive.band_hz): a tone outside it cannot "
+                    "be compensated; measure the chain over the band")
+    return chain
+
+
+def drive_chain(drive):
+    """The :class:`planner.synthesis.chain.DriveChain` of a spec's ``drive`` block (its
+    ``chain`` in SI), or None without one.  The spec's and a recorded plan's alike
+    (``vibroplan drive PLAN`` reads it from plan.json's spec, whose table is inline)."""
     from planner.synthesis.chain import (DriveChain, ModelTransfer, Nonlinearity,
                                          TableTransfer)
 
-    drive = loaded.spec.drive
     spec = drive.chain
     if spec is None:
         return None
@@ -535,13 +554,6 @@ def _chain(loaded):
     if hasattr(tr, "frequency_hz"):
         transfer = TableTransfer(tr.frequency_hz, [g * UM for g in tr.gain_um_per_v],
                                  [math.radians(p) for p in tr.phase_deg], tr.file)
-        lo, hi = transfer.band_hz
-        if lo > drive.band_hz[0] or hi < drive.band_hz[1]:
-            _refuse(loaded, ("drive", "chain", "transfer"),
-                    f"the transfer table{' ' + tr.file if tr.file else ''} covers "
-                    f"{lo:g}-{hi:g} Hz, not the whole band {drive.band_hz[0]:g}-"
-                    f"{drive.band_hz[1]:g} Hz (drive.band_hz): a tone outside it cannot "
-                    "be compensated; measure the chain over the band")
     else:
         transfer = ModelTransfer(tr.gain_um_per_v * UM,
                                  tuple((r.frequency_hz, r.q) for r in tr.resonances),

@@ -284,8 +284,57 @@ def distort(cycles, amplitudes, phases, nonlinearity: Nonlinearity, floor: float
     The DC term (a static offset of the die) is left out.
     """
     k = [int(c) for c in cycles]
+    out = _distorted_lines(k, amplitudes, phases, nonlinearity)
+    own = set(k)
+    keep = sorted(c for c, z in out.items()
+                  if c > 0 and (c in own or 2 * abs(z) >= floor))
+    z = np.array([out[c] for c in keep], dtype=complex)
+    return (np.array(keep, dtype=np.int64), 2 * np.abs(z), np.angle(z),
+            np.array([c not in own for c in keep], dtype=bool))
+
+
+#: The line grid of :func:`distort_tones` [Hz]: tones and products closer than this are
+#: one line (a product's frequency is a sum of floats; its phase error over a stretch
+#: of ms is ~1e-8 rad).
+LINE_RESOLUTION_HZ = 1e-6
+
+
+def distort_tones(frequencies, amplitudes, phases, nonlinearity: Nonlinearity,
+                  floor: float):
+    """:func:`distort` of constant tones at any frequencies (not on a loop's grid: a
+    gated burst's stretch, :meth:`planner.synthesis.gating.Burst.program`), exact for
+    the polynomial over the stretch, with its phases at the stretch's start.
+
+    Parameters
+    ----------
+    frequencies : array_like, shape (n_tones,)
+        [Hz], positive.
+    amplitudes, phases, nonlinearity, floor :
+        As :func:`distort`'s.
+
+    Returns
+    -------
+    (frequencies, amplitudes, phases, is_product) : ndarrays, shape (n_out,)
+        [Hz], [m], [rad]; sorted by frequency; a tone's own line keeps its frequency.
+    """
+    f = np.asarray(frequencies, dtype=float)
+    keys = [int(round(x / LINE_RESOLUTION_HZ)) for x in f]
+    out = _distorted_lines(keys, amplitudes, phases, nonlinearity)
+    exact = dict(zip(keys, f))
+    own = set(keys)
+    keep = sorted(c for c, z in out.items()
+                  if c > 0 and (c in own or 2 * abs(z) >= floor))
+    z = np.array([out[c] for c in keep], dtype=complex)
+    freqs = np.array([exact.get(c, c * LINE_RESOLUTION_HZ) for c in keep], dtype=float)
+    return (freqs, 2 * np.abs(z), np.angle(z),
+            np.array([c not in own for c in keep], dtype=bool))
+
+
+def _distorted_lines(keys, amplitudes, phases, nonlinearity):
+    """The two-sided line spectrum {line: complex} of ``z = y + a2 y^2 + a3 y^3`` for
+    ``y`` the tones on integer ``keys`` (see :func:`distort`'s notes)."""
     spec = {}
-    for c, a, p in zip(k, amplitudes, phases):
+    for c, a, p in zip(keys, amplitudes, phases):
         z = 0.5 * float(a) * complex(math.cos(p), math.sin(p))
         spec[c] = spec.get(c, 0j) + z
         spec[-c] = spec.get(-c, 0j) + z.conjugate()
@@ -298,12 +347,7 @@ def distort(cycles, amplitudes, phases, nonlinearity: Nonlinearity, floor: float
         if nonlinearity.a3:
             for c, z in _convolve(sq, spec).items():
                 out[c] = out.get(c, 0j) + nonlinearity.a3 * z
-    own = set(k)
-    keep = sorted(c for c, z in out.items()
-                  if c > 0 and (c in own or 2 * abs(z) >= floor))
-    z = np.array([out[c] for c in keep], dtype=complex)
-    return (np.array(keep, dtype=np.int64), 2 * np.abs(z), np.angle(z),
-            np.array([c not in own for c in keep], dtype=bool))
+    return out
 
 
 def _convolve(a, b):
@@ -346,4 +390,4 @@ def compensate(waveform: Waveform, transfer) -> Waveform:
 
 
 __all__ = ["ChainError", "DriveChain", "ModelTransfer", "Nonlinearity", "TableTransfer",
-           "compensate", "die_tones", "distort", "input_tones"]
+           "compensate", "die_tones", "distort", "distort_tones", "input_tones"]
