@@ -80,7 +80,9 @@ def test_old_7x7_spec_is_refused_with_the_reason_not_left_to_the_designer():
         assign(settings, settings.steps)
     msg = str(err.value)
     assert "guard band" in msg and "design.guard" in msg and "Fixes" in msg
-    assert "49500 Hz" in msg or "positions" in msg
+    # where the guard band starts and what it costs (561 channels of the grid, 5 apart)
+    assert ("above 49500 Hz, 5 channels are inside the designer's guard band" in msg
+            and "the 561 channels hold only 543 positions 5 apart" in msg), msg
 
 
 def test_capacity_counts_the_guard_band():
