@@ -394,7 +394,8 @@ def _finish(settings, kept: _Round, rounds, clock, scheduler, store=None,
                                           store=store)
         assignment, designs = kept.assignment, kept.designs
         tones = sorted(set(assignment.frequencies.values()))
-        coupling = coupling_matrix(kept.impacters, tones, settings, settings.single_step_s)
+        coupling = coupling_matrix(kept.impacters, tones, settings, settings.single_step_s,
+                                   store=store)
     clock.timings["scenes_coupling"] = time.perf_counter() - ts
     # what a fabricated chip does to these designs: sensitivities, separations and the
     # predicted collision-free yield under the spec's tolerances

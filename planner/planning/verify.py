@@ -333,9 +333,20 @@ def verify_step(settings: Settings, step, waveform, impacters, sliders):
     return check_step(settings, step, waveform, impacters, sliders)[0]
 
 
-def coupling_matrix(impacters, tones, settings: Settings, duration):
+def coupling_matrix(impacters, tones, settings: Settings, duration, *, store=None):
     """Worst response r [N] over the x0 grid of every impacter (Node -> model) to every
-    tone alone: a table indexed by the nodes' text (coupling.csv), a column per tone."""
+    tone alone: a table indexed by the nodes' text (coupling.csv), a column per tone.
+    ``store`` (optional): the on-disk cache it is read from when its inputs and code
+    are those of a stored one, and stored to when computed (as :func:`check_steps`)."""
+    if store is not None:
+        from planner.planning.design_store import stage_digest
+
+        key = stage_digest("coupling", impacters, sorted(set(tones)), settings, duration)
+        out = store.get_stage("coupling", key)
+        if out is None:
+            out = coupling_matrix(impacters, tones, settings, duration)
+            store.put_stage("coupling", key, out)
+        return out
     freqs = sorted(set(tones))
     amps = tone_amplitudes(settings, freqs)
     names = sorted(impacters)
