@@ -177,6 +177,11 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
     if dc is not None:
         click.echo(f"designs: {dc['designed']} distinct, {dc['read']} read from the design "
                    f"cache ({dc['path']}), {dc['written']} computed and stored")
+        st = dc.get("stages") or {}
+        if st:
+            click.echo("from the same cache: " + ", ".join(
+                f"{name} {c['read']} read, {c['written']} computed and stored"
+                for name, c in st.items()))
     click.echo(f"verification: {'PASSED' if result.passed else 'FAILED'} "
                f"({int(ver['passed'].sum())}/{len(ver)} checks); wrote {out_dir}/ "
                f"(see {out_dir}/report.md)")

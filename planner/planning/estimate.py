@@ -10,7 +10,8 @@ assignment cannot know yet multiply the time:
   kernels missing;
 * **designer retries**: a design that is infeasible or predicted slower than
   ``SPEED_MARGIN`` x the minimum speed is retried with the next seed, up to
-  :data:`planner.planning.designs.DESIGN_RETRIES` times: 1 to 1 + DESIGN_RETRIES tries;
+  :data:`planner.planning.designs.DESIGN_RETRIES` times: 1 to 1 + DESIGN_RETRIES tries
+  (fewer once RETRY_STALL tries in a row gain less than RETRY_GAIN in speed);
   while every try has been infeasible the next searches wider
   (:func:`planner.designer.budget.widened`), so the slowest design is either
   1 + DESIGN_RETRIES tries or INFEASIBLE_TRIES ever wider ones, counted in first-try
@@ -60,7 +61,8 @@ from dataclasses import dataclass
 from model.warmup import PLAN_KERNELS, numba_cache_state  # noqa: F401 (re-exported)
 from planner.manufacturability import CHIPS
 from planner.core.nodes import Node
-from planner.planning.designs import DESIGN_RETRIES, INFEASIBLE_TRIES
+from planner.planning.designs import (DESIGN_RETRIES, INFEASIBLE_TRIES, RETRY_GAIN,
+                                      RETRY_STALL)
 from planner.planning.exposure import driven_ensembles, forbidden_tones, idle_ensembles
 
 #: Seconds of one core per design try, fixed part (Sobol seeding, annealing, SLSQP and
@@ -201,8 +203,8 @@ class Estimate:
             f"measured on the default plan), at most {_fmt(self.high_s)}; an estimate from a "
             f"cost model calibrated on an idle machine (docs/large_arrays.md)",
             f"  per round: designs {_range(self.design_s, self.worst_tries * self.design_s)} "
-            f"(1-{self.tries} tries each, infeasible ones searching wider: up to "
-            f"{self.worst_tries:.0f} x a first try), verification {_fmt(self.verify_s)}; up to "
+            f"({self.tries_text()}: up to {self.worst_tries:.0f} x a first try), "
+            f"verification {_fmt(self.verify_s)}; up to "
             f"{self.rounds} round{'s' if self.rounds != 1 else ''} (1 if every design is "
             f"feasible and every step verifies; a later round designs again only what it "
             f"moved or re-seeded, the high end redoes every design in every round at its "
@@ -210,6 +212,17 @@ class Estimate:
             f"{_fmt(self.coupling_s)}, manufacturability {_fmt(self.manufacturability_s)}; "
             f"{comp}",
         ] + self._load_lines()
+
+    def tries_text(self) -> str:
+        """How many tries a design takes, as :func:`planner.planning.designs.
+        _design_task` stops them: most designs one; a slow one retried while a try
+        gains, stopping after :data:`RETRY_STALL` in a row that do not (the "1-8 tries"
+        this said before the stall rule was the cap only); an infeasible one given up
+        after :data:`INFEASIBLE_TRIES`, each searching wider."""
+        return (f"1 try each when fast enough, a slow one retried until "
+                f"{RETRY_STALL} tries in a row gain less than {100 * RETRY_GAIN:g} % in "
+                f"speed ({self.tries} at most), an infeasible one given up after "
+                f"{INFEASIBLE_TRIES} ever wider")
 
     def _load_lines(self):
         if self.load is None or self.load[0] <= self.load[1]:

@@ -67,8 +67,15 @@ def _wafer_terms(settings, nodes) -> dict:
             "positions": np.array([pos[n.device] for n in nodes])}
 
 
-def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> dict:
+def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS,
+           store=None) -> dict:
     """plan.json's ``manufacturability`` block for the final designs.
+
+    ``store`` (a :class:`~planner.planning.design_store.DesignStore`, optional): the
+    block is read from the on-disk cache when every input it is computed from (the
+    settings with their tolerances and seed, the steps, the designs, their tones and
+    tone amplitudes, the pairs told apart, ``chips``) and the code are those of a
+    stored one, and stored when computed.
 
     Returns
     -------
@@ -84,8 +91,26 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
         difference), ``model``.
     """
     nodes = sorted(designs, key=node_order)
-    tol = settings.tolerances
     amps = _tone_amplitudes(steps, assignment, waveforms)
+    pairs = told_apart_pairs(assignment, nodes)
+    if store is None:
+        return _assess(settings, nodes, assignment, designs, amps, pairs, chips)
+    from planner.planning.design_store import stage_digest
+
+    key = stage_digest("manufacturability", settings, tuple(steps),
+                       [(n, designs[n], assignment.frequencies[n], amps.get(n))
+                        for n in nodes], pairs, chips)
+    out = store.get_stage("manufacturability", key)
+    if out is None:
+        out = _assess(settings, nodes, assignment, designs, amps, pairs, chips)
+        store.put_stage("manufacturability", key, out)
+    return out
+
+
+def _assess(settings, nodes, assignment, designs, amps, pairs, chips) -> dict:
+    """:func:`assess`'s block, computed (``amps``: node -> tone amplitude [m];
+    ``pairs``: the pairs the steps must tell apart)."""
+    tol = settings.tolerances
     sens, seps, measured = {}, {}, {}
     for n in nodes:
         d = designs[n]
@@ -112,7 +137,6 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS) -> d
         "sensitivity_band_per_um": (None if settings.sensitivity_band is None else
                                     [b * 1e-6 for b in settings.sensitivity_band]),
     }
-    pairs = told_apart_pairs(assignment, nodes)
     if tol.zero:
         out.update(collision_free_yield=None, meets_target=None,
                    note="no fabrication tolerances in the spec (fabrication: all sigmas 0): "

@@ -200,7 +200,8 @@ def _design_round(settings, steps, assignment, clock, tick, design_cache, draws=
             checked = die_drives(settings, played)
         for rows, fails in check_steps(settings, run_steps, checked, impacters, sliders,
                                        progress=lambda k: tick("verify", k),
-                                       scheduler=design_kw.get("scheduler")):
+                                       scheduler=design_kw.get("scheduler"),
+                                       store=design_kw.get("store")):
             ver_rows += rows
             failures += fails
         clock.add("verify", ts)
@@ -366,10 +367,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
             kept, rounds, designed = _repair_rounds(
                 settings, clock, tick, on_assignment,
                 dict(jobs=jobs, scheduler=scheduler, store=store, pool=pool), first, free)
-        cache = (None if store is None else
-                 {"path": str(store.path), "read": store.hits, "written": store.writes,
-                  "designed": designed})
-        return _finish(settings, kept, rounds, clock, scheduler, cache, free)
+        return _finish(settings, kept, rounds, clock, scheduler, store, free, designed)
 
 
 def _plan_pool(jobs, scheduler):
@@ -384,11 +382,24 @@ def _plan_pool(jobs, scheduler):
     return warm_pool(jobs, compile_kernels)
 
 
-def _finish(settings, kept: _Round, rounds, clock, scheduler, design_cache,
-            free_cores=None) -> Plan:
+def _cache_record(store, designed):
+    """:attr:`Plan.design_cache`: the design cache's path, its designs read and written,
+    the distinct designs, and per later stage (``verify``, ``manufacturability``) the
+    results read and written (None without a cache)."""
+    if store is None:
+        return None
+    return {"path": str(store.path), "read": store.hits, "written": store.writes,
+            "designed": designed,
+            "stages": {k: dict(v) for k, v in sorted(store.stages.items())}}
+
+
+def _finish(settings, kept: _Round, rounds, clock, scheduler, store=None,
+            free_cores=None, designed=0) -> Plan:
     """The kept round's scenes (with the motion repair), coupling matrix,
-    manufacturability and record, as a :class:`Plan` (``design_cache``: its
-    ``design_cache``; ``free_cores``: as :func:`run_plan`'s)."""
+    manufacturability and record, as a :class:`Plan` (``store``: the on-disk cache
+    the motion repair's checks and the manufacturability are read from and written to,
+    or None; ``free_cores``: as :func:`run_plan`'s; ``designed``: the distinct designs
+    of the rounds, for :attr:`Plan.design_cache`)."""
     ts = time.perf_counter()
     felt = kept.played
     if settings.chain is not None:
@@ -402,16 +413,18 @@ def _finish(settings, kept: _Round, rounds, clock, scheduler, design_cache,
         (run_steps, ver_rows, failures, scene_rows, motion_repairs,
          step_settle) = scenes_and_motion(settings, kept.run_steps, felt,
                                           kept.impacters, kept.sliders, kept.ver_rows,
-                                          kept.failures, scheduler=scheduler)
+                                          kept.failures, scheduler=scheduler,
+                                          store=store)
         assignment, designs = kept.assignment, kept.designs
         tones = sorted(set(assignment.frequencies.values()))
-        coupling = coupling_matrix(kept.impacters, tones, settings, settings.single_step_s)
+        coupling = coupling_matrix(kept.impacters, tones, settings, settings.single_step_s,
+                                   store=store)
     clock.timings["scenes_coupling"] = time.perf_counter() - ts
     # what a fabricated chip does to these designs: sensitivities, separations and the
     # predicted collision-free yield under the spec's tolerances
     with stage_threads(free_cores):
         manufacturability = clock.timed("manufacturability", assess, settings, run_steps,
-                                        assignment, designs, kept.waveforms)
+                                        assignment, designs, kept.waveforms, store=store)
     ver = pd.DataFrame(ver_rows)
     problems = design_problems(designs, settings, rounds)
     # an infeasible design fails the plan even if the steps happen to verify: it was
@@ -434,5 +447,6 @@ def _finish(settings, kept: _Round, rounds, clock, scheduler, design_cache,
         steps=pd.DataFrame(step_recs), verification=ver, coupling=coupling,
         scenes=pd.DataFrame(scene_rows), passed=passed, data=data, timings=clock.timings,
         settings=settings, waveforms=kept.played, designs=designs, assignment=assignment,
-        failures=tuple(failures), design_cache=design_cache, run_steps=tuple(run_steps),
+        failures=tuple(failures), design_cache=_cache_record(store, designed),
+        run_steps=tuple(run_steps),
         dwells=dict(step_settle))

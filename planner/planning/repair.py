@@ -353,7 +353,7 @@ def merge_carried(ver_rows, carried, steps, scene_rows, dwells):
 
 
 def scenes_and_motion(settings, run_steps, waveforms, impacters, sliders, ver_rows, failures,
-                      *, scheduler=None, dwell_floor=None):
+                      *, scheduler=None, dwell_floor=None, store=None):
     """The scenes with the state carried across steps, and the motion repair.
 
     Each scene is simulated in order, every step followed by its settle dwell; a step
@@ -373,6 +373,9 @@ def scenes_and_motion(settings, run_steps, waveforms, impacters, sliders, ver_ro
         The per-step checks so far (:func:`planner.planning.verify.check_steps`).
     dwell_floor : dict, optional
         Step key -> a dwell [s] the step keeps at least (a re-plan keeps the plan's).
+    store : planner.planning.design_store.DesignStore, optional
+        The on-disk cache the repaired steps' checks are read from and written to
+        (:func:`planner.planning.verify.check_steps`).
 
     Returns
     -------
@@ -398,7 +401,8 @@ def scenes_and_motion(settings, run_steps, waveforms, impacters, sliders, ver_ro
         motion_repairs.append({"round": mround + 1, "actions": actions})
         again = [st for st in run_steps if st.index in redo]
         for st, (rows, fails) in zip(again, check_steps(settings, again, waveforms, impacters,
-                                                         sliders, scheduler=scheduler)):
+                                                         sliders, scheduler=scheduler,
+                                                         store=store)):
             ver_rows = [r for r in ver_rows if r["index"] != st.index] + rows
             failures = [f for f in failures if f.step != st.index] + fails
         ver_rows.sort(key=lambda r: r["index"])

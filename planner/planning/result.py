@@ -65,7 +65,9 @@ class Plan:
     design_cache : dict or None
         With an on-disk design cache: its ``path``, the designs ``read`` from it and
         ``written`` to it, and the distinct designs of the plan (``designed``, every
-        repair round's); None without one (keyword only; not in plan.json).
+        repair round's), and ``stages``: per later stage cached beside the designs
+        (``verify``: steps, ``manufacturability``: the block) the results ``read`` and
+        ``written``; None without one (keyword only; not in plan.json).
     run_steps : tuple of Step
         The steps as they play (bursts sized, gated): with ``waveforms`` and ``dwells``
         the drive a chip's check replays in memory (:func:`planner.afterfab.checks.

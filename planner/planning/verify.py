@@ -250,7 +250,7 @@ def _check_on_engine(shared, step, waveform):
 
 
 def check_steps(settings: Settings, steps, waveforms, impacters, sliders, *, progress=None,
-                scheduler=None):
+                scheduler=None, store=None):
     """:func:`check_step` of every step of ``steps``, in their order.
 
     The steps are independent (each starts every device from rest or from its x0 grid
@@ -272,6 +272,10 @@ def check_steps(settings: Settings, steps, waveforms, impacters, sliders, *, pro
         Called with a step's key after each finished step (on Dask, in completion
         order with the keys in list order: the count is exact, not which step).
     scheduler : str, optional
+    store : planner.planning.design_store.DesignStore, optional
+        The on-disk cache: a step whose inputs (the settings, the step, its drive, the
+        models) and code are those of a stored check is read from it, not simulated;
+        every step simulated is stored (:func:`planner.planning.design_store.stage_digest`).
 
     Returns
     -------
@@ -281,6 +285,9 @@ def check_steps(settings: Settings, steps, waveforms, impacters, sliders, *, pro
     steps = list(steps)
     if not steps:
         return []
+    if store is not None:
+        return _check_steps_cached(settings, steps, waveforms, impacters, sliders,
+                                   progress=progress, scheduler=scheduler, store=store)
     if not scheduler:
         out = []
         for st in steps:
@@ -297,9 +304,44 @@ def check_steps(settings: Settings, steps, waveforms, impacters, sliders, *, pro
                      progress=tick)
 
 
-def coupling_matrix(impacters, tones, settings: Settings, duration):
+def _check_steps_cached(settings, steps, waveforms, impacters, sliders, *, progress,
+                        scheduler, store):
+    """:func:`check_steps` through ``store``: the steps found there are read, the
+    others checked (on ``scheduler`` if given) and stored; results in the steps' order."""
+    from planner.planning.design_store import stage_digest
+
+    # what every step shares, digested once
+    shared = stage_digest("verify", settings, by_node(impacters), sliders)
+    keys = [None if shared is None else stage_digest("verify", shared, st, waveforms[st.key])
+            for st in steps]
+    out = [store.get_stage("verify", k) for k in keys]
+    if progress is not None:
+        for st, got in zip(steps, out):
+            if got is not None:
+                progress(st.key)
+    todo = [i for i, got in enumerate(out) if got is None]
+    done = check_steps(settings, [steps[i] for i in todo], waveforms, impacters, sliders,
+                       progress=progress, scheduler=scheduler)
+    for i, got in zip(todo, done):
+        store.put_stage("verify", keys[i], got)
+        out[i] = got
+    return out
+
+
+def coupling_matrix(impacters, tones, settings: Settings, duration, *, store=None):
     """Worst response r [N] over the x0 grid of every impacter (Node -> model) to every
-    tone alone: a table indexed by the nodes' text (coupling.csv), a column per tone."""
+    tone alone: a table indexed by the nodes' text (coupling.csv), a column per tone.
+    ``store`` (optional): the on-disk cache it is read from when its inputs and code
+    are those of a stored one, and stored to when computed (as :func:`check_steps`)."""
+    if store is not None:
+        from planner.planning.design_store import stage_digest
+
+        key = stage_digest("coupling", impacters, sorted(set(tones)), settings, duration)
+        out = store.get_stage("coupling", key)
+        if out is None:
+            out = coupling_matrix(impacters, tones, settings, duration)
+            store.put_stage("coupling", key, out)
+        return out
     freqs = sorted(set(tones))
     amps = tone_amplitudes(settings, freqs)
     names = sorted(impacters)

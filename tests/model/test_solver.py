@@ -1,5 +1,6 @@
 """The exact solver against independent methods, conservation laws and edge cases."""
 
+import dataclasses
 import math
 import os
 import warnings
@@ -202,10 +203,26 @@ def test_unchecked_batch_equals_checked(fig7):
 
 
 def test_multitone_drive_superposes(fig7):
-    # with a zero-amplitude second tone, results equal the one-tone run exactly
-    one = model.simulate(fig7, Drive.tone(6200.0))
-    two = model.simulate(fig7, Drive.tone(6200.0) + Drive([9000.0], [0.0]))
+    """The wall-free motion is linear: with a gap no tone reaches, the trajectory under
+    two tones (from rest at x0 = 0) is the sum of the one-tone trajectories; and a
+    zero-amplitude second tone changes nothing: impacts, their velocities, the response,
+    the final state and the trajectory equal the one-tone run's to rounding."""
+    one = model.simulate(fig7, Drive.tone(6200.0), trajectory=True)
+    two = model.simulate(fig7, Drive.tone(6200.0) + Drive([9000.0], [0.0]), trajectory=True)
+    assert two.n_impacts == one.n_impacts > 0
     np.testing.assert_allclose(two.times, one.times, rtol=1e-14)
+    np.testing.assert_allclose(two.velocities, one.velocities, rtol=1e-14)
+    assert two.response == pytest.approx(one.response, rel=1e-14)
+    np.testing.assert_allclose(two.x, one.x, rtol=0, atol=1e-14 * fig7.gap)
+    assert (two.x_end, two.v_end) == pytest.approx((one.x_end, one.v_end), rel=1e-12)
+    # 100 um: neither tone (~5 um swing) nor their sum reaches the wall
+    far = dataclasses.replace(fig7, gap=100e-6)
+    a, b = Drive.tone(6200.0), Drive([9000.0], [0.4e-6], [0.7])
+    ra, rb, rab = (model.simulate(far, d, trajectory=True) for d in (a, b, a + b))
+    assert rab.n_impacts == 0
+    peak = np.abs(rab.x).max()
+    assert np.abs(rb.x).max() > 0.1 * peak   # the second tone counts in the sum
+    np.testing.assert_allclose(rab.x, ra.x + rb.x, rtol=0, atol=1e-12 * peak)
 
 
 def test_multitone_against_dop853(fig7):

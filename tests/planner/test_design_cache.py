@@ -1,13 +1,15 @@
 """The on-disk design cache of ``vibroplan plan`` (planner.planning.design_store)."""
 
 import dataclasses
+import re
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
 from planner.cli import main
-from planner.planning.design_store import DesignStore, default_cache_dir, task_digest
+from planner.planning.design_store import (DesignStore, default_cache_dir, stage_digest,
+                                           task_digest)
 from tests.planner.test_pipeline import TINY
 
 
@@ -43,6 +45,69 @@ def test_a_second_plan_reads_every_design_from_the_cache(tiny_spec, tmp_path):
             == (tmp_path / "b" / "plan.json").read_bytes())
     assert ((tmp_path / "a" / "designs.csv").read_bytes()
             == (tmp_path / "b" / "designs.csv").read_bytes())
+
+
+def _stages(output):
+    """{stage: (read, computed)} of the CLI's "from the same cache:" line."""
+    line = next(x for x in output.splitlines() if x.startswith("from the same cache:"))
+    return {m[0]: (int(m[1]), int(m[2]))
+            for m in re.findall(r"(\w+) (\d+) read, (\d+) computed and stored", line)}
+
+
+def _without_timings(report):
+    return report.read_text(encoding="utf-8").split("## Timings")[0]
+
+
+def test_a_second_plan_reads_verification_and_manufacturability_from_the_cache(
+        tiny_spec, tmp_path):
+    """Issue 43: a re-run verified every step and predicted the yield again from the
+    designs it read from the cache.  The first run stores each step's checks, the
+    coupling matrix and the manufacturability block beside the designs; the second
+    reads all of them, simulates nothing, and writes the same files byte for byte
+    (report.md but its timings)."""
+    cache = tmp_path / "cache"
+    first = _plan(tiny_spec, "--out", tmp_path / "a", "--cache-dir", cache)
+    assert first.exit_code == 0, first.output
+    stored = _stages(first.output)
+    steps = stored["verify"][1]
+    assert steps >= 2        # push and pull, and any re-check of the motion repair
+    assert stored == {"coupling": (0, 1), "manufacturability": (0, 1), "verify": (0, steps)}
+    assert len(list((cache / "verify").glob("*.pkl"))) == steps
+
+    second = _plan(tiny_spec, "--out", tmp_path / "b", "--cache-dir", cache)
+    assert second.exit_code == 0, second.output
+    assert _stages(second.output) == {"coupling": (1, 0), "manufacturability": (1, 0),
+                                      "verify": (steps, 0)}
+    for name in ("plan.json", "designs.csv", "coupling.csv"):
+        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
+    assert _without_timings(tmp_path / "a" / "report.md") == _without_timings(
+        tmp_path / "b" / "report.md")
+    assert sorted(p.name for p in (tmp_path / "a" / "waveforms").iterdir()) == sorted(
+        p.name for p in (tmp_path / "b" / "waveforms").iterdir())
+    for wav in (tmp_path / "a" / "waveforms").iterdir():
+        assert wav.read_bytes() == (tmp_path / "b" / "waveforms" / wav.name).read_bytes()
+
+
+def test_a_stage_digest_changes_with_the_seed_a_tolerance_and_a_step():
+    """The cached verification and Monte Carlo are keyed by the settings as a whole:
+    another seed (the Monte Carlo's), another line-width sigma or another step is
+    another entry; the same inputs, the same digest."""
+    from planner.arrayspec import load_spec
+    from planner.planning.settings import resolve_settings
+
+    fab = TINY + "fabrication:\n  line_width_um: {die: 0.05, device: 0.02}\n"
+    s0 = resolve_settings(load_spec(fab), 0)
+    assert stage_digest("manufacturability", s0) == stage_digest(
+        "manufacturability", resolve_settings(load_spec(fab), 0))
+    wider = fab.replace("die: 0.05", "die: 0.06")
+    others = [resolve_settings(load_spec(fab), 1), resolve_settings(load_spec(wider), 0)]
+    digests = {stage_digest("manufacturability", s) for s in others}
+    digests.add(stage_digest("verify", s0))
+    step = s0.steps[0]
+    digests.add(stage_digest("manufacturability", s0, step))
+    digests.add(stage_digest("manufacturability", s0, dataclasses.replace(
+        step, duration_s=np.nextafter(step.duration_s, 1.0))))
+    assert stage_digest("manufacturability", s0) not in digests and len(digests) == 5
 
 
 @pytest.mark.slow

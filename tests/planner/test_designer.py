@@ -204,12 +204,16 @@ def test_fast_budget_with_many_forbidden_frequencies():
 
 
 def test_same_seed_same_design():
+    """The same seed gives the same design to the last digit; another seed starts the
+    search elsewhere and ends elsewhere, so a designer that ignored its seed fails here."""
     kw = dict(environment=AIR, budget="fast")
     a = design_impacter(6000.0, (3000.0,), seed=11, **kw)
     b = design_impacter(6000.0, (3000.0,), seed=11, **kw)
     assert a.geometry == b.geometry
     assert a.r_min_n == b.r_min_n and a.margins_hz == b.margins_hz
     assert a.evaluations == b.evaluations
+    c = design_impacter(6000.0, (3000.0,), seed=12, **kw)
+    assert c.geometry != a.geometry
 
 
 def test_target_drives_count_in_the_worst_response():

@@ -335,10 +335,17 @@ def test_bad_input_is_refused_and_nothing_written(chip, tmp_path, case):
             "no plan": [tmp_path / "nowhere", "--out", tmp_path / "chip.gds"],
             "device": [plan, "--out", tmp_path / "chip.gds", "--device", "Z9"],
             "plan folder": [plan, "--out", plan / "report.gds"]}[case]
+    # one line each, the house's "error: <what>: <why>", never click's "Error:" usage text
+    said = {"suffix": f"error: --out {tmp_path / 'chip.txt'}: name a .gds file",
+            "no plan": f"error: {tmp_path / 'nowhere'}: no such file\n",
+            "device": "error: --device Z9: the plan has no designed device 'Z9' "
+                      "(devices A1 ... E5)\n",
+            "plan folder": f"error: --out {plan / 'report.md'}: the file exists, not written "
+                           "by vibroplan"}[case]
     before = sorted(p.name for p in plan.iterdir())
     result = _layout(*args)
     assert result.exit_code == 2, result.output
-    assert result.output.startswith("error:") or "Error:" in result.output
+    assert result.output.startswith(said) and result.output.count("\n") == 1, result.output
     assert "Traceback" not in result.output
     assert sorted(p.name for p in plan.iterdir()) == before
     assert (plan / "report.md").read_text(encoding="utf-8") == "the plan's own report\n"

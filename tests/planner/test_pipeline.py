@@ -84,12 +84,18 @@ def test_verification_is_real_simulation(tiny_plan):
 
 
 def test_same_seed_same_plan_json():
+    """The same seed gives the same plan.json; the seed reaches the designs: seed 4
+    designs A1.forward elsewhere than seed 3 (natural frequency 4261 Hz against
+    4444 Hz), so a plan that ignored its seed fails here."""
     from planner.planning import run_plan
     from planner.arrayspec import load_spec
 
     a = run_plan(load_spec(TINY), seed=3).data
     b = run_plan(load_spec(TINY), seed=3).data
     assert json.dumps(a) == json.dumps(b)
+    c = run_plan(load_spec(TINY), seed=4).data
+    assert (a["seed"], c["seed"]) == (3, 4)
+    assert c["impacters"] != a["impacters"]
 
 
 @pytest.mark.slow
@@ -135,12 +141,20 @@ def _cli_plan(spec, out, *extra):
 
 @pytest.mark.slow
 def test_cli_same_spec_and_seed_byte_identical_plan_json(tmp_path):
+    """``--seed 5`` twice, the second on one process and computing every design anew
+    (``--no-cache``: not read from the first run's), gives byte-identical plan.json;
+    ``--seed 6`` gives other designs, so a CLI that dropped ``--seed`` fails here."""
     spec = tmp_path / "tiny.yaml"
     spec.write_text(TINY)
     a = _cli_plan(spec, tmp_path / "a", "--seed", "5")
-    b = _cli_plan(spec, tmp_path / "b", "--seed", "5", "--jobs", "1")
+    b = _cli_plan(spec, tmp_path / "b", "--seed", "5", "--jobs", "1", "--no-cache")
+    c = _cli_plan(spec, tmp_path / "c", "--seed", "6", "--jobs", "1")
     assert a.returncode in (0, 1) and b.returncode == a.returncode, a.stderr + b.stderr
     assert (tmp_path / "a" / "plan.json").read_bytes() == (tmp_path / "b" / "plan.json").read_bytes()
+    assert c.returncode in (0, 1), c.stderr
+    five, six = (json.loads((tmp_path / x / "plan.json").read_text()) for x in "ac")
+    assert (five["seed"], six["seed"]) == (5, 6)
+    assert six["impacters"] != five["impacters"]
 
 
 def test_ctrl_c_mid_run_leaves_no_output(tmp_path):

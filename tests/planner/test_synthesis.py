@@ -125,6 +125,11 @@ def test_same_seed_same_bytes():
     b = synthesize(f, 1e-6, FS, seed=np.random.default_rng(11))
     assert a.samples.tobytes() == b.samples.tobytes()
     assert a.phases.tobytes() == b.phases.tobytes()
+    # the seed reaches the phases: on this set seed 11's random start loses to
+    # Schroeder's (as do seeds 0, 2-6), seed 1's wins, so seed 1 gives other phases
+    c = synthesize(f, 1e-6, FS, seed=1)
+    assert not np.allclose(c.phases, a.phases)
+    assert c.samples.tobytes() != a.samples.tobytes()
 
 
 def test_given_phases_are_kept():
