@@ -155,6 +155,14 @@ CASES = [
     *[(f"fabrication.{p}.{level}", 0.01, _sampled)
       for p in ("line_width_um", "thickness_um", "gap_um", "youngs_modulus_pct",
                 "natural_frequency_pct") for level in ("die", "device", "pair")],
+    # the drive chain (issue 46): each field reaches the chain the stages read
+    ("drive.chain.transfer", {"gain_um_per_v": 2.0}, lambda s: repr(s.chain)),
+    *[(f"drive.chain.{k}", v, lambda s: repr(s.chain),
+       [("drive.chain.transfer", {"gain_um_per_v": 1.0})] + extra)
+      for k, v, extra in (("harmonics_db", {2: -40.0}, []),
+                          ("at_stroke_um", 5.0, [("drive.chain.harmonics_db", {2: -40.0})]),
+                          ("max_input_v", 5.0, []),
+                          ("max_output_v", 100.0, [("drive.amplifier_gain", 10.0)]))],
     ("independent", True, lambda s: len(s.steps)),
     ("scenes.s", [{"name": "b", "duration_ms": 7, "backward": ["A2"]}],
      lambda s: [(st.name, st.duration_s, st.backward) for st in s.steps]),
