@@ -173,12 +173,12 @@ def _lp_continuation(k, a, ph, m):
             x = scipy.fft.irfft(spectrum, m) / rms
             top = float(np.abs(x).max())
             y = x / top                      # |y| <= 1: no overflow at large p
-            yp, yp1 = _even_powers(y, p)
-            s = float(np.mean(yp))
+            yp1 = np.abs(y) ** (p - 1)
+            s = float(np.mean(yp1 * np.abs(y)))
             value = top * s ** (1 / p)      # (mean |x|^p)^(1/p), the L_p norm per rms
             # d value / d phi_i = s^(1/p - 1) / m * sum_n |y|^(p-1) sgn(y) dx_n/dphi_i,
             # dx_n/dphi_i = -a_i sin(2 pi k_i n / m + phi_i) / rms: one rfft gives all i
-            r = scipy.fft.rfft(yp1)[k]
+            r = scipy.fft.rfft(yp1 * np.sign(y))[k]
             grad = -s ** (1 / p - 1) / m * a / rms * np.imag(np.exp(1j * phi) * np.conj(r))
             return value, grad
 
@@ -187,24 +187,6 @@ def _lp_continuation(k, a, ph, m):
         ph = minimize(objective, ph, jac=True, method="BFGS",
                       options={"maxiter": LP_MAXITER}).x
     return ph
-
-
-def _even_powers(y, p):
-    """``(y^p, y^(p-1))`` for an even ``p`` (so ``y^(p-1) = |y|^(p-1) sgn(y)``), elementwise.
-
-    For p a power of two, by repeated squaring and one division: several times faster
-    than ``np.abs(y) ** (p - 1)``, which dominates the L_p objective's time otherwise.
-    """
-    if p & (p - 1):
-        yp1 = np.abs(y) ** (p - 1) * np.sign(y)
-        return yp1 * y, yp1
-    yp = y * y
-    for _ in range(p.bit_length() - 2):
-        yp = yp * yp
-    # y^(p-1) = y^p / y; where y^p underflowed to 0 (|y| < ~0.06 at p = 256), so is y^(p-1)
-    # to within 1e-300, and it is 0 where y is
-    yp1 = np.divide(yp, y, out=np.zeros_like(y), where=yp != 0)
-    return yp, yp1
 
 
 def _minimax_polish(k, a, ph, m):
