@@ -257,8 +257,7 @@ def write_trim_csv(rows, path) -> None:
 
     with open(path, "w", encoding="utf-8", newline="") as fh:
         fh.write(",".join(TRIM_COLUMNS) + "\n")
-        for r in rows:
-            fh.write(",".join(cell(r, c) for c in TRIM_COLUMNS) + "\n")
+        fh.writelines(",".join(cell(r, c) for c in TRIM_COLUMNS) + "\n" for r in rows)
 
 
 def trimmed_resonances(tp: TrimPlan, precision_pct: float, rng) -> dict:
@@ -333,7 +332,7 @@ class TrimResult:
     spec: TrimSpec
     plan: Plan | None
     passed: bool
-    odds: "TrimOdds | None" = None
+    odds: TrimOdds | None = None
     alternatives: tuple = ()
 
 

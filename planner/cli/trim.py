@@ -123,9 +123,9 @@ def _trim_section(res):
     lines.append("")
     if res.plan is not None:
         ver = res.plan.verification
-        lines += [f"**The re-planned drive on the targets: "
-                  f"{'PASSES' if res.plan.passed else 'FAILS'}** "
-                  f"({int(ver['passed'].sum())}/{len(ver)} checks).", ""]
+        lines += [(f"**The re-planned drive on the targets: "
+                   f"{'PASSES' if res.plan.passed else 'FAILS'}** "
+                   f"({int(ver['passed'].sum())}/{len(ver)} checks)."), ""]
         lines += [f"- {x}" for x in _odds_lines(res)] + [""]
         lines += [f"**Next step:** {res.plan.data['trim']['next_step']}.", ""]
     return Section("Trim", lines)
