@@ -353,3 +353,29 @@ def test_remeasured_replaces_only_the_trimmed_rows_by_simulation(close_plan_dir)
     for name in ("below", "above", "lo", "hi", "rho"):
         assert np.array_equal(getattr(again, name)[others], getattr(seps, name)[others])
     assert np.array_equal(again.rho, seps.rho)
+
+
+def test_a_draw_rechecks_only_the_trimmed_devices_and_gets_their_rows_exactly(
+        close_plan_dir):
+    """The odds re-check, per draw, only the devices that hold a trimmed impacter
+    (``check_drive(devices=)``): each device's rows are those of the whole chip's check,
+    digit for digit (a device's checks read only its own impacters and slider), and the
+    other devices are not simulated."""
+    from planner.afterfab import Measurement
+    from planner.afterfab.checks import check_drive, drive_of
+    from planner.afterfab.replan import chip_models
+    from planner.planning.plan_file import read_plan
+    from planner.planning.settings import plan_settings
+
+    plan = read_plan(close_plan_dir)
+    settings = plan_settings(plan)
+    models = chip_models(plan, {r.id: Measurement.of(r.natural_frequency_hz * 1.001)
+                                for r in plan.impacters})
+    steps, waves, dwells = drive_of(plan)
+    imps = {r.node: models.impacters[r.id] for r in plan.impacters}
+    full = check_drive(settings, steps, waves, dwells, imps, models.sliders)
+    assert len(models.sliders) > 1 and len({r["device"] for r in full["rows"]}) > 1
+    for dev in models.sliders:
+        part = check_drive(settings, steps, waves, dwells, imps, models.sliders,
+                           devices=[dev], scenes=False)
+        assert part["rows"] == [r for r in full["rows"] if r["device"] == dev]
