@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -511,7 +512,9 @@ def trim_odds(settings, plan: PlanRecord, drive, models, tp: TrimPlan, spec: Tri
     re-plan per draw: a lab cuts for one drive.  The devices that hold no trimmed
     impacter are the same on every draw: their per-step checks run once; each draw
     re-runs those of the devices that do, and the scenes (their dwells settle the whole
-    chip).
+    chip).  When a device no trim touches fails, no draw can pass: the trimmed devices
+    are then checked on the first draw only, and every draw counts the others'
+    failures.
 
     Parameters
     ----------
@@ -560,16 +563,21 @@ def trim_odds(settings, plan: PlanRecord, drive, models, tp: TrimPlan, spec: Tri
     passed, failures, implicated = 0, {}, {}
     separable = second = 0
     first = None
+    # a device no trim touches that fails, fails on every draw: no draw can pass, and
+    # the trimmed devices are simulated on the first draw only (what it records)
+    hopeless = static is not None and not static["passed"]
     for k in range(draws):
         actual = landed(tp, spec.precision_pct, z[k])
         true = trim_models(models.impacters,
                            {n: actual[n] / tp.measured[n] for n in tp.moved}, spec.direction)
-        if k == 0 or tp.moved:
+        if k == 0 or (tp.moved and not hopeless):
             got = check_drive(settings, steps, waves, dwells,
                               {nodes[n]: true[n] for n in nodes}, sliders,
                               devices=trimmed, first_failure=k > 0)
         kinds = dict(got["failures"])
         implied = {n.text for n in got["nodes"]}
+        if hopeless and k > 0:
+            kinds, implied = {}, set()
         if static is not None:
             for kind, c in static["failures"].items():
                 kinds[kind] = kinds.get(kind, 0) + c
@@ -635,10 +643,11 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
     *trimmed models* of ``draws`` draws of the cuts' errors (:func:`trim_odds`: every
     trimmed resonance off its target by ``trim.precision_pct``, seeded).  The chip passes
     when the drive verifies on the targets and the share of draws it works on reaches
-    ``fabrication.target_yield``.  Where the odds fall short, a smaller move (the
-    targets' margin halved to :data:`~planner.afterfab.separations.MARGIN_SIGMAS` / 2
-    sigmas of the precision) is re-planned once and its odds taken on the same draws;
-    it is offered when they are higher.  After cutting, a lab measures the chip again and
+    ``fabrication.target_yield``.  Where the drive verifies but its odds fall short, a
+    smaller move (the targets' margin halved to
+    :data:`~planner.afterfab.separations.MARGIN_SIGMAS` / 2 sigmas of the precision) is
+    re-planned once and its odds taken on the same draws; it is offered when they are
+    higher.  After cutting, a lab measures the chip again and
     re-plans (:data:`NEXT_STEP`; ``trim.passes`` is what ``yield --trim`` simulates).
 
     Parameters
@@ -685,13 +694,17 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
     if not tp.ok:
         return TrimResult(tp, trim_rows(plan, tp, spec.direction), spec, None, False)
     result = _replan_for(plan, measured, tp, models, settings, spec, progress)
+    ts = time.perf_counter()
     odds = trim_odds(settings, plan, result, models, tp, spec, seps, pairs, seed, draws)
+    # report.md's timings (plan.json holds none: its bytes depend on the inputs only)
+    timings = {**result.timings, "trim_odds": time.perf_counter() - ts}
     alternatives = []
-    if not odds.meets_target and tp.moved:
+    if result.passed and not odds.meets_target and tp.moved:
         # a smaller move: the targets' margin halved; on the same draws of the errors
         smaller = plan_trim(seps, mean, pairs, range_pct=spec.range_pct,
                             direction=spec.direction, precision_pct=spec.precision_pct / 2.0)
         if smaller.ok and smaller.moved and smaller.target != tp.target:
+            ts = time.perf_counter()
             alt = _replan_for(plan, measured, smaller, models, settings, spec, progress)
             alt_odds = trim_odds(settings, plan, alt, models, smaller, spec, seps, pairs,
                                  seed, draws)
@@ -703,6 +716,7 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
                     "moved": [{"impacter": n, "target_hz": smaller.target[n],
                                "change_pct": smaller.change_pct(n)} for n in smaller.moved],
                     "targets_verify": bool(alt.passed), "odds": alt_odds.as_record()})
+            timings["trim_smaller_move"] = time.perf_counter() - ts
     rows = trim_rows(plan, tp, spec.direction)
     for r in rows:
         r["failed_draws"] = odds.implicated.get(r["impacter"], 0)
@@ -718,6 +732,6 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
         "odds": odds.as_record(),
         "raise_odds": alternatives,
         "next_step": NEXT_STEP}
-    result = dataclasses.replace(result, data={**result.data, "trim": trim})
+    result = dataclasses.replace(result, data={**result.data, "trim": trim}, timings=timings)
     return TrimResult(tp, rows, spec, result, bool(result.passed and odds.meets_target),
                       odds, tuple(alternatives))

@@ -159,7 +159,7 @@ def _odds_lines(res):
             f"{m['impacter']} to {fmt(m['target_hz'], '.1f')} Hz, {m['change_pct']:+.3f} %"
             for m in a["moved"]) + f"): {ao['passed']} of {ao['draws']} draws "
             f"({ao['share']:.2f}, 95 % CI {ao['ci95'][0]:.2f}-{ao['ci95'][1]:.2f})")
-    if not o["meets_target"] and not t["raise_odds"]:
+    if res.plan.passed and not o["meets_target"] and not t["raise_odds"]:
         lines.append("no smaller move raises the odds; measuring again and re-planning "
                      "after the cut is the way to a working drive")
     return lines
