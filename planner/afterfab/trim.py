@@ -619,16 +619,20 @@ NEXT_STEP = ("cut as trim.csv says, then measure every resonance again (vibropla
              "range the first left)")
 
 
-def _replan_for(plan, measured, tp, models, settings, spec, progress):
+def _replan_for(plan, measured, tp, models, settings, spec, progress, *, written=True):
     """The drive re-planned for a trim's targets, on the chip's as-built models with the
-    trims applied as aimed."""
+    trims applied as aimed.  ``written=False``: a drive only weighed, never written (an
+    alternative cut's), skips what only the outputs read (the original drive on this
+    chip, the scenes on the measured models, the coupling matrix); its drive and its
+    verification are the same."""
     from planner.afterfab.replan import replan
 
     aimed = trim_models(models.impacters, {n: tp.target[n] / tp.measured[n] for n in tp.moved},
                         spec.direction)
     return replan(plan, scaled_measurements(measured, tp.target), settings=settings,
                   progress=progress, remeasure=tp.moved,
-                  models=dataclasses.replace(models, impacters=aimed))
+                  models=dataclasses.replace(models, impacters=aimed),
+                  **({} if written else {"original": (True, []), "record": False}))
 
 
 def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
@@ -705,7 +709,8 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
                             direction=spec.direction, precision_pct=spec.precision_pct / 2.0)
         if smaller.ok and smaller.moved and smaller.target != tp.target:
             ts = time.perf_counter()
-            alt = _replan_for(plan, measured, smaller, models, settings, spec, progress)
+            alt = _replan_for(plan, measured, smaller, models, settings, spec, progress,
+                              written=False)
             alt_odds = trim_odds(settings, plan, alt, models, smaller, spec, seps, pairs,
                                  seed, draws)
             if alt.passed and alt_odds.share > odds.share:
