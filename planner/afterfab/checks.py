@@ -46,7 +46,7 @@ def _implicated(failure, own: list[Node], active: set[Node]) -> list[Node]:
 
 
 def check_drive(settings, steps, waveforms, dwells, impacters, sliders, *,
-                first_failure=False) -> dict:
+                first_failure=False, devices=None, scenes=True) -> dict:
     """Every check of a drive on one chip's models: the per-step checks and the
     carried-state check, as ``vibroplan plan`` runs them.
 
@@ -67,6 +67,14 @@ def check_drive(settings, steps, waveforms, dwells, impacters, sliders, *,
     impacters, sliders : dict
         The chip's models: node (or its id) -> :class:`model.Impacter`, device ->
         :class:`model.Slider`.
+    devices : collection of str, optional
+        Run the per-step checks on these devices only (each device's checks read only
+        its own impacters and slider, so the others' are those of any chip that differs
+        from this one only on these devices: a trim's draws, :func:`planner.afterfab.
+        trim.trim_odds`).  The scene simulation, whose dwells settle the whole chip,
+        still runs on every device.  Default: every device.
+    scenes : bool
+        False: skip the carried-state check (the per-step checks only).
 
     Returns
     -------
@@ -89,11 +97,13 @@ def check_drive(settings, steps, waveforms, dwells, impacters, sliders, *,
     by_device = {}
     for node in impacters:
         by_device.setdefault(node.device, []).append(node)
+    in_scope = (sliders if devices is None else
+                {d: s for d, s in sliders.items() if d in set(devices)})
     failures, nodes, rows, records = {}, set(), [], []
     for st in steps:
         active = {Node(d, r) for d, r in st.active_nodes()}
         step_rows, step_fails = check_step(settings, st, waveforms[st.key], impacters,
-                                           sliders)
+                                           in_scope)
         rows += step_rows
         for f in step_fails:
             kind = STEP_KIND.get(f.kind, f.kind)
@@ -104,7 +114,7 @@ def check_drive(settings, steps, waveforms, dwells, impacters, sliders, *,
             return {"passed": False, "steps_passed": False, "failures": failures,
                     "nodes": nodes, "rows": rows, "records": records, "stopped": st.key}
     steps_passed = not failures
-    if settings.scenes:
+    if scenes and settings.scenes:
         by_index = {st.index: st for st in steps}
         scene_rows = simulate_scenes(settings, steps, waveforms, impacters, sliders, dwells)
         for f in scene_failures(settings, steps, scene_rows):

@@ -357,7 +357,9 @@ def _assignment(steps, settings, chosen, lower_bound):
     grid = np.asarray(settings.channel_grid_hz)
     graph, groups = conflict_graph(steps, settings.separation_channels, None,
                                    settings.ensemble_separation_channels)
-    nodes = {n for g in groups.values() for n in g}
+    # in the nodes' order, not a set's (its order follows the strings' hashes, which
+    # change from process to process: plan.json's guard notes would too)
+    nodes = sorted({n for g in groups.values() for n in g}, key=lambda n: node_key(n.text))
     channels = {n: int(np.argmin(np.abs(grid - chosen[n]))) for n in nodes}
     freqs = {n: float(chosen[n]) for n in nodes}
     lo = min(channels.values())

@@ -40,16 +40,25 @@ def command(plan_path, measured_path, out_dir, seed, force, no_figures, quiet):
     two trim.precision_pct sigmas), and writes what to cut:
 
     \b
-    OUT/trim.csv: impacter,measured_hz,target_hz,change_pct,cut_area_um2,cut_length_um
-      (zeros for an impacter left as it is)
+    OUT/trim.csv: impacter,measured_hz,target_hz,change_pct,cut_area_um2,cut_length_um,
+      failed_draws (zeros for an impacter left as it is; failed_draws: of the odds'
+      draws, those on which a failed check implicated it)
 
     It then re-plans the drive for the trimmed chip (as `vibroplan replan` does, from
-    the targets) and verifies it on the trimmed models: each trimmed resonance off its
-    target by trim.precision_pct (one normal draw per trim, --seed).  OUT/ holds the
-    re-plan as `vibroplan replan` writes it (plan.json with a `trim` block, report.md,
-    waveforms/).  A chip that no trim within the range can fix is named, impacter by
-    impacter, with the move it would need; then only trim.csv and report.md are
-    written, and the exit status is 1, as it is when the re-planned drive fails.
+    the targets), verifies it on the targets, and gives its odds: the share of 100
+    draws of the cuts' errors (each trimmed resonance off its target by
+    trim.precision_pct, one normal draw per trim, --seed) on which it works on the
+    trimmed models, with its 95 % interval, how often a re-plan after measuring again
+    could tell every pair apart, and, where the odds fall short, a smaller move that
+    raises them.  OUT/ holds the re-plan as `vibroplan replan` writes it (plan.json with
+    a `trim` block, report.md, waveforms/).  The exit status is 0 when the drive
+    verifies on the targets and its odds reach fabrication.target_yield (default
+    0.95), 1 otherwise.  A chip that no trim within the range can fix is named,
+    impacter by impacter, with the move it would need; then only trim.csv and
+    report.md are written, and the exit status is 1.
+
+    After cutting, measure the chip again and run `vibroplan replan` on the new
+    measurement: its tones then follow where the cuts really left the resonances.
 
     {EXIT}
     """
@@ -79,12 +88,12 @@ def command(plan_path, measured_path, out_dir, seed, force, no_figures, quiet):
     for f in tp.failures:
         click.echo(f"error: cannot be trimmed: {f['impacter']}: {f['why']}", err=True)
     if res.plan is not None:
-        tm = res.plan.data["trim"]["trimmed_models"]
         ver = res.plan.verification
         click.echo(f"re-planned drive: {'PASSED' if res.plan.passed else 'FAILED'} "
-                   f"({int(ver['passed'].sum())}/{len(ver)} checks on the targets); on the "
-                   f"trimmed models (precision error drawn): "
-                   f"{'PASSED' if tm['passed'] else 'FAILED'}")
+                   f"({int(ver['passed'].sum())}/{len(ver)} checks on the targets)")
+        for line in _odds_lines(res):
+            click.echo(line)
+        click.echo(f"next: {res.plan.data['trim']['next_step']}")
     click.echo(f"wrote {out_dir}/trim.csv (see {out_dir}/report.md)")
     if not res.passed:
         sys.exit(1)
@@ -113,12 +122,47 @@ def _trim_section(res):
         lines.append("No impacter needs a trim: every pair is separable as measured.")
     lines.append("")
     if res.plan is not None:
-        tm = res.plan.data["trim"]["trimmed_models"]
-        lines += [f"**The re-planned drive on the trimmed models: "
-                  f"{'PASSES' if tm['passed'] else 'FAILS'}**"
-                  + ("" if tm["passed"] else " (" + ", ".join(
-                      f"{k}: {v}" for k, v in tm["failures"].items()) + ")"), ""]
+        ver = res.plan.verification
+        lines += [(f"**The re-planned drive on the targets: "
+                   f"{'PASSES' if res.plan.passed else 'FAILS'}** "
+                   f"({int(ver['passed'].sum())}/{len(ver)} checks)."), ""]
+        lines += [f"- {x}" for x in _odds_lines(res)] + [""]
+        lines += [f"**Next step:** {res.plan.data['trim']['next_step']}.", ""]
     return Section("Trim", lines)
+
+
+def _odds_lines(res):
+    """The odds in words: the share of the cuts' error draws the drive works on, against
+    the spec's target yield, what fails, the lab's re-plan after the cut and the cuts
+    that raise the odds (stdout and the report say the same)."""
+    from planner.core.markdown import fmt
+
+    t = res.plan.data["trim"]
+    o = t["odds"]
+    lo, hi = o["ci95"]
+    lines = [f"odds on the trimmed models: the drive works on {o['passed']} of {o['draws']} "
+             f"draws of the cuts' errors ({o['share']:.2f}, 95 % CI {lo:.2f}-{hi:.2f}) "
+             f"against fabrication.target_yield {o['target_yield']:g}: "
+             + ("meets it" if o["meets_target"] else "BELOW it")]
+    if o["failures"]:
+        lines.append("draws failing, by kind: " + ", ".join(
+            f"{k} {v}" for k, v in o["failures"].items()) + "; implicating " + ", ".join(
+            f"{n} {v}" for n, v in o["implicated"].items()))
+    again = o["after_measuring_again"]
+    lines.append(f"measured again after the cut, every pair can be told apart on "
+                 f"{again['separable']} of {o['draws']} draws (a re-plan then places every "
+                 f"tone), {again['separable_after_second_pass']} with a second trim pass "
+                 "within the range left")
+    for a in t["raise_odds"]:
+        ao = a["odds"]
+        lines.append(f"a cut that raises the odds: {a['cut']} ({a['why']}: " + ", ".join(
+            f"{m['impacter']} to {fmt(m['target_hz'], '.1f')} Hz, {m['change_pct']:+.3f} %"
+            for m in a["moved"]) + f"): {ao['passed']} of {ao['draws']} draws "
+            f"({ao['share']:.2f}, 95 % CI {ao['ci95'][0]:.2f}-{ao['ci95'][1]:.2f})")
+    if res.plan.passed and not o["meets_target"] and not t["raise_odds"]:
+        lines.append("no smaller move raises the odds; measuring again and re-planning "
+                     "after the cut is the way to a working drive")
+    return lines
 
 
 # cleandoc: click keeps the docstring's indentation when help is assigned like this

@@ -127,19 +127,19 @@ def _neighbours(plan):
     return lo, hi
 
 
-def test_trim_cli_moves_a_colliding_impacter_and_verifies_on_the_trimmed_models(
-        close_plan_dir, tmp_path):
-    """A chip of the close plan whose two nearest impacters came 30 Hz closer than they
-    can be told apart (the rest as designed): `vibroplan trim` raises the upper one just
-    enough (plus the precision margin), trim.csv says what to cut, and the drive
-    re-planned for the trimmed chip verifies on the trimmed models (precision error
-    drawn).  The re-plan measures the trimmed impacter's silent band again on its
-    trimmed model: with the band taken from the nominal design, A2.backward answered
-    A1.forward's re-planned tone 304 Hz away with one grazing impact, just outside its
-    nominal band widened to 300 Hz."""
-    import csv as csvmod
-    import json
+#: Seeds of the colliding chip's trim (:func:`_colliding_chip`): at the plan's own seed
+#: (0) the first draw of the cut's error leaves A1.forward 0.70 sigma above its target,
+#: where the drive works, but 6 of the 100 draws are too slow: the odds, 0.94, are below
+#: the target 0.95; at 171 the first draw is 2.46 sigmas above, too slow, and 97 of 100
+#: draws work (the drive's window ends about 1.6 sigmas above the target).
+ONE_DRAW_PASSES, ONE_DRAW_FAILS = 0, 171
 
+
+@pytest.fixture(scope="module")
+def colliding_chip(close_plan_dir, tmp_path_factory):
+    """A chip of the close plan whose two nearest impacters came 30 Hz closer than they
+    can be told apart (the rest as designed), and a runner of `vibroplan trim` on it
+    (each seed run once per module): ``run(seed) -> (click result, out folder)``."""
     from click.testing import CliRunner
 
     from planner.cli import main
@@ -155,23 +155,74 @@ def test_trim_cli_moves_a_colliding_impacter_and_verifies_on_the_trimmed_models(
     freqs = {r.id: r.natural_frequency_hz for r in plan.impacters}
     freqs[hi.id] = need - 30.0
     assert abs(freqs[hi.id] / hi.natural_frequency_hz - 1) < 0.03     # a chip's scatter
-    csv = _measured_csv(tmp_path / "measured.csv", freqs)
-    out = tmp_path / "trim"
-    res = CliRunner().invoke(main, ["trim", str(close_plan_dir), "--measured", str(csv),
-                                    "--out", str(out), "--no-figures", "--quiet"])
+    root = tmp_path_factory.mktemp("colliding")
+    csv = _measured_csv(root / "measured.csv", freqs)
+    runs = {}
+
+    def run(seed, name=None):
+        key = name or f"seed{seed}"
+        if key not in runs:
+            out = root / key
+            res = CliRunner().invoke(main, ["trim", str(close_plan_dir), "--measured",
+                                            str(csv), "--out", str(out), "--no-figures",
+                                            "--quiet", "--seed", str(seed)])
+            runs[key] = (res, out)
+        return runs[key]
+
+    return {"plan": plan, "seps": seps, "lo": lo, "hi": hi, "i": i, "j": j, "run": run}
+
+
+def _odds(out):
+    import json
+
+    return json.loads((out / "plan.json").read_text())
+
+
+def test_trim_cli_moves_a_colliding_impacter_and_the_odds_decide_not_one_draw(
+        colliding_chip):
+    """`vibroplan trim` raises the upper of the colliding pair just enough (plus the
+    precision margin), trim.csv says what to cut, and the drive re-planned for the
+    trimmed chip verifies on the targets.  The verdict is the odds (issue 45): at this
+    seed the first draw of the cut's error leaves the slider too slow (issue 26 exited 1
+    on it), but 97 of 100 draws work, above fabrication.target_yield 0.95: exit 0.  The
+    re-plan measures the trimmed impacter's silent band again on its trimmed model: with
+    the band taken from the nominal design, A2.backward answered A1.forward's re-planned
+    tone 304 Hz away with one grazing impact, just outside its nominal band widened to
+    300 Hz."""
+    import csv as csvmod
+
+    c = colliding_chip
+    plan, seps, lo, hi = c["plan"], c["seps"], c["lo"], c["hi"]
+    res, out = c["run"](ONE_DRAW_FAILS)
     assert res.exit_code == 0, res.output
     rows = list(csvmod.DictReader((out / "trim.csv").open()))
     assert [r["impacter"] for r in rows] == plan.impacter_ids
     moved = [r for r in rows if float(r["change_pct"]) != 0.0]
     assert [r["impacter"] for r in moved] == [hi.id]
     target = float(moved[0]["target_hz"])
-    assert target == pytest.approx(seps.needed(i, j, lo.natural_frequency_hz, 0.001))
+    assert target == pytest.approx(seps.needed(c["i"], c["j"], lo.natural_frequency_hz,
+                                               0.001))
     assert 0 < float(moved[0]["change_pct"]) < 1.0
     assert float(moved[0]["cut_area_um2"]) > 0 and float(moved[0]["cut_length_um"]) == 0
-    d = json.loads((out / "plan.json").read_text())
-    assert d["trim"]["trimmed_models"]["passed"] is True
+    d = _odds(out)
+    odds = d["trim"]["odds"]
     assert d["verification"]["passed"] is True
+    # the first draw alone fails (a slider too slow), the odds pass
+    assert d["trim"]["trimmed_models"]["passed"] is False
+    assert d["trim"]["trimmed_models"]["failures"] == {"too slow": 1}
+    assert odds["draws"] == 100 and 0.0 <= odds["share"] <= 1.0
+    assert odds["share"] == odds["passed"] / odds["draws"]
+    assert odds["target_yield"] == 0.95 and odds["meets_target"] is True
+    assert odds["share"] >= 0.95 and odds["passed"] < 100     # some draws do fail
+    lo95, hi95 = odds["ci95"]
+    assert 0.0 <= lo95 < odds["share"] <= hi95 <= 1.0
+    # the failing draws implicate the trimmed impacter, as trim.csv says
+    assert odds["implicated"] == {hi.id: 100 - odds["passed"]}
+    assert [int(r["failed_draws"]) for r in rows] == [
+        100 - odds["passed"] if r["impacter"] == hi.id else 0 for r in rows]
     assert d["trim"]["moved"][0]["trimmed_hz"] != target        # the precision error
+    assert f"works on {odds['passed']} of 100 draws" in res.output
+    assert "vibroplan replan" in res.output                     # the lab's next step
     # report.md is one report: the re-plan's title, then the trim's section first, the
     # re-plan's before the frequency assignment, the timings last (issue 44: no splicing)
     report = (out / "report.md").read_text()
@@ -179,6 +230,48 @@ def test_trim_cli_moves_a_colliding_impacter_and_verifies_on_the_trimmed_models(
     heads = [x[3:] for x in report.splitlines() if x.startswith("## ")]
     assert heads[:4] == ["Trim", "As-built re-plan", "Frequency assignment", "Designs"]
     assert heads[-1] == "Timings" and report.endswith("|\n")
+    trim = report.split("## Trim\n")[1].split("\n## ")[0]
+    assert f"works on {odds['passed']} of 100 draws" in trim and "meets it" in trim
+    assert "**Next step:**" in trim and "vibroplan replan" in trim
+
+
+@pytest.mark.slow
+def test_trim_cli_exits_1_when_the_odds_fall_short_though_one_draw_passes(colliding_chip):
+    """The reverse: at the plan's seed the first draw works (issue 26 exited 0 on it),
+    but 6 of 100 draws leave the slider too slow: 0.94 < 0.95, exit 1, the re-planned
+    drive still verifying on the targets, and the lab told to measure again and re-plan
+    after the cut (which can tell every pair apart on nearly every draw)."""
+    res, out = colliding_chip["run"](ONE_DRAW_PASSES)
+    assert res.exit_code == 1, res.output
+    d = _odds(out)
+    odds = d["trim"]["odds"]
+    assert d["verification"]["passed"] is True
+    assert d["trim"]["trimmed_models"]["passed"] is True
+    assert odds["meets_target"] is False and 0.0 <= odds["share"] < odds["target_yield"]
+    assert odds["failures"] == {"too slow": 100 - odds["passed"]}
+    again = odds["after_measuring_again"]
+    assert again["separable"] >= 95 and again["separable_after_second_pass"] >= \
+        again["separable"]
+    # a smaller move would be worse here (the lower neighbour is then within reach of
+    # the cut's error): none is offered, and the output says so
+    assert d["trim"]["raise_odds"] == []
+    assert "BELOW it" in res.output and "no smaller move raises the odds" in res.output
+    assert "vibroplan replan" in d["trim"]["next_step"]
+
+
+@pytest.mark.slow
+def test_trim_cli_odds_are_the_same_bytes_for_a_seed_and_follow_it(colliding_chip):
+    """Same inputs and seed, the same plan.json and trim.csv byte for byte (the odds'
+    100 draws included); another seed draws other errors."""
+    run = colliding_chip["run"]
+    (res, out), (res2, out2) = run(ONE_DRAW_PASSES), run(ONE_DRAW_PASSES, name="again")
+    assert res.exit_code == res2.exit_code == 1
+    for f in ("plan.json", "trim.csv"):
+        assert (out / f).read_bytes() == (out2 / f).read_bytes(), f
+    other = _odds(run(ONE_DRAW_FAILS)[1])["trim"]
+    mine = _odds(out)["trim"]
+    assert other["moved"][0]["trimmed_hz"] != mine["moved"][0]["trimmed_hz"]
+    assert other["odds"]["passed"] != mine["odds"]["passed"]
 
 
 def test_trim_cli_names_a_chip_no_trim_in_range_can_fix(close_plan_dir, tmp_path):
@@ -260,3 +353,29 @@ def test_remeasured_replaces_only_the_trimmed_rows_by_simulation(close_plan_dir)
     for name in ("below", "above", "lo", "hi", "rho"):
         assert np.array_equal(getattr(again, name)[others], getattr(seps, name)[others])
     assert np.array_equal(again.rho, seps.rho)
+
+
+def test_a_draw_rechecks_only_the_trimmed_devices_and_gets_their_rows_exactly(
+        close_plan_dir):
+    """The odds re-check, per draw, only the devices that hold a trimmed impacter
+    (``check_drive(devices=)``): each device's rows are those of the whole chip's check,
+    digit for digit (a device's checks read only its own impacters and slider), and the
+    other devices are not simulated."""
+    from planner.afterfab import Measurement
+    from planner.afterfab.checks import check_drive, drive_of
+    from planner.afterfab.replan import chip_models
+    from planner.planning.plan_file import read_plan
+    from planner.planning.settings import plan_settings
+
+    plan = read_plan(close_plan_dir)
+    settings = plan_settings(plan)
+    models = chip_models(plan, {r.id: Measurement.of(r.natural_frequency_hz * 1.001)
+                                for r in plan.impacters})
+    steps, waves, dwells = drive_of(plan)
+    imps = {r.node: models.impacters[r.id] for r in plan.impacters}
+    full = check_drive(settings, steps, waves, dwells, imps, models.sliders)
+    assert len(models.sliders) > 1 and len({r["device"] for r in full["rows"]}) > 1
+    for dev in models.sliders:
+        part = check_drive(settings, steps, waves, dwells, imps, models.sliders,
+                           devices=[dev], scenes=False)
+        assert part["rows"] == [r for r in full["rows"] if r["device"] == dev]
