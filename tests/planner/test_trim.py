@@ -364,7 +364,7 @@ def test_a_draw_rechecks_only_the_trimmed_devices_and_gets_their_rows_exactly(
     from planner.afterfab import Measurement
     from planner.afterfab.checks import check_drive, drive_of
     from planner.afterfab.replan import chip_models
-    from planner.planning.plan_file import read_plan
+    from planner.planfile.reader import read_plan
     from planner.planning.settings import plan_settings
 
     plan = read_plan(close_plan_dir)
