@@ -198,6 +198,14 @@ def field_factor(x, y, correlation_length: float) -> np.ndarray:
                      "factored (correlation_length_mm far larger than the wafer?)")
 
 
+@functools.lru_cache(maxsize=4)
+def _layout_factor(array, wafer) -> np.ndarray:
+    """:func:`field_factor` of a wafer's dies: one Cholesky factor for every wafer of a
+    study (the dies and the correlation length are the same; only the normals differ)."""
+    layout = wafer_layout(array, wafer)
+    return field_factor(layout.x, layout.y, wafer.line_width_field.correlation_length_mm * MM)
+
+
 @functools.lru_cache(maxsize=16)
 def wafer_draws(array, wafer, seed: int, scale: float, index: int):
     """The line-width errors of wafer ``index`` of a study: ``(field, gradient)``, the
@@ -214,8 +222,7 @@ def wafer_draws(array, wafer, seed: int, scale: float, index: int):
     f = wafer.line_width_field
     field = np.zeros(layout.count)
     if f.sigma_um > 0 and scale > 0:
-        factor = field_factor(layout.x, layout.y, f.correlation_length_mm * MM)
-        field = scale * f.sigma_um * (factor @ z_field)
+        field = scale * f.sigma_um * (_layout_factor(array, wafer) @ z_field)
     grad = scale * wafer.line_width_gradient_um_per_mm / MM * z_grad
     return field, grad
 
