@@ -316,7 +316,9 @@ def _assignment(steps, settings, chosen, lower_bound):
     grid = np.asarray(settings.channel_grid_hz)
     graph, groups = conflict_graph(steps, settings.separation_channels, None,
                                    settings.ensemble_separation_channels)
-    nodes = {n for g in groups.values() for n in g}
+    # in node order: a set's order follows the string hash, which differs from process
+    # to process (the guard warnings of plan.json came out in another order each run)
+    nodes = sorted({n for g in groups.values() for n in g})
     channels = {n: int(np.argmin(np.abs(grid - chosen[n]))) for n in nodes}
     freqs = {n: float(chosen[n]) for n in nodes}
     lo = min(channels.values())
