@@ -7,6 +7,8 @@ acts on.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 from dataclasses import dataclass
 
 import numpy as np
@@ -141,6 +143,38 @@ def device_motion(impacters, slider, drive, duration, starts, contact="paper", m
     return sl[dev]
 
 
+#: The device checks shared inside :func:`shared_device_checks` (None outside it).
+_DEVICE_CHECKS = contextvars.ContextVar("vibroplan_device_checks", default=None)
+
+
+@contextlib.contextmanager
+def shared_device_checks():
+    """Within this block (in this thread), :func:`check_step` answers a device it has
+    already checked with the same inputs from memory instead of simulating it again.
+
+    A device's check reads only its own impacters and slider, the step's program, which
+    of its impacters the step drives (and its move) and the settings' check thresholds;
+    those, compared by value, are the memo's key, so a hit gives the very rows and
+    failures the simulation would.  A yield study's chip is checked several times over
+    (the re-plan on its measured models, the drive on its true ones, the same again
+    after the tune and after a trim), and most of its single-tone steps keep their tone
+    and most of its devices their models from one check to the next.  Like
+    ``numpy.errstate``, the memo is scoped: it lives for the block only (one chip), in
+    a :mod:`contextvars` variable, so threads and other callers never see it.
+    """
+    token = _DEVICE_CHECKS.set({})
+    try:
+        yield
+    finally:
+        _DEVICE_CHECKS.reset(token)
+
+
+def _program_key(program):
+    """A step's program (:func:`planner.planning.drives.program_of`) by value."""
+    return tuple((float(d), drive.frequencies.tobytes(), drive.amplitudes.tobytes(),
+                  drive.phases.tobytes()) for d, drive in program)
+
+
 def check_step(settings: Settings, step, waveform, impacters, sliders):
     """Re-simulate one step with its actual summed drive.
 
@@ -169,8 +203,24 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
     moves = step.moves if step.targets_m is not None else {}
     active = step.active_nodes()
     rows, failures = [], []
+    shared = _DEVICE_CHECKS.get()
+    if shared is not None:
+        # everything a device's check reads but its own models, move and activity
+        common = (_program_key(program), step.scene, step.name, step.index,
+                  settings.x0_points, settings.max_settle_s, settings.max_travel_m,
+                  settings.min_speed_m_s, settings.idle_tolerance_m,
+                  settings.position_tolerance_m)
     for dev in sorted(sliders, key=device_key):
         own = {n: imp for n, imp in impacters.items() if n.device == dev}
+        if shared is not None:
+            key = (common, dev, settings.contacts[dev], sliders[dev], moves.get(dev),
+                   tuple((n, imp, n in active) for n, imp in own.items()))
+            if key in shared:
+                got_rows, got_failures = shared[key]
+                rows.append(dict(got_rows))
+                failures += got_failures
+                continue
+            n_failures = len(failures)
         moving = [n for n in own if n in active]
         expected = moving[0].direction if moving else "idle"
         causes = []
@@ -244,6 +294,8 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
                      "predicted_displacement_m": float(displacement),
                      "travel_m": float(travel), "settle_s": float(dwell),
                      **worst_case, "passed": not causes, "cause": "; ".join(causes)})
+        if shared is not None:
+            shared[key] = (dict(rows[-1]), tuple(failures[n_failures:]))
     return rows, failures
 
 
