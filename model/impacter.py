@@ -168,9 +168,11 @@ def _simulate_exact(impacter, drive, x0, v0, duration, *, sample_t, step, max_ev
     w, a, phi = impacter_forcing(impacter, drive)
     coef = tone_coefficients(impacter.omega_n, impacter.sigma, w, a, phi)
     cap = min(max_events, 100_000)
-    imp_t = np.zeros(cap)
-    imp_v = np.zeros(cap)
-    kinds = np.zeros(cap, dtype=np.int64)
+    # written before read (only the first n are read back): np.empty, as zeroing three
+    # 100 000-event buffers cost more than a short run's kernel (6 % of a yield's chip)
+    imp_t = np.empty(cap)
+    imp_v = np.empty(cap)
+    kinds = np.empty(cap, dtype=np.int64)
     sample_x = np.zeros(sample_t.size)
     stuck0 = (x0 == impacter.gap and v0 == 0.0) if stuck is None else bool(stuck)
     status, n, sum_v, t_stop, x_end, v_end, stuck_end, steps = _k.run_impacter(

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -60,6 +61,47 @@ SPLIT_SCALE_MARGIN = 0.95
 #: drives that held the full limit on the measured models sent a slider past it on the
 #: true ones [-].
 REPLAN_TRAVEL_MARGIN = 0.85
+#: A travel step's burst is sized so that its fastest slider, at the burst sizing's probe
+#: speed, goes at most this fraction of the travel limit the re-plan checks against
+#: (:func:`size_within`; the motion repair's own factor,
+#: :func:`planner.planning.repair.repair_motion`) [-].
+PRESIZE_FACTOR = 0.8
+
+
+def size_within(settings, steps, waveforms, models, sliders, limit_m):
+    """:func:`planner.planning.motion.size_bursts`, each burst then held to what keeps
+    its fastest slider within ``limit_m`` [m].
+
+    The sizing gives a travel step the burst its *slowest* slider needs (up to the
+    step's ``duration_ms``); on a chip the fastest then often goes twice the limit, and
+    the motion repair shortened the burst only after the whole step had been
+    simulated at its full length (the costliest check of a re-plan, 60 ms of a 25-tone
+    step) and then simulated it again.  The probe's speeds already say how far each
+    slider goes: the burst is at most :data:`PRESIZE_FACTOR` x ``limit_m`` / the fastest
+    probe speed, floored to the burst quantum as the repair floors it (at least one
+    quantum).  The repair still acts on what the verification finds.
+
+    Returns
+    -------
+    (steps, notes)
+        As ``size_bursts``; a held step's note has ``travel_limited_s`` [s].
+    """
+    from planner.planning.motion import BURST_QUANTUM_S, size_bursts
+
+    steps, notes = size_bursts(settings, steps, waveforms, models, sliders)
+    out = []
+    for st in steps:
+        note = notes.get(st.key)
+        fastest = (0.0 if note is None or st.targets_m is not None else
+                   max((abs(v) for v in note["probe_speeds_m_s"].values()), default=0.0))
+        if fastest > 0.0:
+            most = max(BURST_QUANTUM_S, math.floor(PRESIZE_FACTOR * limit_m / fastest
+                                                   / BURST_QUANTUM_S) * BURST_QUANTUM_S)
+            if most < st.duration_s:
+                st = dataclasses.replace(st, duration_s=float(most))
+                notes[st.key] = {**note, "travel_limited_s": float(most)}
+        out.append(st)
+    return tuple(out), notes
 
 
 def measured_frequency(value) -> float:
@@ -373,7 +415,6 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict,
         sweep: its tone goes to the window's middle (:func:`choose_tones`).
     """
     from planner.planning.drives import limit_acceleration, synthesize_steps
-    from planner.planning.motion import size_bursts
 
     measured = {n: measured.get(n, plan.design_natural_frequency_hz[n])
                 for n in (r.id for r in plan.impacters)}
@@ -412,7 +453,8 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict,
                                                              phases=phases))
 
     waveforms, notes = synthesize_and_limit(tuple(base), tones)
-    steps, sizing = size_bursts(settings, tuple(base), waveforms, models, sliders)
+    steps, sizing = size_within(settings, tuple(base), waveforms, models, sliders,
+                                settings.max_travel_m * REPLAN_TRAVEL_MARGIN)
     dwells = {st.key: plan.dwells.get(st.key, 0.0) for st in steps}
     return RescuedDrive(steps, waveforms, notes, dwells, tones, bad, {}, sizing,
                         weakened(steps, notes, scales), synthesize_and_limit,
@@ -435,7 +477,6 @@ def split_weak(settings, drive: RescuedDrive, rows, failures, models, sliders, c
         The drive with its kept splits (steps renumbered in play order), and the checks
         of every step as it now stands.
     """
-    from planner.planning.motion import size_bursts
     from planner.planning.verify import TOO_SLOW
 
     slow = {f.step for f in failures if f.kind == TOO_SLOW}
@@ -446,7 +487,8 @@ def split_weak(settings, drive: RescuedDrive, rows, failures, models, sliders, c
     for st in tries:
         subs, w, nt = split_step(st, drive.tones, drive.weak[st.key],
                                  drive.synthesize_and_limit)
-        subs, _ = size_bursts(settings, tuple(subs), w, models, sliders)
+        subs, _ = size_within(settings, tuple(subs), w, models, sliders,
+                              settings.max_travel_m)
         checked = [check([sub], w) for sub in subs]          # per sub-step
         before = sum(1 for r in rows if r["index"] == st.index and not r["passed"])
         after = sum(1 for sub_rows, _ in checked for r in sub_rows if not r["passed"])
@@ -506,7 +548,6 @@ def redraw_slow(settings, drive: RescuedDrive, rows, failures, models, sliders, 
     Parameters and returns as :func:`quieten`.
     """
     from planner.planning.drives import limit_acceleration, synthesize_steps
-    from planner.planning.motion import size_bursts
     from planner.planning.verify import TOO_SLOW, TRAVEL_OVER, UNSETTLED
 
     def serious(fails):
@@ -525,7 +566,8 @@ def redraw_slow(settings, drive: RescuedDrive, rows, failures, models, sliders, 
         for k in range(1, SLOW_REDRAWS + 1):
             w, nt = limit_acceleration(settings, synthesize_steps(
                 settings, (st,), drive.tones, draws={st.key: k}))
-            (sub,), _ = size_bursts(settings, (st,), w, models, sliders)
+            (sub,), _ = size_within(settings, (st,), w, models, sliders,
+                                    settings.max_travel_m)
             got_rows, got_fails = check([sub], w)
             bad = serious(got_fails)
             if best is None or bad < best[0]:
@@ -580,7 +622,6 @@ def quieten(settings, drive: RescuedDrive, rows, failures, models, sliders, chec
         of every step as it now stands.
     """
     from planner.planning.drives import drive_peaks, scaled
-    from planner.planning.motion import size_bursts
     from planner.planning.verify import IDLE_RESPONSE, TRAVEL_OVER, UNSETTLED
 
     def serious(fails):
@@ -600,7 +641,8 @@ def quieten(settings, drive: RescuedDrive, rows, failures, models, sliders, chec
         for factor in QUIET_FACTORS:
             w = scaled(waveforms[st.key], factor, f"every amplitude lowered by x{factor:g} "
                        "more: an idle impacter answered the step on this chip")
-            (sub,), _ = size_bursts(settings, (st,), {st.key: w}, models, sliders)
+            (sub,), _ = size_within(settings, (st,), {st.key: w}, models, sliders,
+                                    settings.max_travel_m)
             got_rows, got_fails = check([sub], {st.key: w})
             bad = serious(got_fails)
             if best is None or bad < best[0]:

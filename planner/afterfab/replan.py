@@ -248,7 +248,7 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
     timings["verify"] = time.perf_counter() - ts
 
     ts = time.perf_counter()
-    assignment = _assignment(steps, settings, drive.tones, plan.lower_bound)
+    assignment = _assignment(steps, settings, drive.tones, plan.lower_bound, warnings=record)
     designs = {n: _design_like(plan_imps[n], models[n], drive.tones[n], settings)
                for n in plan_imps}
     impacters = {n: d.impacter for n, d in designs.items()}
@@ -351,9 +351,11 @@ def regate(settings, steps, waveforms, tones, models, sliders, phases=None):
         return steps, waveforms, {}
 
 
-def _assignment(steps, settings, chosen, lower_bound):
+def _assignment(steps, settings, chosen, lower_bound, warnings=True):
     """An :class:`~planner.assignment.assign.Assignment` of the chosen tones (the conflict graph as
-    before; each impacter's channel is the grid channel of its tone)."""
+    before; each impacter's channel is the grid channel of its tone).  ``warnings``:
+    False leaves out the guard-rule warnings, which only plan.json's record reads (a
+    yield study's re-plan is never written; they cost 0.1 s a re-plan on the 5 x 5)."""
     grid = np.asarray(settings.channel_grid_hz)
     graph, groups = conflict_graph(steps, settings.separation_channels, None,
                                    settings.ensemble_separation_channels)
@@ -367,7 +369,7 @@ def _assignment(steps, settings, chosen, lower_bound):
     span = max(channels.values()) - lo + 1
     return Assignment(graph, groups, coloring, span, int(lower_bound), False,
                       "as-built", 0.0, 1, lo, channels, freqs,
-                      guard_violations(steps, freqs, settings.tone_rules))
+                      guard_violations(steps, freqs, settings.tone_rules) if warnings else [])
 
 
 def _replan_record(plan, settings, params, drive, orig_passed, orig_rows, windows=None):

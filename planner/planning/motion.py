@@ -69,7 +69,7 @@ def by_node(models: dict) -> dict:
     return {Node(*n) if isinstance(n, tuple) else Node.parse(n): m for n, m in models.items()}
 
 
-def run_phase(impacters, sliders, contacts, drive, duration, states, sl_states):
+def run_phase(impacters, sliders, contacts, drive, duration, states, sl_states, memo=None):
     """Advance impacters and sliders through one phase of ``duration`` [s].
 
     Parameters
@@ -89,6 +89,14 @@ def run_phase(impacters, sliders, contacts, drive, duration, states, sl_states):
         pair of unequal halves (:class:`model.PairHalves`) has one such state per half.
     sl_states : dict
         Device -> (z [m], v [m/s]); updated in place (missing: rest at 0).
+    memo : dict, optional
+        Simulations already run in this phase's setting, reused when asked again (a
+        check's runs from the x0 grid simulate every idle impacter of a device from
+        rest once per start, and the start x0 = 0 is the run from rest again): an
+        impacter half's simulation is keyed by its model, start, drive and duration
+        (the drive and the models by identity: the caller keeps them alive while the
+        memo is), a slider's by the kicks' simulations and its own start.  The same
+        inputs give the same digits, so a memo changes no result, only the time.
 
     Returns
     -------
@@ -96,6 +104,7 @@ def run_phase(impacters, sliders, contacts, drive, duration, states, sl_states):
         Node -> number of impacts in the phase (chatter tails count once).
     """
     per_device = {d: [] for d in sliders}
+    keys = {d: [] for d in sliders}
     hits = {}
     for node, imp in impacters.items():
         if node.device not in sliders:
@@ -112,16 +121,34 @@ def run_phase(impacters, sliders, contacts, drive, duration, states, sl_states):
         after, count = [], 0
         for (half, share), start in zip(parts, starts):
             x0, v0, stuck = start or (0.0, 0.0, False)
-            res = model.simulate(half, drive, x0, v0, duration, stuck=stuck or None,
-                                 max_events=1_000_000)
-            after.append((min(res.x_end, half.gap), res.v_end, res.stuck_end))
-            per_device[node.device].append(
-                model.Kicks.from_impacts(half, sliders[node.device], res, node.sign, share))
-            count += int(res.times.size + res.chatter_times.size)
+            key = (id(half), share, node.sign, id(sliders[node.device]), _exact(x0),
+                   _exact(v0), bool(stuck), id(drive), duration)
+            got = None if memo is None else memo.get(key)
+            if got is None:
+                res = model.simulate(half, drive, x0, v0, duration, stuck=stuck or None,
+                                     max_events=1_000_000)
+                got = ((min(res.x_end, half.gap), res.v_end, res.stuck_end),
+                       model.Kicks.from_impacts(half, sliders[node.device], res, node.sign,
+                                                share),
+                       int(res.times.size + res.chatter_times.size))
+                if memo is not None:
+                    # the models and the drive are keyed by identity: held here, so
+                    # that no other object takes their id while the memo lives
+                    memo[key] = got
+                    memo.setdefault("_held", []).extend((half, drive, sliders[node.device]))
+            after.append(got[0])
+            per_device[node.device].append(got[1])
+            keys[node.device].append(key)
+            count += got[2]
         states[node] = after[0] if len(parts) == 1 else tuple(after)
         hits[node] = count
     for dev, slider in sliders.items():
         z0, v0 = sl_states.get(dev, (0.0, 0.0))
+        key = ("slider", id(slider), contacts[dev], tuple(keys[dev]), _exact(z0),
+               _exact(v0), id(drive), duration)
+        if memo is not None and key in memo:
+            sl_states[dev] = memo[key]
+            continue
         if per_device[dev]:
             kicks = model.Kicks.concatenate(per_device[dev])
             _, _, z, v, _ = model.slider_motion(slider, drive, kicks, duration=duration,
@@ -130,7 +157,15 @@ def run_phase(impacters, sliders, contacts, drive, duration, states, sl_states):
             t, dv = _empty_kicks()
             _, _, z, v, _ = model.slider_motion(slider, drive, t, dv, duration, z0, v0)
         sl_states[dev] = (float(z), float(v))
+        if memo is not None:
+            memo[key] = sl_states[dev]
+            memo.setdefault("_held", []).extend((slider, drive))
     return hits
+
+
+def _exact(x):
+    """A float as a memo key: its value and its sign (-0.0 is not 0.0 to a kernel)."""
+    return float(x), math.copysign(1.0, x)
 
 
 def can_hit(impacter, state):
@@ -185,11 +220,13 @@ def settle(impacters, sliders, contacts, states, sl_states, cap, at_least=0.0):
         t += SETTLE_CHUNK_S
 
 
-def run_program(impacters, sliders, contacts, program, states, sl_states):
+def run_program(impacters, sliders, contacts, program, states, sl_states, memo=None):
     """:func:`run_phase` through every (duration [s], model.Drive) stretch of
     ``program`` in turn, the states carried across (a step's drive as
     :func:`planner.planning.drives.program_of` gives it: one stretch for a loop, one
     per stretch between ramp edges for a gated burst).
+
+    ``memo``: as :func:`run_phase`'s.
 
     Returns
     -------
@@ -199,14 +236,14 @@ def run_program(impacters, sliders, contacts, program, states, sl_states):
     hits = {}
     for duration, drive in program:
         for n, h in run_phase(impacters, sliders, contacts, drive, duration, states,
-                              sl_states).items():
+                              sl_states, memo).items():
             hits[n] = hits.get(n, 0) + h
     return hits
 
 
-def device_travel(own, dev, slider, contact, program, cap, starts=None):
+def device_travel(own, dev, slider, contact, program, cap, starts=None, memo=None):
     """One device from rest (or ``starts``: node -> (x0, v0, stuck)) through a step's
-    ``program`` (:func:`run_program`) and its settle dwell.
+    ``program`` (:func:`run_program`, with ``memo``) and its settle dwell.
 
     Returns
     -------
@@ -214,7 +251,7 @@ def device_travel(own, dev, slider, contact, program, cap, starts=None):
     """
     states = dict(starts or {})
     sl = {dev: (0.0, 0.0)}
-    run_program(own, {dev: slider}, {dev: contact}, program, states, sl)
+    run_program(own, {dev: slider}, {dev: contact}, program, states, sl, memo)
     burst = sl[dev][0]
     dwell, ok, _ = settle(own, {dev: slider}, {dev: contact}, states, sl, cap)
     return burst, sl[dev][0], dwell, ok

@@ -7,6 +7,8 @@ acts on.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,8 +77,9 @@ def pair_responses(impacter, drive, n, duration, stop_at_first=False):
     (the pair answers when either half does)."""
     out = None
     for half, _ in model.halves(impacter):
+        # the grid is inside the gap and the duration a step's (> 0): nothing to check
         r = model.responses(half, drive, x0_grid(half, n), duration=duration,
-                            stop_at_first=stop_at_first)
+                            stop_at_first=stop_at_first, check_input=False)
         out = r if out is None else np.maximum(out, r)
     return out
 
@@ -128,16 +131,49 @@ def kicks(impacter, slider, res, direction):
     return times, dv
 
 
-def device_motion(impacters, slider, drive, duration, starts, contact="paper"):
+def device_motion(impacters, slider, drive, duration, starts, contact="paper", memo=None):
     """Slider displacement [m] and end velocity [m/s] of one device under ``contact``;
-    ``starts`` maps node -> (x0, v0, stuck)."""
+    ``starts`` maps node -> (x0, v0, stuck); ``memo``: the simulations already run
+    (:func:`planner.planning.motion.run_phase`)."""
     if not impacters:
         _, _, z, v, _ = model.slider_motion(slider, drive, np.empty(0), np.empty(0), duration)
         return z, v
     dev = next(iter(impacters)).device
     states, sl = dict(starts), {dev: (0.0, 0.0)}
-    run_phase(impacters, {dev: slider}, {dev: contact}, drive, duration, states, sl)
+    run_phase(impacters, {dev: slider}, {dev: contact}, drive, duration, states, sl, memo)
     return sl[dev]
+
+
+#: The device checks shared inside :func:`shared_device_checks` (None outside it).
+_DEVICE_CHECKS = contextvars.ContextVar("vibroplan_device_checks", default=None)
+
+
+@contextlib.contextmanager
+def shared_device_checks():
+    """Within this block (in this thread), :func:`check_step` answers a device it has
+    already checked with the same inputs from memory instead of simulating it again.
+
+    A device's check reads only its own impacters and slider, the step's program, which
+    of its impacters the step drives (and its move) and the settings' check thresholds;
+    those, compared by value, are the memo's key, so a hit gives the very rows and
+    failures the simulation would.  A yield study's chip is checked several times over
+    (the re-plan on its measured models, the drive on its true ones, the same again
+    after the tune and after a trim), and most of its single-tone steps keep their tone
+    and most of its devices their models from one check to the next.  Like
+    ``numpy.errstate``, the memo is scoped: it lives for the block only (one chip), in
+    a :mod:`contextvars` variable, so threads and other callers never see it.
+    """
+    token = _DEVICE_CHECKS.set({})
+    try:
+        yield
+    finally:
+        _DEVICE_CHECKS.reset(token)
+
+
+def _program_key(program):
+    """A step's program (:func:`planner.planning.drives.program_of`) by value."""
+    return tuple((float(d), drive.frequencies.tobytes(), drive.amplitudes.tobytes(),
+                  drive.phases.tobytes()) for d, drive in program)
 
 
 def check_step(settings: Settings, step, waveform, impacters, sliders):
@@ -168,8 +204,24 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
     moves = step.moves if step.targets_m is not None else {}
     active = step.active_nodes()
     rows, failures = [], []
+    shared = _DEVICE_CHECKS.get()
+    if shared is not None:
+        # everything a device's check reads but its own models, move and activity
+        common = (_program_key(program), step.scene, step.name, step.index,
+                  settings.x0_points, settings.max_settle_s, settings.max_travel_m,
+                  settings.min_speed_m_s, settings.idle_tolerance_m,
+                  settings.position_tolerance_m)
     for dev in sorted(sliders, key=device_key):
         own = {n: imp for n, imp in impacters.items() if n.device == dev}
+        if shared is not None:
+            key = (common, dev, settings.contacts[dev], sliders[dev], moves.get(dev),
+                   tuple((n, imp, n in active) for n, imp in own.items()))
+            if key in shared:
+                got_rows, got_failures = shared[key]
+                rows.append(dict(got_rows))
+                failures += got_failures
+                continue
+            n_failures = len(failures)
         moving = [n for n in own if n in active]
         expected = moving[0].direction if moving else "idle"
         causes = []
@@ -187,8 +239,12 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
                               f"{x0s[int(np.argmax(full))] / UM:.2f} um)")
                 failures.append(Failure(step.index, dev, n, IDLE_RESPONSE, float(full.max())))
         contact = settings.contacts[dev]
+        # the device's runs from rest and from its x0 grid share what they simulate
+        # alike (an idle impacter from rest, the x0 = 0 start): computed once
+        memo = {}
         displacement, travel, dwell, calm = device_travel(own, dev, sliders[dev], contact,
-                                                          program, settings.max_settle_s)
+                                                          program, settings.max_settle_s,
+                                                          memo=memo)
         if abs(travel) > settings.max_travel_m:
             causes.append(f"travel {travel / UM:.4g} um over the limit "
                           f"{settings.max_travel_m / UM:g} um")
@@ -201,7 +257,7 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
             # the gates were set for the state the scene leaves; from every x0 of the
             # grid the slider must still end within the tolerance of its move
             errors = [device_travel(own, dev, sliders[dev], contact, program,
-                                    settings.max_settle_s, {n: start})[1] - moves[dev]
+                                    settings.max_settle_s, {n: start}, memo)[1] - moves[dev]
                       for start in pair_starts(own[n], settings.x0_points)]
             worst = float(max(errors, key=abs))
             if abs(worst) > settings.position_tolerance_m:
@@ -218,7 +274,7 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
             speeds = []
             for start in pair_starts(own[n], settings.x0_points):
                 z, _ = device_motion(own, sliders[dev], drive, duration, {n: start},
-                                     contact)
+                                     contact, memo)
                 speeds.append(sign * z / duration)
             worst = float(min(speeds))
             if worst < settings.min_speed_m_s:
@@ -239,6 +295,8 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
                      "predicted_displacement_m": float(displacement),
                      "travel_m": float(travel), "settle_s": float(dwell),
                      **worst_case, "passed": not causes, "cause": "; ".join(causes)})
+        if shared is not None:
+            shared[key] = (dict(rows[-1]), tuple(failures[n_failures:]))
     return rows, failures
 
 

@@ -49,6 +49,18 @@ def verify_chip(payload: Payload, scale_index: int, chip_index: int,
         ``seconds`` (wall time of the nominal checks and of the re-plan [s]); with
         ``payload.trim`` also ``trim`` (see :func:`trim_chip_on`).
     """
+    from planner.planning.verify import shared_device_checks
+
+    # one chip is checked several times over (the plan's drive, the re-plan on its
+    # measured models and its true ones, the same after the tune and after a trim): a
+    # device checked again with the same models, step and drive is answered from memory
+    with shared_device_checks():
+        return _verify_chip(payload, scale_index, chip_index, scale)
+
+
+def _verify_chip(payload: Payload, scale_index: int, chip_index: int,
+                 scale: float) -> ChipResult:
+    """:func:`verify_chip`'s work."""
     import time
 
     if payload.threads:
