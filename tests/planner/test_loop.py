@@ -159,6 +159,7 @@ def test_move_groups_moves_only_the_movers():
     assert verify_assignment(b) == []
 
 
+@pytest.mark.slow
 def test_a_band_below_reach_is_planned_on_the_channels_a_design_can_serve(tmp_path):
     """The bottom of the band cannot be served at the speed floor: the reach leaves it
     out before any channel is assigned, and the plan verifies."""
@@ -184,6 +185,7 @@ def test_a_band_below_reach_is_planned_on_the_channels_a_design_can_serve(tmp_pa
     assert "reach (measured in" in proc.stderr
 
 
+@pytest.mark.slow
 def test_a_band_no_design_can_serve_is_refused_before_any_design(tmp_path):
     spec = LOW_BAND.replace("[3000, 12000]", "[1500, 3200]").replace("count: 60", "count: 30")
     (tmp_path / "below.yaml").write_text(spec)

@@ -153,6 +153,7 @@ trim: {range_pct: 1.0, direction: up, precision_pct: 0.1}
 """
 
 
+@pytest.mark.slow
 def test_trim_rescues_chips_the_replan_cannot_and_jobs_do_not_change_it(close_plan_dir,
                                                                        tmp_path):
     """yield --replan --trim on the close plan: chips whose neighbours collide are
