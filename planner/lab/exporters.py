@@ -358,12 +358,7 @@ def export(waveform: Waveform, path, format, *, um_per_v=None, amplifier_gain=No
         "warnings": list(waveform.warnings) + new,
         **(extra or {}),
     }
-    if isinstance(waveform, Burst):
-        sidecar["starts_s"] = [float(g) for g in waveform.starts_s]
-        sidecar["gates_s"] = [float(g) for g in waveform.gates_s]
-        sidecar["ramp_s"] = float(waveform.ramp_s)
-    text = json.dumps(sidecar, indent=2) + "\n"
-    _atomic_write(sidecar_path(path), lambda tmp: Path(tmp).write_text(text))
+    _write_sidecar(path, sidecar, waveform)
     return path
 
 
@@ -401,6 +396,12 @@ def _input_sidecar(path, format, waveform, die, full_scale, amplifier_gain, new,
         "warnings": list(waveform.warnings) + new,
         **(extra or {}),
     }
+    _write_sidecar(path, sidecar, waveform)
+
+
+def _write_sidecar(path, sidecar: dict, waveform) -> None:
+    """Write ``sidecar`` beside ``path`` atomically, a burst's gates added (the
+    displacement's sidecar and a drive chain's alike)."""
     if isinstance(waveform, Burst):
         sidecar["starts_s"] = [float(g) for g in waveform.starts_s]
         sidecar["gates_s"] = [float(g) for g in waveform.gates_s]
