@@ -17,6 +17,7 @@ import math
 from pathlib import Path
 
 from planner.core.errors import SpecError
+from planner.files.inputs import csv_rows
 
 #: The columns of a transfer table, in their units.
 COLUMNS = ("frequency_hz", "gain_um_per_v", "phase_deg")
@@ -55,7 +56,7 @@ def read_transfer_table(path) -> dict:
     if b"\0" in raw:
         raise SpecError(f"{source}: not a CSV text file (it holds binary data)")
     try:
-        rows = list(_rows(io.StringIO(raw.decode("utf-8-sig"), newline="")))
+        rows = list(csv_rows(io.StringIO(raw.decode("utf-8-sig"), newline="")))
     except (UnicodeDecodeError, csv.Error) as exc:
         raise SpecError(f"{source}: not a CSV text file: {exc}") from None
     if not rows:
@@ -97,14 +98,3 @@ def read_transfer_table(path) -> dict:
                         f"{len(out['frequency_hz'])} given")
     out["file"] = str(path)
     return out
-
-
-def _rows(fh):
-    """(1-based line, fields) of each non-blank, non-comment row."""
-    reader = csv.reader(fh)
-    start = 1
-    for row in reader:
-        line, start = start, reader.line_num + 1
-        if not row or all(not v.strip() for v in row) or row[0].lstrip().startswith("#"):
-            continue
-        yield line, row

@@ -8,6 +8,7 @@ forever) or a file over :data:`planner.runtime.limits.MAX_INPUT_BYTES` is refuse
 
 from __future__ import annotations
 
+import csv
 import os
 import stat
 from pathlib import Path
@@ -68,3 +69,16 @@ def read_input(path: str | os.PathLike, *, limit: int | None = None) -> bytes:
         raise SpecError(f"over the {limit / 2**20:.0f} MiB an input may have",
                         source=str(path))
     return data
+
+
+def csv_rows(fh):
+    """(1-based line, fields) of each non-blank, non-comment (``#``) row of a CSV file
+    opened with ``newline=""``: what every CSV reader of vibroplan's names its rows by."""
+    reader = csv.reader(fh)
+    start = 1
+    for row in reader:
+        # reader.line_num is the line the row ended on; a row starts one past the last
+        line, start = start, reader.line_num + 1
+        if not row or all(not v.strip() for v in row) or row[0].lstrip().startswith("#"):
+            continue
+        yield line, row

@@ -16,6 +16,7 @@ import math
 from pathlib import Path
 
 from planner.core.errors import SpecError
+from planner.files.inputs import csv_rows
 
 #: Largest value of a lab file's column [its unit]: beyond it the number is no MEMS
 #: measurement (a typo, or another unit), and refused with its row and column before it
@@ -90,7 +91,7 @@ def read_csv_rows(path, required, optional=(), *, what="the file", ignore=None):
         raise SpecError("not a CSV text file (it holds binary data)", source=source)
     try:
         with io.StringIO(raw.decode("utf-8-sig"), newline="") as fh:
-            lines = list(_csv_rows(fh))
+            lines = list(csv_rows(fh))
     except (UnicodeDecodeError, csv.Error) as exc:
         raise SpecError(f"not a CSV text file: {exc}", source=source) from None
     if not lines:
@@ -121,15 +122,3 @@ def row_values(header, line, row, fail, *, strip=True) -> dict:
         raise fail(line, header[min(len(row), len(header) - 1)],
                    f"{len(row)} values where the header has {len(header)} columns")
     return dict(zip(header, (v.strip() for v in row) if strip else row))
-
-
-def _csv_rows(fh):
-    """(1-based line, fields) of each non-blank, non-comment row of a CSV file."""
-    reader = csv.reader(fh)
-    start = 1
-    for row in reader:
-        # reader.line_num is the line the row ended on; a row starts one past the last
-        line, start = start, reader.line_num + 1
-        if not row or all(not v.strip() for v in row) or row[0].lstrip().startswith("#"):
-            continue
-        yield line, row
