@@ -71,29 +71,19 @@ class YieldPrediction:
 
 
 def _collisions(nu, tone, below, above, lo, hi, g, pairs, split=None):
-    """(chips, pairs) bool: pair collides on the chip (see the module notes).
+    """(chips, pairs) bool: pair collides on the chip (see the module notes;
+    :func:`planner.manufacturability.kernels.collisions_kernel`).
 
     ``split`` (chips, n): half the relative difference of a pair's two halves; the pair
     answers where either half does (its silent band widens by split nu on each side)
     and its tone must drive both (its window narrows by the same)."""
-    i, j = pairs[:, 0], pairs[:, 1]
-    nu_c, t_c = nu * g, tone * g
-    if split is None:
-        wide = np.zeros((1, nu.size))
-    else:
-        wide = np.abs(split) * nu_c
-    b_lo, b_hi = below + wide, above + wide
-    w_lo, w_hi = lo - wide, hi - wide
-    # every impacter's window and band edges once per chip, then gathered per pair
-    # (the same floating-point operations as per pair, so the same booleans)
-    win_lo, win_hi = t_c - w_lo, t_c + w_hi
-    band_lo, band_hi = nu_c - b_lo, nu_c + b_hi
+    from planner.manufacturability.kernels import collisions_kernel
 
-    def inside(a, b):       # a's whole tone window inside b's silent band
-        return ((win_lo.take(a, axis=1) > band_lo.take(b, axis=1))
-                & (win_hi.take(a, axis=1) < band_hi.take(b, axis=1)))
-
-    return inside(i, j) | inside(j, i)
+    g = np.ascontiguousarray(g, dtype=float)
+    split = (np.zeros((0, 0)) if split is None
+             else np.ascontiguousarray(np.broadcast_to(split, g.shape), dtype=float))
+    return collisions_kernel(nu, tone, below, above, lo, hi, g,
+                             np.ascontiguousarray(pairs, dtype=np.int64), split)
 
 
 def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,

@@ -104,7 +104,7 @@ def plan(spec=None, out_dir=None, seed=None, *, progress=None, figures=True, job
     with output_folder(out_dir, command="plan", inputs=inputs, force=force) as tmp:
         result = run_plan(loaded, seed=seed, progress=progress, jobs=jobs, settings=settings,
                           on_assignment=on_assignment, scheduler=scheduler, cache_dir=cache_dir)
-        seconds = write_outputs(result, tmp, figures=figures)
+        seconds = write_outputs(result, tmp, figures=figures, cache_dir=cache_dir)
     return dataclasses.replace(result, out_dir=Path(out_dir),
                                timings={**result.timings, "outputs": seconds})
 

@@ -198,6 +198,10 @@ class DesignStore:
             self.hits += 1
         return res
 
+    def holds(self, digest) -> bool:
+        """Whether a design is stored for ``digest`` (not read, not counted)."""
+        return self._file(digest).is_file()
+
     def put(self, digest, result):
         """Store ``result`` atomically; an unwritable cache is skipped, not an error
         (the plan does not depend on it)."""
@@ -217,6 +221,16 @@ class DesignStore:
         if res is not None:
             self._count(stage)["read"] += 1
         return res
+
+    def marked(self, stage: str, digest) -> bool:
+        """Whether :meth:`mark` left ``digest`` under ``stage`` (not counted in
+        :attr:`stages`: a mark is a hint, no result)."""
+        return digest is not None and (self.path / stage / f"{digest}.pkl").is_file()
+
+    def mark(self, stage: str, digest):
+        """Leave a mark for ``digest`` under ``stage`` (see :meth:`marked`)."""
+        if digest is not None:
+            _store(self.path / stage, digest, True)
 
     def put_stage(self, stage: str, digest, result):
         """Store a later stage's ``result`` under ``digest`` as :meth:`put` does."""

@@ -22,13 +22,17 @@ RESPONSE_PEAK_SPAN = 0.04
 RESPONSE_X0_POINTS = 5
 
 
-def write_outputs(result: Plan, out_dir: Path, *, figures=True, sections=(), timings=True) -> float:
+def write_outputs(result: Plan, out_dir: Path, *, figures=True, sections=(), timings=True,
+                  cache_dir=None) -> float:
     """Write plan.json, CSVs, waveforms, figures and report.md into ``out_dir``.
 
     ``sections``: :class:`planner.core.markdown.Section` s a later command adds to report.md
     (a re-plan's, a trim's), each where :data:`planner.planning.report.SECTIONS` puts its
     title.  ``timings=False`` leaves report.md's timings out (outputs that must depend on
-    their inputs only).
+    their inputs only).  ``cache_dir``: the design cache
+    (:class:`planner.planning.design_store.DesignStore`), where the figures of a plan
+    drawn before with the same inputs and code are read rather than drawn again (their
+    bytes are the same either way: :func:`_cached_figures`).
 
     Returns
     -------
@@ -73,11 +77,40 @@ def write_outputs(result: Plan, out_dir: Path, *, figures=True, sections=(), tim
                     export(w, out_dir / rel, fmt, um_per_v=settings.um_per_v,
                            amplifier_gain=settings.amplifier_gain)
     if figures:
-        _figures(result, out_dir)
+        _cached_figures(result, out_dir, cache_dir)
     seconds = time.perf_counter() - t0
     write_report(result, out_dir, {**result.timings, "outputs": seconds} if timings else None,
                  sections)
     return seconds
+
+
+def _cached_figures(result, out_dir, cache_dir):
+    """:func:`_figures`, read from the design cache's ``figures/`` stage when it holds
+    them for the same plan: keyed by the plan's record, settings and drives (all a
+    figure is drawn from, the response curves' simulations included), the source of
+    the code and matplotlib's version (:func:`planner.planning.design_store.stage_digest`).
+    A figure's PNG bytes depend on these only, so a re-run writes the same files
+    without importing matplotlib."""
+    figs = Path(out_dir) / "figures"
+    store = digest = None
+    if cache_dir is not None:
+        from importlib.metadata import version
+
+        from planner.planning.design_store import DesignStore, stage_digest
+
+        store = DesignStore(cache_dir)
+        digest = stage_digest("figures", result.data, result.settings, result.waveforms,
+                              version("matplotlib"))
+        held = store.get_stage("figures", digest)
+        if isinstance(held, dict) and held:
+            figs.mkdir(exist_ok=True)
+            for name, data in sorted(held.items()):
+                (figs / name).write_bytes(data)
+            return
+    _figures(result, out_dir)
+    if store is not None and digest is not None:
+        store.put_stage("figures", digest, {f.name: f.read_bytes()
+                                            for f in sorted(figs.iterdir()) if f.is_file()})
 
 
 def _figures(result, out_dir):

@@ -19,7 +19,7 @@ from planner.runtime.cores import measured_free_cores, stage_threads
 from planner.assignment.assign import Assignment, assign
 from planner.core.errors import PlanningError
 from planner.core.nodes import device_key
-from planner.planning.design_store import DesignStore
+from planner.planning.design_store import DesignStore, stage_digest
 from planner.planning.designs import design_all
 from planner.planning.drives import limit_acceleration, synthesize_steps
 from planner.planning.manufacture import assess
@@ -358,7 +358,12 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     jobs = max(1, int(jobs or 1))
     with (contextlib.nullcontext(free_cores) if free_cores is not None
           else measured_free_cores()) as free:
-        with _plan_pool(jobs, scheduler) as pool:
+        # a plan this cache saw through before starts its workers only if a task needs
+        # them (a re-run reads everything: spawning them would only compete for the
+        # cores); any other starts them at once, to load the kernels meanwhile
+        seen = stage_digest("plan_seen", settings) if store is not None else None
+        eager = not (store is not None and store.marked("plan_seen", seen))
+        with _plan_pool(jobs, scheduler, eager) as pool:
             # what a design can serve, the channels on it, and how far apart they must
             # be (the stage's time includes the first assignment's)
             _, first = clock.timed("reach", measure_reach, settings, jobs=jobs,
@@ -367,19 +372,23 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
             kept, rounds, designed = _repair_rounds(
                 settings, clock, tick, on_assignment,
                 dict(jobs=jobs, scheduler=scheduler, store=store, pool=pool), first, free)
-        return _finish(settings, kept, rounds, clock, scheduler, store, free, designed)
+        result = _finish(settings, kept, rounds, clock, scheduler, store, free, designed)
+    if store is not None and eager:
+        store.mark("plan_seen", seen)
+    return result
 
 
-def _plan_pool(jobs, scheduler):
+def _plan_pool(jobs, scheduler, eager=True):
     """The plan's local worker pool (None: serial, or a Dask cluster), kept over every
     repair round; its first worker compiles (or loads) the solver's kernels while this
-    process assigns the channels and synthesises the drives (:mod:`model.warmup`)."""
+    process assigns the channels and synthesises the drives (:mod:`model.warmup`), from
+    the start when ``eager``, else from the first task (none: no worker)."""
     if jobs <= 1 or scheduler:
         return contextlib.nullcontext(None)
     from model.warmup import compile_kernels
     from planner.runtime.workers import warm_pool
 
-    return warm_pool(jobs, compile_kernels)
+    return warm_pool(jobs, compile_kernels, eager=eager)
 
 
 def _cache_record(store, designed):

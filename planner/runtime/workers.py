@@ -126,15 +126,33 @@ class WarmPool:
     caller goes on with other work; the first task submitted waits for it, so that no
     second worker compiles the same kernels at the same time.
 
-    Used through :func:`warm_pool`.  ``submit`` is the pool's; ``pool`` the pool itself.
+    Used through :func:`warm_pool`.  The workers are started by :meth:`start` (at once
+    when the pool is made eager) or by the first :meth:`submit` or :meth:`wait_warm`:
+    a plan read wholly from the design cache starts none.  ``pool`` is the
+    ``ProcessPoolExecutor`` (None until started).
     """
 
-    def __init__(self, pool: cf.ProcessPoolExecutor, warm: cf.Future | None):
-        self.pool = pool
-        self._warm = warm
+    def __init__(self, jobs: int, warm_up=None):
+        self.jobs = int(jobs)
+        self.pool = None
+        self._warm_up = warm_up
+        self._warm = None
+
+    def start(self) -> "WarmPool":
+        """Start the workers (and the warm-up in the first) if not started yet."""
+        if self.pool is None:
+            ctx = multiprocessing.get_context("spawn")
+            self.pool = cf.ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx,
+                                               initializer=_init_worker,
+                                               initargs=(os.getpid(),))
+            if self._warm_up is not None:
+                self._warm = self.pool.submit(self._warm_up)
+        return self
 
     def wait_warm(self) -> float | None:
-        """Wait for the warm-up; its result (None if there was none, or once read)."""
+        """Wait for the warm-up (starting the workers if need be); its result (None if
+        there was none, or once read)."""
+        self.start()
         warm, self._warm = self._warm, None
         return None if warm is None else warm.result()
 
@@ -144,8 +162,19 @@ class WarmPool:
 
 
 @contextlib.contextmanager
-def warm_pool(jobs: int, warm_up=None):
-    """:func:`process_pool` of ``jobs`` workers, one of which starts ``warm_up()`` at once
-    (a picklable function of no arguments); yields a :class:`WarmPool`."""
-    with process_pool(jobs) as pool:
-        yield WarmPool(pool, None if warm_up is None else pool.submit(warm_up))
+def warm_pool(jobs: int, warm_up=None, *, eager=True):
+    """A :class:`WarmPool` of ``jobs`` spawned workers, one of which starts ``warm_up()``
+    (a picklable function of no arguments) as soon as the workers start: at once when
+    ``eager``, else at the first task.  Terminated on any exception, shut down (waiting
+    for its tasks) on leaving."""
+    wp = WarmPool(jobs, warm_up)
+    if eager:
+        wp.start()
+    try:
+        yield wp
+    except BaseException:
+        if wp.pool is not None:
+            terminate(wp.pool)
+        raise
+    if wp.pool is not None:
+        wp.pool.shutdown(wait=True)

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import copy
 import json
-import math
 
 import numpy as np
 import pytest
@@ -16,7 +15,7 @@ from click.testing import CliRunner
 
 from planner.cli import main
 from planner.lab.exporters import export, read_sidecar, read_waveform
-from tests.planner.test_chain import _h, _phase_error_deg, _through_chain
+from tests.planner.test_chain import _phase_error_deg, _through_chain
 
 #: The issue's chain: 38 kHz, Q 20 over 1 um/V; the tiny plan's tones (5-14 kHz) sit
 #: below it, where the gain rises by up to 15 % and the phase turns by up to 2 deg.

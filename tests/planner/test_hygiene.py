@@ -653,6 +653,11 @@ def test_the_warm_pool_runs_its_warm_up_first_and_then_the_tasks():
     with warm_pool(2, compile_kernels) as pool:
         seconds = pool.wait_warm()
         assert isinstance(seconds, float) and seconds > 0
+    # not eager (a plan the cache saw through): no worker until a task needs one
+    with warm_pool(2, compile_kernels, eager=False) as pool:
+        assert pool.pool is None
+    with warm_pool(2, compile_kernels, eager=False) as pool:
+        assert pool.submit(math.sqrt, 16.0).result() == 4.0 and pool.pool is not None
 
 
 def test_a_refused_scheduler_address_is_refused_at_once(tmp_path):
