@@ -110,19 +110,27 @@ def assess(settings, steps, assignment, designs, waveforms, *, chips=CHIPS,
 def _assess(settings, nodes, assignment, designs, amps, pairs, chips) -> dict:
     """:func:`assess`'s block, computed (``amps``: node -> tone amplitude [m];
     ``pairs``: the pairs the steps must tell apart)."""
+    import numba
+
+    from planner.runtime.cores import thread_map
+
     tol = settings.tolerances
-    sens, seps, measured = {}, {}, {}
+    sens, seps, keys = {}, {}, {}
     for n in nodes:
         d = designs[n]
         sens[n] = sensitivities(settings.chip_spec, _node_design(n, d))
         # once per distinct design, tone and amplitude (a row sharing one design and
         # one tone: row_assembly's 40 impacters have 4)
-        key = (d.impacter, assignment.frequencies[n], amps.get(n))
-        if key not in measured:
-            measured[key] = measure_separation(d.impacter, assignment.frequencies[n],
-                                               tone_amplitude=amps.get(n),
-                                               **settings.separation_kwargs())
-        seps[n] = measured[key]
+        keys[n] = (d.impacter, assignment.frequencies[n], amps.get(n))
+    distinct = list(dict.fromkeys(keys.values()))
+    kwargs = settings.separation_kwargs()
+    # each design's scan on its own thread (the stage's threads: its time is in the
+    # nogil response kernel), the same separations as one after the other
+    measured = dict(zip(distinct, thread_map(
+        lambda k: measure_separation(k[0], k[1], tone_amplitude=k[2], **kwargs),
+        distinct, numba.get_num_threads())))
+    for n in nodes:
+        seps[n] = measured[keys[n]]
     lw = np.array([sens[n]["line_width_um"] for n in nodes])
     out = {
         "model": ("first-order Monte Carlo of as-built natural frequencies (planner."

@@ -243,3 +243,35 @@ def measured_free_cores(*, period_s=SAMPLE_PERIOD_S, window_s=SAMPLE_WINDOW_S, s
         yield lambda: sampler.free(len(allowed))
     finally:
         sampler.close()
+
+
+#: numba's threading layers that take parallel kernels called from several threads at
+#: once (numba's docs: the workqueue layer does not).
+THREADSAFE_LAYERS = ("omp", "tbb")
+
+
+def thread_map(func, items, threads: int) -> list:
+    """``[func(x) for x in items]`` on ``threads`` threads of this process, in order.
+
+    For work whose time is in numba's ``nogil`` kernels (the separations of a plan's
+    designs): the threads run the kernels at once, each on one numba thread.  Serial
+    when ``threads`` < 2, fewer than two items, or numba's threading layer does not take
+    kernels from several threads (:data:`THREADSAFE_LAYERS`; unknown before the first
+    parallel kernel ran).  Every call is independent, so the results are the same either
+    way.
+    """
+    import concurrent.futures as cf
+
+    import numba
+
+    items = list(items)
+    try:
+        layer = numba.threading_layer()
+    except ValueError:
+        layer = None
+    if threads < 2 or len(items) < 2 or layer not in THREADSAFE_LAYERS:
+        return [func(x) for x in items]
+    with cf.ThreadPoolExecutor(max_workers=min(int(threads), len(items)),
+                               initializer=numba.set_num_threads, initargs=(1,),
+                               thread_name_prefix="vibroplan-stage") as pool:
+        return list(pool.map(func, items))

@@ -199,3 +199,25 @@ def test_plan_json_is_the_same_on_one_thread_and_on_all(monkeypatch):
     finally:
         numba.set_num_threads(before)
     assert texts[1] == texts[2]
+
+
+def test_thread_map_gives_the_serial_results_in_order():
+    """planner.runtime.cores.thread_map (the separations of a plan's designs on the
+    stage's threads): the same list as the serial map, in order, on 1 and 2 threads,
+    and serial before numba's threading layer is known."""
+    import numpy as np
+
+    import model
+    from planner.runtime.cores import thread_map
+
+    imp = model.Impacter.from_geometry(3e-8, 5e-6, 4e-4, 4e-6)
+    freqs = np.linspace(0.8, 1.2, 7) * imp.natural_frequency
+
+    def r(f):
+        return model.sweep(imp, np.array([f]), np.linspace(-imp.gap, imp.gap, 5), 50.0,
+                           3e-3).tolist()
+
+    serial = [r(f) for f in freqs]
+    assert thread_map(r, freqs, 1) == serial
+    assert thread_map(r, freqs, 2) == serial
+    assert any(v > 0 for row in serial for v in row[0])
