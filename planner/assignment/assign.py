@@ -162,6 +162,17 @@ class Violation:
                           "distortion: too weak to move it)"))
 
 
+def _triples(n):
+    """Indices (i, j, k) of the products f_i + f_j - f_k, i < j, k not i or j, in the
+    order of ``itertools.combinations`` then k (int64 arrays)."""
+    i, j = np.triu_indices(n, 1)
+    k = np.arange(n)
+    keep = (k[None, :] != i[:, None]) & (k[None, :] != j[:, None])
+    rows = np.broadcast_to(np.arange(i.size)[:, None], keep.shape)[keep]
+    return i[rows].astype(np.int64), j[rows].astype(np.int64), np.broadcast_to(
+        k, keep.shape)[keep].astype(np.int64)
+
+
 def guard_violations(steps, frequencies: dict, rules, products=None) -> list[Violation]:
     """Harmonic and intermodulation products that land in an idle impacter's band.
 
@@ -184,33 +195,37 @@ def guard_violations(steps, frequencies: dict, rules, products=None) -> list[Vio
             continue
         idle_names = list(idle)
         idle_f = np.array([idle[n] for n in idle_names])
-        prods = []
+        # every product as (kind, frequencies, the indices of their source tones), in
+        # the order the rules list them; only the products near an idle impacter are
+        # made into violations (a 25-tone step has ~7000 third-order products)
+        segs = []
         if rules.harmonics:
+            idx = np.arange(tones.size)
             for nh in (2, 3):
-                prods += [("harmonic", nh * f, (f,)) for f in tones]
-                prods += [("harmonic", f / nh, (f,)) for f in tones]
+                segs.append(("harmonic", nh * tones, (idx,)))
+                segs.append(("harmonic", tones / nh, (idx,)))
         if rules.intermodulation and tones.size >= 2:
-            for i, j in itertools.permutations(range(tones.size), 2):
-                prods.append(("intermodulation", 2 * tones[i] - tones[j], (tones[i], tones[j])))
+            i, j = (np.array(a, dtype=np.int64).reshape(-1) for a in
+                    zip(*itertools.permutations(range(tones.size), 2)))
+            segs.append(("intermodulation", 2 * tones[i] - tones[j], (i, j)))
             if tones.size >= 3 and tones.size <= 40:
-                for i, j in itertools.combinations(range(tones.size), 2):
-                    for k in range(tones.size):
-                        if k != i and k != j:
-                            prods.append(("intermodulation", tones[i] + tones[j] - tones[k],
-                                          (tones[i], tones[j], tones[k])))
+                i, j, k = _triples(tones.size)
+                segs.append(("intermodulation", tones[i] + tones[j] - tones[k], (i, j, k)))
         if (products is not None and products.nonlinearity.a2 and rules.intermodulation
                 and tones.size >= 2):
-            for i, j in itertools.combinations(range(tones.size), 2):
-                for fp in (tones[i] + tones[j], abs(tones[j] - tones[i])):
-                    prods.append((SECOND_ORDER, fp, (tones[i], tones[j])))
-        if not prods:
+            i, j = (np.array(a, dtype=np.int64).reshape(-1) for a in
+                    zip(*itertools.combinations(range(tones.size), 2)))
+            both = np.stack([tones[i] + tones[j], np.abs(tones[j] - tones[i])], axis=1)
+            segs.append((SECOND_ORDER, both.reshape(-1),
+                         (np.repeat(i, 2), np.repeat(j, 2))))
+        if not segs:
             continue
-        pf = np.array([p[1] for p in prods])
-        # relative distance of each product to each idle impacter's frequency
-        near = np.abs(pf[:, None] - idle_f[None, :]) <= bw * idle_f[None, :]
-        for pi, ni in zip(*np.nonzero(near)):
-            kind, f, src = prods[pi]
-            out.append(Violation(st.key, idle_names[ni], kind, float(f), float(idle_f[ni]), src))
+        for kind, pf, src in segs:
+            # relative distance of each product to each idle impacter's frequency
+            near = np.abs(pf[:, None] - idle_f[None, :]) <= bw * idle_f[None, :]
+            for pi, ni in zip(*np.nonzero(near)):
+                out.append(Violation(st.key, idle_names[ni], kind, float(pf[pi]),
+                                     float(idle_f[ni]), tuple(tones[a[pi]] for a in src)))
     if products is not None:
         out = [products.judge(v) for v in out]
     return out

@@ -309,3 +309,71 @@ def test_chain_figure_marks_products_near_idle_impacters(tiny_plan_dir, tmp_path
     # four panels (the products' own), and the product drawn on it
     assert a.shape == b.shape and a.shape[0] >= 1300
     assert not np.array_equal(a, b)
+
+
+def _guard_violations_loop(steps, frequencies, rules):
+    """The products of planner.assignment.assign.guard_violations as its loop made them
+    before it was vectorised (issue 43: 2.1 s of a 5 s dry run): (step, node, kind,
+    product, node's tone, sources) in order."""
+    import itertools
+
+    from planner.core.nodes import Node
+
+    out = []
+    bw = rules.relative_bandwidth
+    for st in steps:
+        active = {Node(d, dr) for d, dr in st.active_nodes()}
+        tones = np.array(sorted({frequencies[n] for n in active if n in frequencies}))
+        idle = {n: f for n, f in frequencies.items() if n not in active}
+        if tones.size == 0 or not idle:
+            continue
+        names = list(idle)
+        idle_f = np.array([idle[n] for n in names])
+        prods = []
+        if rules.harmonics:
+            for nh in (2, 3):
+                prods += [("harmonic", nh * f, (f,)) for f in tones]
+                prods += [("harmonic", f / nh, (f,)) for f in tones]
+        if rules.intermodulation and tones.size >= 2:
+            for i, j in itertools.permutations(range(tones.size), 2):
+                prods.append(("intermodulation", 2 * tones[i] - tones[j], (tones[i], tones[j])))
+            if 3 <= tones.size <= 40:
+                for i, j in itertools.combinations(range(tones.size), 2):
+                    for k in range(tones.size):
+                        if k != i and k != j:
+                            prods.append(("intermodulation", tones[i] + tones[j] - tones[k],
+                                          (tones[i], tones[j], tones[k])))
+        if not prods:
+            continue
+        pf = np.array([p[1] for p in prods])
+        near = np.abs(pf[:, None] - idle_f[None, :]) <= bw * idle_f[None, :]
+        for pi, ni in zip(*np.nonzero(near)):
+            kind, f, src = prods[pi]
+            out.append((st.key, names[ni], kind, float(f), float(idle_f[ni]),
+                        tuple(float(x) for x in src)))
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_guard_violations_are_the_loops_products_in_its_order(seed):
+    """The vectorised product search gives the very violations of the loop it replaced,
+    in the same order, on random steps of 1-30 tones among 40 impacters."""
+    from planner.arrayspec.steps import Step
+    from planner.assignment.assign import guard_violations
+    from planner.core.nodes import Node
+    from planner.planning.settings import ToneRules
+
+    rng = np.random.default_rng(seed)
+    devices = [f"D{i}" for i in range(20)]
+    freqs = {Node(d, dr): float(f) for (d, dr), f in zip(
+        [(d, dr) for d in devices for dr in ("forward", "backward")],
+        rng.uniform(4e3, 5e4, 40).round(1))}
+    steps = [Step("scene", f"s{s}", s, 0.01,
+                  tuple(sorted(rng.choice(devices, int(rng.integers(1, 16)), replace=False))),
+                  tuple(sorted(rng.choice(devices, int(rng.integers(0, 15)), replace=False))))
+             for s in range(4)]
+    rules = ToneRules(float(rng.uniform(0.002, 0.02)), True, True)
+    got = [(v.step, v.node, v.kind, v.product_hz, v.node_hz, tuple(float(x) for x in v.sources))
+           for v in guard_violations(steps, freqs, rules)]
+    want = _guard_violations_loop(steps, freqs, rules)
+    assert got == want and len(want) > 0
