@@ -195,8 +195,10 @@ def validate(model: type[T], data: Any, lines: LineMap | None = None, *,
         first_line = None
         first_path = None
         for err in errors:
-            # drop pydantic's internal tags such as "function-after[...]"
-            loc = tuple(p for p in err["loc"] if not (isinstance(p, str) and "[" in p))
+            # drop pydantic's internal tags such as "function-after[...]", and a tagged
+            # union's tag (drive.chain.transfer's "model"), which is no key of the spec
+            loc = _spec_loc(data, tuple(p for p in err["loc"]
+                                        if not (isinstance(p, str) and "[" in p)))
             full = prefix + loc
             line = line_of(lines, full)
             msg = err["msg"]
@@ -211,3 +213,20 @@ def validate(model: type[T], data: Any, lines: LineMap | None = None, *,
                 messages.append(where + (f" (line {line})" if line else ""))
         raise SpecError(messages[0], path=first_path or None, line=first_line, source=source,
                         also=messages[1:]) from None
+
+
+def _spec_loc(data, loc):
+    """``loc`` without the elements that are no key of ``data`` on the way down: a
+    tagged union's tag sits between a key and the fields of its value (the last element
+    is kept: a missing or unknown key is named by it)."""
+    out, here = [], data
+    for i, p in enumerate(loc):
+        if isinstance(here, dict) and p in here:
+            here = here[p]
+        elif isinstance(here, (list, tuple)) and isinstance(p, int) and 0 <= p < len(here):
+            here = here[p]
+        elif i < len(loc) - 1:
+            continue
+        out.append(p)
+    return tuple(out)
+

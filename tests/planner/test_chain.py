@@ -98,6 +98,24 @@ def test_transfer_table_errors_name_file_row_and_line(tmp_path):
     assert "Traceback" not in result.output
 
 
+@pytest.mark.parametrize("transfer, named", [
+    ("{gain_um_per_v: -1.0}", "drive.chain.transfer.gain_um_per_v: Input should be greater than 0"),
+    ("{gain_um_per_v: 1.0, bogus: 2}", "drive.chain.transfer.bogus: unknown key"),
+    ("{frequency_hz: [4000, 20000], gain_um_per_v: [1, 1]}", "drive.chain.transfer.phase_deg"),
+])
+def test_a_chain_error_names_the_spec_key_not_pydantic_s_union_tag(tmp_path, transfer, named):
+    """drive.chain.transfer is a tagged union (a model, a table or a file): its tag
+    ("model", "table") is no key of the spec and is not in the name an error gives."""
+    spec = tmp_path / "s.yaml"
+    spec.write_text(TINY.replace("  channels: {count: 60}\n",
+                                 f"  channels: {{count: 60}}\n  chain:\n    transfer: {transfer}\n"))
+    result = CliRunner().invoke(main, ["plan", str(spec), "--dry-run"])
+    assert result.exit_code == 2, result.output
+    assert named in result.output and "(line 12)" in result.output
+    assert ".model." not in result.output and ".table." not in result.output
+    assert "Traceback" not in result.output
+
+
 def test_table_not_covering_the_band_is_refused(tmp_path):
     spec = tmp_path / "s.yaml"
     spec.write_text(TINY.replace(
