@@ -189,3 +189,30 @@ def test_a_second_plan_reads_its_figures_from_the_cache(tiny_spec, tmp_path):
     other = run(tmp_path / "c", "--seed", "7")
     assert len(list((cache / "figures").iterdir())) == 2
     assert other.keys() == first.keys() and other != first
+
+
+def test_a_plan_read_wholly_from_the_cache_starts_no_worker(tiny_spec, tmp_path, monkeypatch):
+    """Issue 43: a re-run spawned the worker pool (two processes importing the planner and
+    loading the kernels beside the main one) though every design, probe and stage came
+    from the cache.  A plan the cache saw through starts its workers only for a task;
+    a first plan starts them at once (they load the kernels while it assigns)."""
+    from planner.planning import plan
+    from planner.runtime import workers
+
+    started = []
+    real = workers.WarmPool.start
+
+    def start(self):
+        if self.pool is None:
+            started.append(self.jobs)
+        return real(self)
+
+    monkeypatch.setattr(workers.WarmPool, "start", start)
+    cache = tmp_path / "cache"
+    first = plan(tiny_spec, jobs=2, cache_dir=cache, seed=3)
+    assert started == [2]
+    again = plan(tiny_spec, jobs=2, cache_dir=cache, seed=3)
+    assert started == [2]                  # none for the re-run
+    assert again.data == first.data
+    plan(tiny_spec, jobs=2, cache_dir=cache, seed=4)
+    assert started == [2, 2]               # another seed: new designs, workers at once
