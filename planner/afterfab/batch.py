@@ -112,13 +112,13 @@ def _files_of(folder: Path) -> dict:
 
 def _failure_causes(plan_result) -> list:
     """The causes of a die's failed re-plan (a yield study's words)."""
-    rp = plan_result.data["replan"]
+    rp = plan_result.replan
     causes = []
-    if rp["inseparable"]:
+    if rp.inseparable:
         causes.append("cannot be told apart")
-    if rp["outside_band"]:
+    if rp.outside_band:
         causes.append("outside band")
-    if not rp["inseparable"] and not plan_result.passed:
+    if not rp.inseparable and not plan_result.passed:
         causes.append("fails on the measured models")
     return causes
 
@@ -190,13 +190,13 @@ def _replan_measured(job: WaferJob, die_x: int, die_y: int, measured: dict) -> d
             return _with_files(out, None)
         ver = result.verification
         out.update(checks=len(ver), checks_passed=int(ver["passed"].sum()),
-                   inseparable=[c["message"] for c in result.data["replan"]["inseparable"]])
+                   inseparable=[c.message for c in result.replan.inseparable])
         if result.passed:
             write_replan_outputs(result, folder, figures=False, timings=False)
             out["outcome"] = OUTCOMES[1]
             return _with_files(out, folder)
         causes = _failure_causes(result)
-        if job.trim and result.data["replan"]["inseparable"]:
+        if job.trim and result.replan.inseparable:
             from planner.afterfab.trim import trim_chip, write_trim_csv
 
             missing = [r.id for r in record.impacters if r.id not in measured]

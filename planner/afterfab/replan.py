@@ -46,6 +46,7 @@ from planner.assignment.assign import Assignment, conflict_graph, guard_violatio
 from planner.core.markdown import Section, fmt, md_table
 from planner.core.nodes import device_key, node_key
 from planner.planfile.reader import PlanRecord, drives
+from planner.planfile.schema import Replan
 from planner.planning.chain import die_drives
 from planner.planning.record import build_record
 from planner.planning.repair import scenes_and_motion
@@ -265,7 +266,16 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
               "repairs": repairs, "design_problems": [], "gating": drive.gating}
     rounds = [{"round": 0, "span": assignment.span,
                "failures": sum(1 for r in ver_rows if not r["passed"])}]
-    data, impacter_recs, device_recs, step_recs = build_record(
+    sections = {"as_built": params,
+                "replan": _replan_record(plan, settings, params, drive, orig_passed,
+                                         orig_rows, windows)}
+    if settings.chain is not None:
+        from planner.planning.chain import chain_record
+
+        # plan.json's chain block, of the re-planned tones (the report's section)
+        sections["chain"] = chain_record(settings, drive.waveforms, drive.notes, steps,
+                                         drive.tones)
+    rec = build_record(
         settings, steps, assignment, designs, sliders, drive.waveforms, ver_rows, passed,
         rounds, scene_rows, motion,
         # the designs' separations go with the re-plan (the designs are the chip's; a
@@ -275,22 +285,13 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
             "separation_hz": plan.manufacturability["separation_hz"],
             "note": "the designs' silent bands and tone windows, from the plan this chip "
                     "was made by (its predicted yield is the plan's)"}),
-        sections={"as_built": params,
-                  "replan": _replan_record(plan, settings, params, drive, orig_passed,
-                                           orig_rows, windows)})
-    if settings.chain is not None:
-        from planner.planning.chain import chain_record
-        from planner.planning.record import round_floats
-
-        # plan.json's chain block, of the re-planned tones (the report's section)
-        data["chain"] = round_floats(chain_record(settings, drive.waveforms, drive.notes,
-                                                  steps, drive.tones))
+        sections=sections)
     timings["total"] = time.perf_counter() - t0
     return Plan(
-        impacters=pd.DataFrame(impacter_recs), devices=pd.DataFrame(device_recs),
-        steps=pd.DataFrame(step_recs), verification=ver, coupling=coupling,
-        scenes=pd.DataFrame(scene_rows), passed=passed, data=data, timings=timings,
-        settings=settings, waveforms=drive.waveforms, designs=designs,
+        impacters=pd.DataFrame(rec.impacters), devices=pd.DataFrame(rec.devices),
+        steps=pd.DataFrame(rec.steps), verification=ver, coupling=coupling,
+        scenes=pd.DataFrame(scene_rows), passed=passed, data=rec.data, timings=timings,
+        plan_file=rec.file, settings=settings, waveforms=drive.waveforms, designs=designs,
         assignment=assignment, failures=tuple(failures), run_steps=tuple(steps),
         dwells=dict(settle))
 
@@ -408,18 +409,17 @@ def _replan_record(plan, settings, params, drive, orig_passed, orig_rows, window
     }
 
 
-def outside_band_message(data) -> str:
-    """One line on the impacters whose window lies beyond the drive band (plan.json's
-    ``replan.outside_band``): the tone each needs, the tone played, and that the
-    re-plan fails."""
-    rp = data["replan"]
-    lo, hi = data["spec"]["drive"]["band_hz"]
-    played = {m["id"]: m["frequency_hz"] for m in rp["moved"]}
-    need = rp.get("outside_band_hz", {})
+def outside_band_message(replan: Replan, band_hz) -> str:
+    """One line on the impacters whose window lies beyond the drive band ``band_hz``
+    (lo, hi) [Hz] (a re-plan's ``outside_band``): the tone each needs, the tone played,
+    and that the re-plan fails."""
+    lo, hi = band_hz
+    played = {m.id: m.frequency_hz for m in replan.moved}
+    need = replan.outside_band_hz
     each = "; ".join(
         f"{n}'s working window is around {need[n]:.1f} Hz" if n in need else n
-        for n in rp["outside_band"])
-    plays = ", ".join(f"{n} at {played[n]:.1f} Hz" for n in rp["outside_band"])
+        for n in replan.outside_band)
+    plays = ", ".join(f"{n} at {played[n]:.1f} Hz" for n in replan.outside_band)
     return (f"{each}, beyond the drive band {lo:g}-{hi:g} Hz (drive.band_hz), where no "
             f"tone is played; the drive plays the band edge ({plays}), where the slider "
             "is not known to move: the re-plan fails (trim the impacter, or widen the "
@@ -486,14 +486,15 @@ def write_replan_outputs(result: Plan, out_dir, *, figures=True, sections=(), ti
     from planner.planning.outputs import write_outputs
 
     write_outputs(result, Path(out_dir), figures=figures, timings=timings,
-                  sections=[replan_section(result.data), *sections])
+                  sections=[replan_section(result.replan, result.settings.band_hz),
+                            *sections])
 
 
-def replan_section(data) -> Section:
+def replan_section(replan: Replan, band_hz) -> Section:
     """The report's re-plan section: as-built against design, tones moved, the original
-    drive on this chip, impacters that can no longer be told apart."""
-    rp = data["replan"]
-    od = rp["original_drive"]
+    drive on this chip, impacters that can no longer be told apart (``band_hz``: the
+    drive band (lo, hi) [Hz])."""
+    rp, od = replan, replan.original_drive
     lines = ["Every impacter's as-built model is rebuilt through eqs. (2)-(4) from the "
              "fabrication errors its measured resonance implies under the spec's tolerances "
              "(the die's share common to all, the rest its own): mass, stiffness, damping, "
@@ -504,39 +505,39 @@ def replan_section(data) -> Section:
              "design.tone_window_pct), or to the middle of the working window a tuning sweep "
              "measured on the chip.  Only the drive is re-planned; every check above and "
              "below is on the as-built models.", "",
-             f"**The original drive on this chip: {'PASSES' if od['passed'] else 'FAILS'}** "
-             f"({od['checks'] - od['failed_checks']} of {od['checks']} step x device checks "
+             f"**The original drive on this chip: {'PASSES' if od.passed else 'FAILS'}** "
+             f"({od.checks - od.failed_checks} of {od.checks} step x device checks "
              "pass).", ""]
-    if od["failures"]:
+    if od.failures:
         lines += ["<details><summary>the original drive's failures on this chip</summary>", ""]
-        lines += [f"- {f['step']} {f['device']}: {f['cause']}" for f in od["failures"][:40]]
-        if len(od["failures"]) > 40:
-            lines.append(f"- ... and {len(od['failures']) - 40} more (plan.json)")
+        lines += [f"- {f.step} {f.device}: {f.cause}" for f in od.failures[:40]]
+        if len(od.failures) > 40:
+            lines.append(f"- ... and {len(od.failures) - 40} more (plan.json)")
         lines += ["", "</details>", ""]
     rows = []
-    tuned = any("working_window_hz" in m for m in rp["moved"])
-    for m in rp["moved"]:
-        rows.append([m["id"], fmt(m["design_natural_frequency_hz"], ".1f"),
-                     fmt(m["natural_frequency_hz"], ".1f"),
-                     fmt(100 * m["natural_frequency_shift"], "+.2f"),
-                     fmt(m["original_frequency_hz"], ".1f"), fmt(m["frequency_hz"], ".1f"),
-                     fmt(100 * m["tone_shift"], "+.2f")]
-                    + ([("-" if "working_window_hz" not in m else
-                         "{:.1f}-{:.1f}".format(*m["working_window_hz"]))] if tuned else []))
+    tuned = any(m.working_window_hz is not None for m in rp.moved)
+    for m in rp.moved:
+        rows.append([m.id, fmt(m.design_natural_frequency_hz, ".1f"),
+                     fmt(m.natural_frequency_hz, ".1f"),
+                     fmt(100 * m.natural_frequency_shift, "+.2f"),
+                     fmt(m.original_frequency_hz, ".1f"), fmt(m.frequency_hz, ".1f"),
+                     fmt(100 * m.tone_shift, "+.2f")]
+                    + ([("-" if m.working_window_hz is None else
+                         "{:.1f}-{:.1f}".format(*m.working_window_hz))] if tuned else []))
     lines += ["### What moved", ""]
     lines += md_table(["impacter", "design nu_n [Hz]", "as-built nu_n [Hz]", "shift [%]",
                        "original tone [Hz]", "new tone [Hz]", "tone shift [%]"]
                       + (["working window [Hz]"] if tuned else []), rows)
     lines.append("")
-    if rp.get("outside_band"):
-        lines += [f"**Outside the drive band**: {outside_band_message(data)}", ""]
-    if rp.get("split_steps"):
+    if rp.outside_band:
+        lines += [f"**Outside the drive band**: {outside_band_message(rp, band_hz)}", ""]
+    if rp.split_steps:
         lines += ["### Steps split", "",
                   "The acceleration limit would have lowered these steps' tones further than "
                   "the plan's verified drive; each plays as sub-steps of neighbouring tones, "
                   "one after the other:", ""]
-        lines += [f"- {k} -> {', '.join(v)}" for k, v in rp["split_steps"].items()] + [""]
-    if rp["inseparable"]:
+        lines += [f"- {k} -> {', '.join(v)}" for k, v in rp.split_steps.items()] + [""]
+    if rp.inseparable:
         lines += ["### Impacters no drive can tell apart (the re-plan fails)", ""]
-        lines += [f"- {c['message']}" for c in rp["inseparable"]] + [""]
+        lines += [f"- {c.message}" for c in rp.inseparable] + [""]
     return Section("As-built re-plan", lines)

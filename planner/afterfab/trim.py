@@ -20,6 +20,7 @@ import numpy as np
 
 from planner.afterfab.separations import Separations
 from planner.planfile.reader import PlanRecord
+from planner.planfile.schema import through_schema
 from planner.planning.result import Plan
 from planner.arrayspec import TrimSpec
 
@@ -737,6 +738,8 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
         "odds": odds.as_record(),
         "raise_odds": alternatives,
         "next_step": NEXT_STEP}
-    result = dataclasses.replace(result, data={**result.data, "trim": trim}, timings=timings)
+    # plan.json's trim block, through the schema as the rest of the file
+    plan_file, data = through_schema({**result.data, "trim": trim})
+    result = dataclasses.replace(result, data=data, plan_file=plan_file, timings=timings)
     return TrimResult(tp, rows, spec, result, bool(result.passed and odds.meets_target),
                       odds, tuple(alternatives))

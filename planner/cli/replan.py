@@ -141,24 +141,23 @@ def command(plan_path, measured_path, windows_path, measured_dir, trim, jobs, sc
     with output_folder(out_dir, command="replan", inputs=inputs, force=force) as tmp:
         result = replan(plan, measured, seed=seed, progress=progress)
         write_replan_outputs(result, tmp, figures=not no_figures)
-    d = result.data
-    rp = d["replan"]
-    od = rp["original_drive"]
+    rp = result.replan
+    od = rp.original_drive
     missing = sorted(set(plan.impacter_ids) - set(measured))
     if missing:
         click.echo(f"warning: not measured, taken as designed: {', '.join(missing)}", err=True)
-    big = max(rp["moved"], key=lambda m: abs(m["tone_shift"]))
-    click.echo(f"{d['spec']['name']}: {len(d['impacters'])} impacters re-planned; largest tone "
-               f"shift {big['id']} {100 * big['tone_shift']:+.2f} %")
-    click.echo(f"original drive on this chip: {'PASSES' if od['passed'] else 'FAILS'} "
-               f"({od['checks'] - od['failed_checks']}/{od['checks']} checks)")
-    if rp.get("outside_band"):
-        click.echo(f"error: {outside_band_message(d)}", err=True)
-    for key, subs in rp.get("split_steps", {}).items():
+    big = max(rp.moved, key=lambda m: abs(m.tone_shift))
+    click.echo(f"{plan.spec.name}: {len(result.plan_file.impacters)} impacters re-planned; "
+               f"largest tone shift {big.id} {100 * big.tone_shift:+.2f} %")
+    click.echo(f"original drive on this chip: {'PASSES' if od.passed else 'FAILS'} "
+               f"({od.checks - od.failed_checks}/{od.checks} checks)")
+    if rp.outside_band:
+        click.echo(f"error: {outside_band_message(rp, result.settings.band_hz)}", err=True)
+    for key, subs in rp.split_steps.items():
         click.echo(f"note: {key} plays as {len(subs)} sub-steps ({', '.join(subs)}): the "
                    "acceleration limit would have weakened its tones", err=True)
-    for c in rp["inseparable"]:
-        click.echo(f"error: {c['message']}", err=True)
+    for c in rp.inseparable:
+        click.echo(f"error: {c.message}", err=True)
     ver = result.verification
     click.echo(f"re-planned drive: {'PASSED' if result.passed else 'FAILED'} "
                f"({int(ver['passed'].sum())}/{len(ver)} checks); wrote {out_dir}/ "

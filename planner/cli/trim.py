@@ -93,7 +93,7 @@ def command(plan_path, measured_path, out_dir, seed, force, no_figures, quiet):
                    f"({int(ver['passed'].sum())}/{len(ver)} checks on the targets)")
         for line in _odds_lines(res):
             click.echo(line)
-        click.echo(f"next: {res.plan.data['trim']['next_step']}")
+        click.echo(f"next: {res.plan.plan_file.trim.next_step}")
     click.echo(f"wrote {out_dir}/trim.csv (see {out_dir}/report.md)")
     if not res.passed:
         sys.exit(1)
@@ -127,7 +127,7 @@ def _trim_section(res):
                    f"{'PASSES' if res.plan.passed else 'FAILS'}** "
                    f"({int(ver['passed'].sum())}/{len(ver)} checks)."), ""]
         lines += [f"- {x}" for x in _odds_lines(res)] + [""]
-        lines += [f"**Next step:** {res.plan.data['trim']['next_step']}.", ""]
+        lines += [f"**Next step:** {res.plan.plan_file.trim.next_step}.", ""]
     return Section("Trim", lines)
 
 
@@ -137,29 +137,27 @@ def _odds_lines(res):
     that raise the odds (stdout and the report say the same)."""
     from planner.core.markdown import fmt
 
-    t = res.plan.data["trim"]
-    o = t["odds"]
-    lo, hi = o["ci95"]
-    lines = [f"odds on the trimmed models: the drive works on {o['passed']} of {o['draws']} "
-             f"draws of the cuts' errors ({o['share']:.2f}, 95 % CI {lo:.2f}-{hi:.2f}) "
-             f"against fabrication.target_yield {o['target_yield']:g}: "
-             + ("meets it" if o["meets_target"] else "BELOW it")]
-    if o["failures"]:
+    o = res.odds
+    lo, hi = o.ci95
+    lines = [f"odds on the trimmed models: the drive works on {o.passed} of {o.draws} "
+             f"draws of the cuts' errors ({o.share:.2f}, 95 % CI {lo:.2f}-{hi:.2f}) "
+             f"against fabrication.target_yield {o.target_yield:g}: "
+             + ("meets it" if o.meets_target else "BELOW it")]
+    if o.failures:
         lines.append("draws failing, by kind: " + ", ".join(
-            f"{k} {v}" for k, v in o["failures"].items()) + "; implicating " + ", ".join(
-            f"{n} {v}" for n, v in o["implicated"].items()))
-    again = o["after_measuring_again"]
+            f"{k} {v}" for k, v in o.failures.items()) + "; implicating " + ", ".join(
+            f"{n} {v}" for n, v in o.implicated.items()))
     lines.append(f"measured again after the cut, every pair can be told apart on "
-                 f"{again['separable']} of {o['draws']} draws (a re-plan then places every "
-                 f"tone), {again['separable_after_second_pass']} with a second trim pass "
+                 f"{o.separable} of {o.draws} draws (a re-plan then places every "
+                 f"tone), {o.second_pass} with a second trim pass "
                  "within the range left")
-    for a in t["raise_odds"]:
+    for a in res.alternatives:
         ao = a["odds"]
         lines.append(f"a cut that raises the odds: {a['cut']} ({a['why']}: " + ", ".join(
             f"{m['impacter']} to {fmt(m['target_hz'], '.1f')} Hz, {m['change_pct']:+.3f} %"
             for m in a["moved"]) + f"): {ao['passed']} of {ao['draws']} draws "
             f"({ao['share']:.2f}, 95 % CI {ao['ci95'][0]:.2f}-{ao['ci95'][1]:.2f})")
-    if res.plan.passed and not o["meets_target"] and not t["raise_odds"]:
+    if res.plan.passed and not o.meets_target and not res.alternatives:
         lines.append("no smaller move raises the odds; measuring again and re-planning "
                      "after the cut is the way to a working drive")
     return lines

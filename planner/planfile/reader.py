@@ -1,18 +1,20 @@
-"""plan.json read back: its declared schema, its one reader, and the drive it records.
+"""plan.json read back: its one reader, its checks, and the drive it records.
 
-:mod:`planner.planning.record` writes plan.json; this module reads it, once, into a
-frozen :class:`PlanRecord`, and every command that takes a plan (``vibroplan yield``,
-``replan``, ``drive``) reads it through :func:`read_plan` -- never the dict.  The record
-declares the part of plan.json those commands use, with units in the field names as in
-the file; the rest of the file (verification rows, scenes, figures' data) is the
-report's and is not read back.
+:mod:`planner.planning.record` writes plan.json and this module reads it, both through
+its schema (:mod:`planner.planfile.schema`, every block declared once as a typed
+record, units in the field names); the reader reads it once into a frozen
+:class:`PlanRecord`, and every command that takes a plan (``vibroplan yield``,
+``replan``, ``trim``, ``drive``, ``layout``) reads it through :func:`read_plan` --
+never the dict.  The blocks no command reads back (verification rows, scenes, the
+manufacturability model) are the report's: declared by their keys, not read.
 
 Validated once, here, with the key named on any fault (:class:`PlanFileError`, a
 :class:`~planner.core.errors.SpecError`: exit 2 in the CLI):
 
 - the JSON itself, and ``format_version`` (plans from before format versions are
   format 1; another version is refused);
-- every declared key present with its type (no bool or string read as a number, no NaN);
+- every key the schema requires present with its type (no bool or string read as a
+  number, no NaN), and the bounds it declares (a mass > 0, a damping >= 0);
 - the spec, as an :class:`~planner.arrayspec.ArraySpec` with its steps resolved;
 - numbers that contradict each other: an impacter's ``natural_frequency_hz`` against its
   ``mass_kg`` and ``stiffness_n_per_m`` (nu = sqrt(k/m) / 2 pi); its mass, stiffness and
@@ -34,267 +36,31 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
 
 import numpy as np
-from pydantic import ConfigDict, Field, TypeAdapter, ValidationError
+from pydantic import ValidationError
 
 from planner.core.errors import SpecError
-from planner.core.nodes import DIRECTIONS, Node
-from planner.arrayspec import ArraySpec, LoadedSpec, Step, resolve_steps
+from planner.core.nodes import DIRECTIONS
+from planner.arrayspec import ArraySpec, LoadedSpec, resolve_steps
 from planner.arrayspec.load import check_sections
 from planner.files.yamlio import format_loc, validate
+from planner.planfile.schema import (FORMAT_VERSION, AsBuiltRecord, DeviceRecord,
+                                     ImpacterRecord, PlanFile, StepRecord, Tone)
 
-#: The plan.json format this version writes and reads (``format_version``).  Raise it
-#: when a key that a reader needs changes meaning or shape.
-FORMAT_VERSION = 1
+__all__ = ["FORMAT_VERSION", "AGREE_RTOL", "PlanFileError", "PlanRecord", "RecordedDrive",
+           "read_plan", "plan_record", "step_drive", "drives", "AsBuiltRecord",
+           "DeviceRecord", "ImpacterRecord", "StepRecord", "Tone"]
+
 #: Relative tolerance of numbers that must agree (plan.json holds 12 significant digits).
 AGREE_RTOL = 1e-6
 #: Impacter fields the planner designs: left out of the spec read back (the record holds
 #: their defaults, which a spec may not set).
 DESIGNED_FIELDS = ("area_um2", "width_um", "length_um", "gap_um", "natural_frequency_hz")
 
-Number = Annotated[float, Field(strict=True, allow_inf_nan=False)]
-Positive = Annotated[float, Field(strict=True, gt=0, allow_inf_nan=False)]
-NonNegative = Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)]
-Int = Annotated[int, Field(strict=True)]
-Text = Annotated[str, Field(strict=True, min_length=1)]
-
 
 class PlanFileError(SpecError):
     """A plan.json that cannot be used, naming the file and the key (``path``)."""
-
-
-# ----------------------------------------------------------------------------- schema
-
-
-@dataclass(frozen=True)
-class Tone:
-    """One tone of a step's drive; a gated step's tones (``playback: once``) also carry
-    when each starts and stops playing [s]."""
-
-    frequency_hz: Positive
-    amplitude_m: Positive
-    phase_rad: Number
-    start_s: NonNegative | None = None
-    gate_s: NonNegative | None = None
-
-
-@dataclass(frozen=True)
-class StepRecord:
-    """One step of the drive: who moves, for how long, with which tones.
-
-    ``settle_s`` is the dwell after the step [s] as recorded (None in plans from before
-    it was recorded: then :attr:`PlanRecord.dwells` takes the longest its verification
-    found).
-    """
-
-    scene: Text
-    name: Text
-    index: Int
-    duration_s: Positive
-    forward: tuple[Text, ...]
-    backward: tuple[Text, ...]
-    tones: tuple[Tone, ...]
-    settle_s: NonNegative | None = None
-    #: The factor the acceleration limit lowered the step's tones by (1: none; None in
-    #: plans from before the limit).
-    acceleration_scale: Positive | None = None
-    #: ``loop`` (a seamless loop played for ``duration_s``) or ``once`` (a gated burst:
-    #: each tone between its ``start_s`` and ``gate_s``, :mod:`planner.synthesis.gating`).
-    playback: str = "loop"
-    #: A gated step's gating (``ramp_s`` and more, plan.json's ``gating``).
-    gating: dict | None = None
-    #: A ``targets_um`` step's targets (device -> position [m], relative to
-    #: ``relative_to``) and the moves its burst was gated for (device -> [m]); None for
-    #: any other step.
-    targets_m: dict[str, Number] | None = None
-    relative_to: str | None = None
-    moves_m: dict[str, Number] | None = None
-
-    @property
-    def key(self) -> str:
-        """``scene/name``."""
-        return f"{self.scene}/{self.name}"
-
-    @property
-    def step(self) -> Step:
-        """The step as the planner's stages take it (a ``targets_um`` step with its
-        targets and moves, so that its checks are the position checks)."""
-        if self.targets_m is None:
-            return Step(self.scene, self.name, self.index, self.duration_s, self.forward,
-                        self.backward)
-        from planner.core.nodes import device_key
-
-        def ordered(d):
-            return tuple(sorted(((k, float(v)) for k, v in (d or {}).items()),
-                                key=lambda kv: device_key(kv[0])))
-
-        return Step(self.scene, self.name, self.index, self.duration_s, self.forward,
-                    self.backward, targets_m=ordered(self.targets_m),
-                    relative_to=self.relative_to or "scene_start",
-                    moves_m=ordered(self.moves_m if self.moves_m is not None
-                                    else self.targets_m))
-
-    @property
-    def gated(self) -> bool:
-        """A burst played once (``playback: once``), its tones gated."""
-        return self.playback == "once"
-
-
-@dataclass(frozen=True)
-class GeometryRecord:
-    """An impacter's designed geometry (A, w, l, c) [m^2, m, m, m]."""
-
-    area_m2: Positive
-    width_m: Positive
-    length_m: Positive
-    gap_m: Positive
-
-
-@dataclass(frozen=True)
-class ImpacterRecord:
-    """One designed impacter pair (SI; as built, in a re-planned plan)."""
-
-    id: Text
-    device: Text
-    direction: Text
-    channel: Int
-    frequency_hz: Positive
-    mass_kg: Positive
-    stiffness_n_per_m: Positive
-    damping_ns_per_m: NonNegative
-    gap_m: Positive
-    impact_angle_rad: NonNegative
-    restitution: NonNegative
-    natural_frequency_hz: Positive
-    geometry: GeometryRecord
-    predicted_slider_speed_m_s: Number | None = None
-
-    @property
-    def node(self) -> Node:
-        return Node(self.device, self.direction)
-
-    def impacter(self):
-        """The :class:`model.Impacter` this record describes (with its geometry)."""
-        import model
-
-        g = self.geometry
-        return model.Impacter(self.mass_kg, self.stiffness_n_per_m, self.damping_ns_per_m,
-                              self.gap_m, self.impact_angle_rad, self.restitution,
-                              model.Geometry(g.area_m2, g.width_m, g.length_m, self.gap_m))
-
-
-@dataclass(frozen=True)
-class DeviceRecord:
-    """One device's slider as planned."""
-
-    id: Text
-    slider_mass_kg: Positive
-    slider_damping_ns_per_m: NonNegative
-    static_friction_n: NonNegative
-    dynamic_friction_n: NonNegative
-
-
-@dataclass(frozen=True)
-class AsBuiltHalf:
-    """One half of a pair measured half by half (plan.json's ``as_built.<id>.halves``)."""
-
-    half: Text
-    natural_frequency_hz: Positive
-    stiffness_n_per_m: Positive
-    damping_ns_per_m: NonNegative
-    gap_m: Positive
-
-
-@dataclass(frozen=True)
-class AsBuilt:
-    """A re-planned impacter's as-built model (plan.json's ``as_built``); a pair
-    measured half by half also has each half's (``halves``; the fields above are then
-    the symmetric pair at their mean resonance)."""
-
-    natural_frequency_hz: Positive
-    stiffness_n_per_m: Positive
-    damping_ns_per_m: NonNegative
-    gap_m: Positive
-    halves: tuple[AsBuiltHalf, ...] | None = None
-    #: the as-built mass [kg] (a re-plan since issue 37 infers it from the measurement;
-    #: absent in older re-plans, whose mass was the design's)
-    mass_kg: Positive | None = None
-
-
-@dataclass(frozen=True)
-class SeparationRecord:
-    """One design's silent band and tone window (plan.json's
-    ``manufacturability.separation_hz.<id>``, :class:`planner.manufacturability.
-    Separation`) [Hz]: the band reaches of a design that answers its own tone are > 0,
-    a tone window's reaches >= 0 (0: its tone may not move that way)."""
-
-    __pydantic_config__ = ConfigDict(extra="ignore")
-
-    silent_below: Positive
-    silent_above: Positive
-    responds_below: NonNegative
-    responds_above: NonNegative
-    #: the larger band reach and the smaller window reach (the report's columns)
-    silent_beyond: Positive
-    responds_within: NonNegative
-
-
-@dataclass(frozen=True)
-class _Manufacturability:
-    __pydantic_config__ = ConfigDict(extra="ignore")
-
-    separation_hz: dict[str, SeparationRecord]
-
-
-@dataclass(frozen=True)
-class _Moved:
-    id: Text
-    design_natural_frequency_hz: Positive
-    #: The designed tone [Hz] (absent in re-plans from before it was recorded: then
-    #: ``original_frequency_hz``, the tone of the plan it was re-planned from).
-    design_frequency_hz: Positive | None = None
-    original_frequency_hz: Positive | None = None
-
-
-@dataclass(frozen=True)
-class _Replan:
-    moved: tuple[_Moved, ...]
-
-
-@dataclass(frozen=True)
-class _Assignment:
-    lower_bound: Int = 0
-
-
-@dataclass(frozen=True)
-class _Verification:
-    passed: Annotated[bool, Field(strict=True)]
-    steps: dict[str, dict[str, dict]] | None = None
-
-
-@dataclass(frozen=True)
-class _PlanFile:
-    """The keys of plan.json that are read back (others are the report's)."""
-
-    __pydantic_config__ = ConfigDict(extra="ignore")
-
-    seed: Int
-    spec: dict
-    impacters: tuple[ImpacterRecord, ...]
-    devices: tuple[DeviceRecord, ...]
-    steps: tuple[StepRecord, ...]
-    verification: _Verification
-    format_version: Int = FORMAT_VERSION
-    vibroplan_version: str = "unknown"
-    assignment: _Assignment = _Assignment()
-    as_built: dict[str, AsBuilt] | None = None
-    replan: _Replan | None = None
-    manufacturability: _Manufacturability | None = None
-
-
-_SCHEMA = TypeAdapter(_PlanFile)
 
 
 # ----------------------------------------------------------------------------- record
@@ -331,7 +97,7 @@ class PlanRecord:
         Step key -> settle dwell after it [s] (recorded, else the longest its
         verification found, else 0).
     as_built : dict or None
-        Impacter id -> :class:`AsBuilt` of a re-planned plan; None for a plan.
+        Impacter id -> :class:`~planner.planfile.schema.AsBuiltRecord` of a re-planned plan; None for a plan.
     design_natural_frequency_hz : dict
         Impacter id -> its designed natural frequency [Hz] (a re-plan's impacters are
         as built; this is what their geometry was designed for).
@@ -480,7 +246,7 @@ def plan_record(data, *, source: str = "plan.json", path: Path | None = None) ->
         raise PlanFileError(f"not a plan.json: no {', '.join(missing)}", path=missing[0],
                             source=source)
     try:
-        raw = _SCHEMA.validate_python(data)
+        raw = PlanFile.model_validate(data)
     except ValidationError as exc:
         raise _schema_error(exc, data, source) from None
     spec = _spec(raw.spec, source)
@@ -538,7 +304,7 @@ def _spec(spec_data: dict, source: str) -> ArraySpec:
     return out
 
 
-def _dwells(raw: _PlanFile) -> dict:
+def _dwells(raw: PlanFile) -> dict:
     checked = raw.verification.steps or {}
     out = {}
     for st in raw.steps:
@@ -551,7 +317,7 @@ def _dwells(raw: _PlanFile) -> dict:
     return out
 
 
-def _design_frequencies(raw: _PlanFile, source: str) -> dict:
+def _design_frequencies(raw: PlanFile, source: str) -> dict:
     if raw.replan is None:
         if raw.as_built is not None:
             raise PlanFileError("a re-planned plan needs its replan section (the designed "
@@ -563,7 +329,7 @@ def _design_frequencies(raw: _PlanFile, source: str) -> dict:
     return {m.id: m.design_natural_frequency_hz for m in raw.replan.moved}
 
 
-def _design_tones(raw: _PlanFile) -> dict:
+def _design_tones(raw: PlanFile) -> dict:
     if raw.replan is None:
         return {r.id: r.frequency_hz for r in raw.impacters}
     tones = {r.id: r.frequency_hz for r in raw.impacters}

@@ -441,20 +441,22 @@ def _finish(settings, kept: _Round, rounds, clock, scheduler, store=None,
     passed = bool(ver["passed"].all()) and not problems
     motion = {"sizing": kept.sizing, "drive": kept.drive_notes, "settle_s": step_settle,
               "repairs": motion_repairs, "design_problems": problems, "gating": kept.gating}
-    data, impacter_recs, device_recs, step_recs = build_record(
-        settings, run_steps, assignment, designs, kept.sliders, kept.played, ver_rows,
-        passed, rounds, scene_rows, motion, manufacturability)
+    sections = {}
     if settings.chain is not None:
         from planner.planning.chain import chain_record
-        from planner.planning.record import round_floats
 
-        data["chain"] = round_floats(chain_record(settings, kept.played, kept.drive_notes,
-                                                  run_steps, assignment.frequencies))
+        # plan.json's chain block (the report's section)
+        sections["chain"] = chain_record(settings, kept.played, kept.drive_notes, run_steps,
+                                         assignment.frequencies)
+    record = build_record(
+        settings, run_steps, assignment, designs, kept.sliders, kept.played, ver_rows,
+        passed, rounds, scene_rows, motion, manufacturability, sections)
     clock.timings["total"] = time.perf_counter() - clock.t0
     return Plan(
-        impacters=pd.DataFrame(impacter_recs), devices=pd.DataFrame(device_recs),
-        steps=pd.DataFrame(step_recs), verification=ver, coupling=coupling,
-        scenes=pd.DataFrame(scene_rows), passed=passed, data=data, timings=clock.timings,
+        impacters=pd.DataFrame(record.impacters), devices=pd.DataFrame(record.devices),
+        steps=pd.DataFrame(record.steps), verification=ver, coupling=coupling,
+        scenes=pd.DataFrame(scene_rows), passed=passed, data=record.data,
+        timings=clock.timings, plan_file=record.file,
         settings=settings, waveforms=kept.played, designs=designs, assignment=assignment,
         failures=tuple(failures), design_cache=_cache_record(store, designed),
         run_steps=tuple(run_steps),

@@ -1,15 +1,21 @@
-"""The plan.json record: deterministic, rounded to 12 significant digits.
+"""The plan.json record: deterministic, rounded to 12 significant digits, written
+through its schema.
 
 The file boundary: the stages key impacters by :class:`planner.core.nodes.Node`, plan.json
 by the node's text (``"A1.forward"``).
 
-Read back by :mod:`planner.planfile.reader` (its ``format_version`` is that module's
-:data:`~planner.planfile.reader.FORMAT_VERSION`).
+Every block is declared once, in :mod:`planner.planfile.schema` (its ``format_version``
+is that module's :data:`~planner.planfile.schema.FORMAT_VERSION`); :func:`build_record`
+gathers the stages' results under the schema's keys and passes them through it
+(:func:`~planner.planfile.schema.through_schema`): plan.json is the record's dump, and a
+key the schema does not declare, or a value of another type, is an error.  Read back by
+:mod:`planner.planfile.reader`.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -17,7 +23,7 @@ from planner.files import version_string
 from planner.assignment.assign import node_order, verify_assignment
 from planner.lab.exporters import EXPORTERS
 from planner.planning.motion import PROBE_S
-from planner.planfile.reader import FORMAT_VERSION
+from planner.planfile.schema import FORMAT_VERSION, PlanFile, through_schema
 from planner.core.nodes import Node, device_key
 
 #: Standard gravity [m/s^2].
@@ -135,14 +141,29 @@ def step_travels(ver_rows):
             for k, v in out.items()}
 
 
+class Record(NamedTuple):
+    """:func:`build_record`'s plan.json: the typed record and the dict the file holds
+    (its dump), and the impacter, device and step rows as the stages gave them
+    (unrounded: the result's tables)."""
+
+    #: plan.json as its schema's record (:class:`~planner.planfile.schema.PlanFile`)
+    file: PlanFile
+    #: plan.json's content, the record's dump
+    data: dict
+    impacters: list
+    devices: list
+    steps: list
+
+
 def build_record(settings, steps, assignment, designs, sliders, waveforms, ver_rows, passed,
-                 rounds, scene_rows, motion=None, manufacturability=None, sections=None):
-    """(plan.json dict, impacter records, device records, step records).
+                 rounds, scene_rows, motion=None, manufacturability=None,
+                 sections=None) -> Record:
+    """plan.json, through its schema (:class:`Record`).
 
     ``manufacturability``: the block of :func:`planner.planning.manufacture.assess`.
 
     ``sections`` (optional): further top-level blocks, last and in their order (a
-    re-plan's ``as_built`` and ``replan``).
+    re-plan's ``as_built`` and ``replan``, a drive chain's ``chain``).
 
     ``motion``: {"sizing", "drive", "settle_s", "repairs", "gating"} of the pipeline
     (burst sizing notes, drive peaks and acceleration scales, settle dwells by step key,
@@ -189,4 +210,5 @@ def build_record(settings, steps, assignment, designs, sliders, waveforms, ver_r
     if manufacturability is not None:
         data["manufacturability"] = manufacturability
     data.update(sections or {})
-    return round_floats(data), impacter_recs, device_recs, step_recs
+    file, data = through_schema(round_floats(data))
+    return Record(file, data, impacter_recs, device_recs, step_recs)

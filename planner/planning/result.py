@@ -10,6 +10,7 @@ import pandas as pd
 
 if TYPE_CHECKING:
     from planner.assignment.assign import Assignment
+    from planner.planfile.schema import PlanFile, Replan
     from planner.planning.settings import Settings
 
 
@@ -45,7 +46,11 @@ class Plan:
     passed : bool
         Every step passed re-simulation.
     data : dict
-        The ``plan.json`` content (a re-plan's with ``as_built`` and ``replan``).
+        The ``plan.json`` content (a re-plan's with ``as_built`` and ``replan``): the
+        dump of ``plan_file``.
+    plan_file : planner.planfile.schema.PlanFile
+        The same content as its schema's typed record, which later stages read
+        (:attr:`replan`) rather than ``data`` (keyword only).
     settings : planner.planning.settings.Settings
         The spec in SI units, as every stage read it (keyword only).
     assignment : planner.assignment.assign.Assignment
@@ -94,3 +99,11 @@ class Plan:
     design_cache: dict | None = field(default=None, kw_only=True, repr=False)
     run_steps: tuple = field(default=(), kw_only=True, repr=False)
     dwells: dict = field(default_factory=dict, kw_only=True, repr=False)
+    plan_file: PlanFile | None = field(default=None, kw_only=True, repr=False)
+
+    @property
+    def replan(self) -> Replan | None:
+        """A re-plan's ``replan`` block (:class:`planner.planfile.schema.Replan`: what
+        moved, the original drive on the chip, the impacters no drive tells apart, the
+        steps split, the tones beyond the band); None for a plan."""
+        return None if self.plan_file is None else self.plan_file.replan

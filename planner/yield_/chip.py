@@ -262,14 +262,14 @@ def _replan_and_check(payload, settings, measured, impacters, sliders, original,
                       failures={}, split_steps=(), tones_moved=0)
         # no drive to tune: tuned, the chip fails as it is
         return ReplanOutcome(**fields, tuned=TuneOutcome(**fields) if payload.tune else None)
-    rp = plan.data["replan"]
-    collisions = tuple(Collision.from_inseparable(c) for c in rp["inseparable"])
+    rp = plan.replan
+    collisions = tuple(Collision.from_inseparable(c) for c in rp.inseparable)
     if collisions:      # no drive can pass: not simulated on the true models
         fields = dict(passed=False, measured_passed=False, causes=("cannot be told apart",),
                       failures={}, collisions=collisions,
-                      outside_band=tuple(rp["outside_band"]),
-                      split_steps=tuple(sorted(rp["split_steps"])),
-                      tones_moved=len(rp["moved"]))
+                      outside_band=tuple(rp.outside_band),
+                      split_steps=tuple(sorted(rp.split_steps)),
+                      tones_moved=len(rp.moved))
         # no sweep tells a colliding pair apart
         tuned = TuneOutcome(**fields, windows=0) if payload.tune else None
         return ReplanOutcome(**fields, tuned=tuned)
@@ -326,7 +326,7 @@ def _tune_and_check(payload, settings, measured, impacters, sliders, original, r
         # verifies (at 0.01 % noise, 200 chips of the default: 7 chips lost to the tune
         # without this, 185 rather than 178 tuned chips working)
         return TuneOutcome(**first, windows=0)
-    rp = again.data["replan"]
+    rp = again.replan
     got = check_drive(settings, again.run_steps, again.waveforms, again.dwells, impacters,
                       sliders)
     return TuneOutcome(**_checked(ok, rp, got, ()), windows=len(windows))
@@ -338,7 +338,7 @@ def _checked(ok, rp, got, collisions) -> dict:
     :class:`TuneOutcome` (the checks of a drive that was simulated)."""
     causes = []
     if not got["passed"]:
-        if rp["outside_band"]:
+        if rp.outside_band:
             causes.append("outside band")
         if not ok:
             causes.append("fails on the measured models")
@@ -348,7 +348,7 @@ def _checked(ok, rp, got, collisions) -> dict:
             causes.append("fails only on the true models")
     return {"passed": got["passed"], "measured_passed": bool(ok), "causes": tuple(causes),
             "failures": got["failures"], "collisions": tuple(collisions),
-            "outside_band": tuple(rp["outside_band"]),
-            "split_steps": tuple(sorted(rp["split_steps"])),
-            "tones_moved": sum(1 for m in rp["moved"]
-                               if m["frequency_hz"] != m["original_frequency_hz"])}
+            "outside_band": tuple(rp.outside_band),
+            "split_steps": tuple(sorted(rp.split_steps)),
+            "tones_moved": sum(1 for m in rp.moved
+                               if m.frequency_hz != m.original_frequency_hz)}

@@ -41,9 +41,10 @@ class Collision:
     needs_hz: float | None
 
     @classmethod
-    def from_inseparable(cls, c: dict) -> "Collision":
-        """From one entry of a re-plan's ``inseparable`` list (its ``message`` left out)."""
-        return cls(tuple(c["pair"]), tuple(c["as_built_hz"]), c["apart_hz"], c["needs_hz"])
+    def from_inseparable(cls, c) -> "Collision":
+        """From one entry of a re-plan's ``inseparable`` list (a
+        :class:`planner.planfile.schema.Inseparable`; its ``message`` left out)."""
+        return cls(tuple(c.pair), tuple(c.as_built_hz), c.apart_hz, c.needs_hz)
 
     def to_dict(self) -> dict:
         """``{"pair", "as_built_hz", "apart_hz", "needs_hz"}``, as yield.json's

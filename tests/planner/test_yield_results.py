@@ -11,6 +11,7 @@ import pickle
 import pytest
 
 from planner.core.nodes import Node
+from planner.planfile.schema import Inseparable
 from planner.yield_ import (ChipResult, Collision, ReplanOutcome, Seconds, TrimOutcome,
                             TuneOutcome)
 
@@ -32,7 +33,7 @@ fabrication:
 def _full() -> ChipResult:
     """A chip the plan's drive fails, re-planned (its neighbours collide), tuned and
     trimmed."""
-    collision = Collision.from_inseparable(CLOSE_PAIR)
+    collision = Collision.from_inseparable(Inseparable.model_validate(CLOSE_PAIR))
     common = dict(passed=False, measured_passed=False, causes=("cannot be told apart",),
                   failures={}, collisions=(collision,), outside_band=("A2.backward",),
                   split_steps=("s/push",), tones_moved=2)
