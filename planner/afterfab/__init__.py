@@ -18,7 +18,14 @@ One package for everything that happens to a chip once it is made (``vibroplan r
 - :mod:`~planner.afterfab.replan` -- the re-plan verified on the as-built models, its
   plan.json and report;
 - :mod:`~planner.afterfab.trim` -- what to trim, and the trim sequence (measure, trim,
-  measure again, re-plan) used by ``trim`` and ``yield --trim``.
+  measure again, re-plan) used by ``trim`` and ``yield --trim``;
+- :mod:`~planner.afterfab.outcome` -- what the loop finds of a chip (one typed result)
+  and the one list of its outcomes and causes;
+- :mod:`~planner.afterfab.loop` -- the after-fabrication loop, measure -> as-built ->
+  the plan's drive -> re-plan -> tune -> trim, on a yield study's simulated chip (its
+  truth passed in) and on a measured die of the test floor alike;
+- :mod:`~planner.afterfab.batch` -- a wafer of measured dies, each through the loop;
+  its files in :mod:`~planner.afterfab.wafer_file` and :mod:`~planner.afterfab.stdf`.
 
 Each module imports only those listed before it (``[tool.importlinter]``).
 """

@@ -2,20 +2,17 @@
 each die's outputs kept as it finishes, a summary and a wafer map at the end
 (``vibroplan replan PLAN --measured WAFER.csv``, issue 39).
 
-Per die (:func:`replan_die`, a task of :func:`planner.runtime.engine.run_tasks`), the loop a lab
-runs on one chip, from its measurement only:
-
-1. the chip's as-built models from the measurement
-   (:func:`planner.afterfab.replan.chip_models`), and the plan's own drive checked on
-   them (stopping at its first failing step): if it passes, the die works **as
-   designed**;
-2. else the drive re-planned for the die (:func:`planner.afterfab.replan.replan`, as
-   ``vibroplan replan``): if it verifies, the die works **after re-plan**;
-3. else, with ``trim``, a die whose pairs cannot be told apart is trimmed
-   (:func:`planner.afterfab.trim.trim_chip`, as ``vibroplan trim``): if its re-plan
-   verifies on the trimmed models, it works **after trim**;
-4. else the die is **scrapped**, with the causes (those of a yield study's re-plan,
-   :data:`planner.yield_.REPLAN_CAUSES`, and ``cannot be trimmed``).
+Per die (:func:`replan_die`, a task of :func:`planner.runtime.engine.run_tasks`), the
+after-fabrication loop a yield study runs on its chips
+(:func:`planner.afterfab.loop.run_loop`), from the die's measurement only, with no
+truth: the chip's as-built models from the measurement, the plan's own drive checked on
+them (stopping at its first failing step; if it passes, the die works **as designed**);
+else the drive re-planned for the die (as ``vibroplan replan``; if it verifies, the die
+works **after re-plan**); else, with ``trim``, a die whose pairs cannot be told apart is
+trimmed (:func:`planner.afterfab.trim.trim_chip`, as ``vibroplan trim``; if its re-plan
+verifies on the trimmed models and the cuts' odds reach the target yield, it works
+**after trim**); else the die is **scrapped**, with the causes
+(:mod:`planner.afterfab.outcome`: the words of a yield study's, in one list).
 
 A die whose file leaves an impacter out (a row missing, a tester's test skipped) has
 that impacter taken at its design, as ``vibroplan replan`` takes it: the loop runs the
@@ -26,8 +23,8 @@ A2.backward is at its design``), never *as designed*; a scrapped one stays scrap
 unmeasured impacters among its causes.
 
 The re-plan is exactly the one a yield study makes of the same measurement (the same
-settings, phases and as-built models), so a wafer sampled by ``vibroplan yield`` and
-re-planned here gets the study's re-planned drive die by die; what this batch cannot
+loop, settings, phases and as-built models), so a wafer sampled by ``vibroplan yield``
+and re-planned here gets the study's re-planned drive die by die; what this batch cannot
 know is the chip's truth, which the study verifies the drive on.
 
 **Resuming.**  Each die's result and files are written, as the die finishes, into a
@@ -54,19 +51,15 @@ import json
 import os
 import shutil
 import tempfile
-from dataclasses import dataclass
 from pathlib import Path
 
+from planner.afterfab.loop import LoopJob, run_loop
+from planner.afterfab.outcome import FLOOR_OUTCOMES, NOT_MEASURED, PARTLY_MEASURED
 from planner.afterfab.wafer_file import die_name
 
-#: A die's outcomes, best first (a yield study's ``fails`` is ``scrapped`` here: the
-#: lab's word for a die nothing rescued).
-OUTCOMES = ("as designed", "after re-plan", "after trim", "scrapped")
-#: The outcome of a die that would work but was not measured whole (the module
-#: docstring): counted apart, listed after :data:`OUTCOMES` when a wafer has one.
-PARTLY_MEASURED = "partly measured"
-#: The cause naming a die's unmeasured impacters (followed by their ids).
-NOT_MEASURED = "not measured, taken as designed: "
+#: A die's outcomes, best first (:data:`planner.afterfab.outcome.OUTCOMES` in the lab's
+#: words: a yield study's ``fails`` is ``scrapped`` here, a die nothing rescued).
+OUTCOMES = FLOOR_OUTCOMES
 #: The summary's columns.
 SUMMARY_COLUMNS = ("die_x", "die_y", "outcome", "causes", "trimmed", "checks_passed",
                    "checks", "folder")
@@ -83,25 +76,18 @@ WORK_MARKER = ".vibroplan-work"
 KEY_FILE = ".die-key"
 
 
-@dataclass(frozen=True)
-class WaferJob:
-    """What every die's task needs; sent to each worker once."""
-
-    record: object          # PlanRecord
-    settings: object        # Settings
-    steps: tuple
-    waveforms: dict
-    dwells: dict
-    trim: bool = False
-
-
-def make_job(record, *, trim: bool = False) -> WaferJob:
-    """The job of a plan (:func:`planner.planfile.reader.read_plan`)."""
+def make_job(record, *, trim: bool = False) -> LoopJob:
+    """The loop's job for every die of a plan (:func:`planner.planfile.reader.
+    read_plan`): re-plan, trim with ``trim``, keep the outputs; the as-built models
+    assume the spec's ``fabrication.measurement_noise_pct``."""
     from planner.afterfab.checks import drive_of
     from planner.planning.settings import plan_settings
 
     steps, waveforms, dwells = drive_of(record)
-    return WaferJob(record, plan_settings(record), steps, waveforms, dwells, bool(trim))
+    return LoopJob(record, plan_settings(record), steps, waveforms, dwells,
+                   nodes=tuple(r.node for r in record.impacters), trim=bool(trim),
+                   measure_noise_pct=record.spec.fabrication.measurement_noise_pct,
+                   outputs=True)
 
 
 def _files_of(folder: Path) -> dict:
@@ -110,122 +96,83 @@ def _files_of(folder: Path) -> dict:
             for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-def _failure_causes(plan_result) -> list:
-    """The causes of a die's failed re-plan (a yield study's words)."""
-    rp = plan_result.replan
-    causes = []
-    if rp.inseparable:
-        causes.append("cannot be told apart")
-    if rp.outside_band:
-        causes.append("outside band")
-    if not rp.inseparable and not plan_result.passed:
-        causes.append("fails on the measured models")
-    return causes
-
-
-def replan_die(job: WaferJob, die_x: int, die_y: int, measured: dict) -> dict:
-    """One die: its outcome, causes and output files (the module docstring).
+def replan_die(job: LoopJob, die_x: int, die_y: int, measured: dict) -> dict:
+    """One die: the after-fabrication loop on its measurement
+    (:func:`planner.afterfab.loop.run_loop`, no truth), its outcome, causes and output
+    files (the module docstring).
 
     Returns
     -------
     dict
-        ``die_x``, ``die_y``, ``outcome`` (:data:`OUTCOMES`), ``causes`` (list of str),
-        ``trimmed`` (impacter ids), ``checks_passed`` and ``checks`` (of the drive the
-        die is to be played with, on its as-built models; of the plan's drive, stopped
-        at its first failing step, when it works as designed), ``inseparable`` (the
-        pairs no drive tells apart, with their messages), and ``files`` (path relative
-        to the die's folder -> bytes).
+        ``die_x``, ``die_y``, ``outcome`` (:data:`OUTCOMES`, or
+        :data:`PARTLY_MEASURED`), ``causes`` (list of str), ``trimmed`` (impacter ids
+        trim.csv moves), ``checks_passed`` and ``checks`` (of the drive the die is to be
+        played with, on its as-built models; of the plan's drive, stopped at its first
+        failing step, when it works as designed), ``inseparable`` (the pairs no drive
+        tells apart, with their messages), ``files`` (path relative to the die's folder
+        -> bytes) and, for a die not measured whole, ``not_measured``.
     """
-    out = _replan_measured(job, die_x, die_y, measured)
-    missing = [r.id for r in job.record.impacters if r.id not in measured]
-    if missing:
-        out["not_measured"] = missing
-        named = NOT_MEASURED + " ".join(missing)
-        if out["outcome"] == OUTCOMES[3]:
-            out["causes"] = out["causes"] + [named]
-        else:
-            # what the loop found holds only if the unmeasured impacters are as designed
-            out["causes"] = [named, f"works {out['outcome']} if {' '.join(missing)} "
-                                    + ("are at their design" if len(missing) > 1 else
-                                       "is at its design")]
-            out["outcome"] = PARTLY_MEASURED
-    return out
-
-
-def _replan_measured(job: WaferJob, die_x: int, die_y: int, measured: dict) -> dict:
-    """:func:`replan_die`'s loop on what was measured (the unmeasured impacters at
-    their design)."""
     import numba
-
-    from planner.afterfab.checks import check_drive
-    from planner.afterfab.replan import chip_models, replan, write_replan_outputs
-    from planner.core.errors import PlanningError
-    from planner.synthesis import LoopLengthError
 
     # one numba thread per die, as a yield study's chips: the dies are the parallelism
     numba.set_num_threads(1)
-    record, settings = job.record, job.settings
-    models = chip_models(record, measured)
-    got = check_drive(settings, job.steps, job.waveforms, job.dwells, models.impacters,
-                      models.sliders, first_failure=True)
+    return _die_record(run_loop(job, measured=measured), die_x, die_y)
+
+
+def _die_record(got, die_x: int, die_y: int) -> dict:
+    """A die's result (:func:`replan_die`) from what the loop found
+    (:class:`~planner.afterfab.outcome.LoopResult`), its files written as the lab gets
+    them: the drive to play at the folder's top (after re-plan), ``trim.csv`` and the
+    trimmed chip's drive in ``trimmed/`` (a trim), and a scrapped die's re-plan in
+    ``replan/`` saying what fails."""
+    from planner.afterfab.outcome import OUTCOMES as REACHED
+    from planner.afterfab.replan import write_replan_outputs
+    from planner.afterfab.trim import write_trim_csv
+
+    # result.json's keys in the order they have always been written
     out = {"die_x": int(die_x), "die_y": int(die_y), "trimmed": [], "inseparable": [],
            "causes": []}
-    if got["passed"]:
-        out.update(outcome=OUTCOMES[0], checks=len(got["rows"]),
-                   checks_passed=sum(1 for r in got["rows"] if r["passed"]))
-        return _with_files(out, None)
+    result, trimmed = got.replanned, got.trimmed
+    if result is None:
+        # the plan's drive works on the die (its checks counted), or no re-plan could
+        # be made: nothing to write
+        nominal = got.nominal
+        works = got.replan is None
+        out.update(outcome=got.outcome, causes=list(got.causes),
+                   checks=nominal.checks if works else 0,
+                   checks_passed=nominal.checks_passed if works else 0)
+        return _with_missing(_with_files(out, None), got)
     with tempfile.TemporaryDirectory(prefix="vibroplan-die-") as tmp:
         folder = Path(tmp)
-        try:
-            result = replan(record, measured, settings=settings,
-                            original=(got["steps_passed"], got["rows"]), models=models)
-        except LoopLengthError:
-            out.update(outcome=OUTCOMES[3], causes=["drive not playable"], checks=0,
-                       checks_passed=0)
-            return _with_files(out, None)
-        except PlanningError as exc:
-            # this die's re-plan cannot be made (the batch goes on with the others)
-            out.update(outcome=OUTCOMES[3], causes=[f"no re-plan: {exc}"], checks=0,
-                       checks_passed=0)
-            return _with_files(out, None)
         ver = result.verification
         out.update(checks=len(ver), checks_passed=int(ver["passed"].sum()),
                    inseparable=[c.message for c in result.replan.inseparable])
-        if result.passed:
-            write_replan_outputs(result, folder, figures=False, timings=False)
-            out["outcome"] = OUTCOMES[1]
-            return _with_files(out, folder)
-        causes = _failure_causes(result)
-        if job.trim and result.replan.inseparable:
-            from planner.afterfab.trim import trim_chip, write_trim_csv
-
-            missing = [r.id for r in record.impacters if r.id not in measured]
-            if missing:
-                # a trim is chosen from every impacter's measured resonance
-                out.update(outcome=OUTCOMES[3], causes=causes + [
-                    "cannot be trimmed: not measured: " + " ".join(missing)])
-                write_replan_outputs(result, folder / "replan", figures=False, timings=False)
-                return _with_files(out, folder)
-            res = trim_chip(record, measured)
-            write_trim_csv(res.rows, folder / "trim.csv")
-            out["trimmed"] = list(res.trims.moved)
-            if res.plan is not None:
-                write_replan_outputs(res.plan, folder / "trimmed", figures=False, timings=False)
-                tv = res.plan.verification
+        if trimmed is not None:
+            write_trim_csv(trimmed.rows, folder / "trim.csv")
+            out["trimmed"] = list(trimmed.trims.moved)
+            if trimmed.plan is not None:
+                write_replan_outputs(trimmed.plan, folder / "trimmed", figures=False,
+                                     timings=False)
+                tv = trimmed.plan.verification
                 out.update(checks=len(tv), checks_passed=int(tv["passed"].sum()))
-            if res.passed:
-                out["outcome"] = OUTCOMES[2]
-                return _with_files(out, folder)
-            causes = (["cannot be trimmed"] if not res.trims.ok else
-                      _failure_causes(res.plan) or ["fails on the trimmed models"])
-        # the re-plan as it stands says what fails (plan.json, report.md)
-        write_replan_outputs(result, folder / "replan", figures=False, timings=False)
-        out.update(outcome=OUTCOMES[3], causes=causes)
-        return _with_files(out, folder)
+        reached = got.reached
+        if reached == REACHED[1]:
+            write_replan_outputs(result, folder, figures=False, timings=False)
+        elif reached == REACHED[3]:
+            # the re-plan as it stands says what fails (plan.json, report.md)
+            write_replan_outputs(result, folder / "replan", figures=False, timings=False)
+        out.update(outcome=got.outcome, causes=list(got.causes))
+        return _with_missing(_with_files(out, folder), got)
 
 
 def _with_files(out: dict, folder: Path | None) -> dict:
     out["files"] = _files_of(folder) if folder is not None else {}
+    return out
+
+
+def _with_missing(out: dict, got) -> dict:
+    if got.not_measured:
+        out["not_measured"] = list(got.not_measured)
     return out
 
 

@@ -347,7 +347,7 @@ def scaled_measurements(measured: dict, resonances: dict) -> dict:
 
 
 @dataclass(frozen=True)
-class TrimOutcome:
+class TrimPasses:
     """The passes of a trim sequence (:func:`trim_sequence`).
 
     Attributes
@@ -364,6 +364,9 @@ class TrimOutcome:
     scrapped : list of dict
         Why the chip cannot be trimmed (a pass whose moves exceed what is left of the
         range): ``impacter``, ``why``, ``needed_pct``; empty when it can be.
+    refused : TrimPlan or None
+        The pass that could not be made (its targets, its ``failures``: ``scrapped``);
+        None when the chip can be trimmed.
     """
 
     passes: list
@@ -371,18 +374,25 @@ class TrimOutcome:
     ratios: dict
     moved: list
     scrapped: list
+    refused: TrimPlan | None = None
 
     @property
     def separable(self) -> bool:
         """The last measurement has every pair separable (no pass needed more)."""
         return not self.scrapped and (not self.passes or not self.passes[-1].moved)
 
+    @property
+    def last(self) -> TrimPlan | None:
+        """The last pass chosen: the refused one, else the last made (None: no pass)."""
+        return self.refused or (self.passes[-1] if self.passes else None)
+
 
 def trim_sequence(seps: Separations, measured: dict, pairs, spec: TrimSpec, *, cut,
-                  measure_again, precision_pct=None, passes=None) -> TrimOutcome:
+                  measure_again, precision_pct=None, passes=None) -> TrimPasses:
     """Measure, trim, measure again: the loop a lab runs on a chip whose pairs collide,
-    used by ``vibroplan yield --trim`` (a simulated chip) and, for one pass, by
-    :func:`trim_chip`.
+    used by the after-fabrication loop on a simulated chip (``vibroplan yield --trim``,
+    its cuts made on the chip's truth) and, for one pass, by :func:`trim_chip` (the
+    test floor, where the lab cuts afterwards).
 
     Each pass chooses the trims from the last measurement (:func:`plan_trim`, within
     what earlier passes left of ``trim.range_pct``), cuts them (``cut``), and measures
@@ -411,7 +421,7 @@ def trim_sequence(seps: Separations, measured: dict, pairs, spec: TrimSpec, *, c
 
     Returns
     -------
-    TrimOutcome
+    TrimPasses
     """
     precision = spec.precision_pct if precision_pct is None else precision_pct
     passes = spec.passes if passes is None else int(passes)
@@ -422,8 +432,8 @@ def trim_sequence(seps: Separations, measured: dict, pairs, spec: TrimSpec, *, c
         tp = plan_trim(seps, mean, pairs, range_pct=spec.range_pct, direction=spec.direction,
                        precision_pct=precision, used_pct=used)
         if not tp.ok:
-            return TrimOutcome(done, measured, _ratios(first, measured, moved), moved,
-                               tp.failures)
+            return TrimPasses(done, measured, _ratios(first, measured, moved), moved,
+                              tp.failures, tp)
         done.append(tp)
         if not tp.moved:
             break
@@ -434,7 +444,7 @@ def trim_sequence(seps: Separations, measured: dict, pairs, spec: TrimSpec, *, c
                 moved.append(n)
             used[n] = 100.0 * (measured[n].natural_frequency_hz
                                / first[n].natural_frequency_hz - 1.0)
-    return TrimOutcome(done, measured, _ratios(first, measured, moved), sorted(moved), [])
+    return TrimPasses(done, measured, _ratios(first, measured, moved), sorted(moved), [])
 
 
 def _ratios(first, last, moved):
@@ -620,6 +630,16 @@ NEXT_STEP = ("cut as trim.csv says, then measure every resonance again (vibropla
              "range the first left)")
 
 
+def trimmed_chip(models, ratios: dict, direction: str):
+    """A chip's as-built models (:class:`~planner.afterfab.as_built.AsBuilt`) with trims
+    applied: each trimmed impacter's resonance times its ratio [-] (:func:`trim_models`),
+    the rest as built.  What a trimmed chip is re-planned on: the targets' ratios on the
+    test floor (the cuts as aimed), the measured ones where the chip was cut and measured
+    again."""
+    return dataclasses.replace(models, impacters=trim_models(models.impacters, ratios,
+                                                             direction))
+
+
 def _replan_for(plan, measured, tp, models, settings, spec, progress, *, written=True):
     """The drive re-planned for a trim's targets, on the chip's as-built models with the
     trims applied as aimed.  ``written=False``: a drive only weighed, never written (an
@@ -628,31 +648,32 @@ def _replan_for(plan, measured, tp, models, settings, spec, progress, *, written
     verification are the same."""
     from planner.afterfab.replan import replan
 
-    aimed = trim_models(models.impacters, {n: tp.target[n] / tp.measured[n] for n in tp.moved},
-                        spec.direction)
+    aimed = {n: tp.target[n] / tp.measured[n] for n in tp.moved}
     return replan(plan, scaled_measurements(measured, tp.target), settings=settings,
                   progress=progress, remeasure=tp.moved,
-                  models=dataclasses.replace(models, impacters=aimed),
+                  models=trimmed_chip(models, aimed, spec.direction),
                   **({} if written else {"original": (True, []), "record": False}))
 
 
 def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
-              spec: TrimSpec | None = None, progress=None, draws: int = ODDS_DRAWS
-              ) -> TrimResult:
+              spec: TrimSpec | None = None, progress=None, draws: int = ODDS_DRAWS,
+              settings=None, models=None) -> TrimResult:
     """Trims for a measured chip, its drive re-planned and verified, and the odds that
-    the cuts leave a chip that drive works on.
+    the cuts leave a chip that drive works on: ``vibroplan trim``, and the trim stage of
+    the after-fabrication loop on the test floor (:mod:`planner.afterfab.loop`).
 
-    One pass of the trim sequence (:func:`trim_sequence`): the trims are chosen from the
-    measurement, the drive re-planned for the targets on the chip's as-built models with
-    the trims applied (:func:`trim_models`), and that drive checked, in memory, on the
-    *trimmed models* of ``draws`` draws of the cuts' errors (:func:`trim_odds`: every
-    trimmed resonance off its target by ``trim.precision_pct``, seeded).  The chip passes
-    when the drive verifies on the targets and the share of draws it works on reaches
-    ``fabrication.target_yield``.  Where the drive verifies but its odds fall short, a
-    smaller move (the targets' margin halved to
-    :data:`~planner.afterfab.separations.MARGIN_SIGMAS` / 2 sigmas of the precision) is
-    re-planned once and its odds taken on the same draws; it is offered when they are
-    higher.  After cutting, a lab measures the chip again and
+    One pass of the trim sequence (:func:`trim_sequence`, the chip taken at its targets
+    after the cuts: the lab cuts after this, and measures again): the trims are chosen
+    from the measurement, the drive re-planned for the targets on the chip's as-built
+    models with the trims applied (:func:`trimmed_chip`), and that drive checked, in
+    memory, on the *trimmed models* of ``draws`` draws of the cuts' errors
+    (:func:`trim_odds`: every trimmed resonance off its target by
+    ``trim.precision_pct``, seeded).  The chip passes when the drive verifies on the
+    targets and the share of draws it works on reaches ``fabrication.target_yield``.
+    Where the drive verifies but its odds fall short, a smaller move (the targets'
+    margin halved to :data:`~planner.afterfab.separations.MARGIN_SIGMAS` / 2 sigmas of
+    the precision) is re-planned once and its odds taken on the same draws; it is
+    offered when they are higher.  After cutting, a lab measures the chip again and
     re-plans (:data:`NEXT_STEP`; ``trim.passes`` is what ``yield --trim`` simulates).
 
     Parameters
@@ -670,6 +691,12 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
         defaults.
     draws : int
         Draws of the cuts' errors (:data:`ODDS_DRAWS`); 1 is issue 26's single draw.
+    settings : Settings, optional
+        The plan's settings already resolved for ``seed``
+        (:func:`planner.planning.settings.plan_settings`; the loop's).
+    models : AsBuilt, optional
+        The chip's as-built models from ``measured`` (default
+        :func:`planner.afterfab.replan.chip_models`; the loop's).
     """
     from planner.afterfab.drive import must_differ
     from planner.afterfab.replan import chip_models
@@ -688,14 +715,25 @@ def trim_chip(plan: PlanRecord, measured: dict, *, seed: int | None = None,
     if int(draws) < 1:
         raise ValueError(f"draws must be at least 1, {draws!r} was given")
     seed = plan.seed if seed is None else int(seed)
-    settings = plan_settings(plan, seed)
+    if settings is None:
+        settings = plan_settings(plan, seed)
     spec = spec or settings.trim
-    models = chip_models(plan, measured)
+    if models is None:
+        models = chip_models(plan, measured)
     seps = separations_of(plan, settings)
     mean = {n: m.natural_frequency_hz for n, m in measured.items()}
     pairs = must_differ(settings.steps)
-    tp = plan_trim(seps, mean, pairs, range_pct=spec.range_pct,
-                   direction=spec.direction, precision_pct=spec.precision_pct)
+    aimed = []
+
+    def cut(tp, k):
+        aimed.append(tp)        # the lab cuts after this command
+
+    def measure_again(k):
+        # measured again, the chip is taken at its targets
+        return scaled_measurements(measured, aimed[k].target)
+
+    tp = trim_sequence(seps, measured, pairs, spec, cut=cut, measure_again=measure_again,
+                       passes=1).last
     if not tp.ok:
         return TrimResult(tp, trim_rows(plan, tp, spec.direction), spec, None, False)
     result = _replan_for(plan, measured, tp, models, settings, spec, progress)

@@ -48,12 +48,14 @@ Layout of this package (each module imports only those listed below it); the out
   Dask, :func:`planner.runtime.engine.run_tasks`).
 - :mod:`~planner.yield_.statistics`: Wilson intervals, the tallies of failing checks
   and causes, and the content of ``yield.json``.
-- :mod:`~planner.yield_.chip`: :func:`verify_chip`, the per-chip worker, with the
-  measurement, re-plan and trim of a chip.
-- :mod:`~planner.yield_.results`: what a chip's worker returns, as declared types
-  (:class:`ChipResult`, with its :class:`ReplanOutcome`, :class:`TuneOutcome`,
-  :class:`TrimOutcome`, :class:`Collision` and :class:`Seconds`), each with the
-  ``to_dict()`` of its plain-dict form.
+- :mod:`~planner.yield_.chip`: :func:`verify_chip`, the per-chip worker: a chip sampled
+  and put through the after-fabrication loop with its truth known
+  (:func:`planner.afterfab.loop.run_loop`, the loop the wafer batch runs on a measured
+  die: measure, as-built, the plan's drive, re-plan, tune, trim).
+- :mod:`~planner.yield_.results`: what a chip's worker returns (:class:`ChipResult`,
+  holding the loop's :class:`ReplanOutcome`, :class:`TuneOutcome`,
+  :class:`TrimOutcome`, :class:`Collision` and :class:`Seconds` of
+  :mod:`planner.afterfab.outcome`), each with the ``to_dict()`` of its plain-dict form.
 - :func:`check_drive` (:mod:`planner.afterfab.checks`): every check of a drive on one
   chip's models, by kind, with the impacters implicated.
 - :mod:`~planner.yield_.inputs`: :class:`Payload` and :func:`make_payload` (what the
@@ -63,8 +65,8 @@ Layout of this package (each module imports only those listed below it); the out
 
 
 from planner.afterfab.checks import CARRIED, CARRIED_KINDS, KINDS, check_drive
-from planner.yield_.chip import (REPLAN_CAUSES, measured_frequencies, replan_chip_on,
-                                 trim_chip_on, verify_chip)
+from planner.afterfab.outcome import REPLAN_CAUSES
+from planner.yield_.chip import measured_frequencies, verify_chip
 from planner.yield_.inputs import (Payload, check_chip_count, check_noise, make_payload,
                                    parse_scales)
 from planner.yield_.results import (ChipResult, Collision, ReplanOutcome, Seconds,
@@ -76,5 +78,5 @@ from planner.yield_.statistics import scale_key
 __all__ = ["CARRIED", "CARRIED_KINDS", "KINDS", "REPLAN_CAUSES", "Z95", "ChipResult",
            "Collision", "Payload", "ReplanOutcome", "Seconds", "TrimOutcome", "TuneOutcome",
            "check_chip_count", "check_drive", "check_noise", "make_payload",
-           "measured_frequencies", "parse_scales", "replan_chip_on", "run_yield", "scale_key",
-           "trim_chip_on", "verify_chip", "wilson_interval"]
+           "measured_frequencies", "parse_scales", "run_yield", "scale_key", "verify_chip",
+           "wilson_interval"]

@@ -5,7 +5,9 @@ A chip of the study is die ``chip % dies`` of wafer ``chip // dies``
 (:func:`planner.fabrication.wafer.die_place`).  Its **outcome** is the first stage of the lab's
 loop that makes it work -- the plan's drive as it is, the drive re-planned from its
 measurement (``--replan``), the chip trimmed and re-planned (``--trim``) -- or
-``fails``, with the causes of the last stage that was run (:func:`chip_outcome`).
+``fails``, with the causes of the last stage that was run (:func:`chip_outcome`: the
+after-fabrication loop's rule, :func:`planner.afterfab.outcome.outcome_of`, which the
+wafer batch gives its measured dies by too).
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from planner.core.rng import chip_seed
-from planner.afterfab.checks import KINDS
+from planner.afterfab.outcome import OUTCOMES, outcome_of
 from planner.fabrication.tolerances import sample_chip
 from planner.core.intervals import wilson_interval
 from planner.fabrication.wafer import die_place, line_width_offsets, wafer_layout
@@ -21,9 +23,6 @@ from planner.yield_.chip import measured_frequencies
 from planner.yield_.inputs import Payload
 from planner.yield_.results import ChipResult
 
-#: A die's outcomes, best first: the plan's drive works on it; a drive re-planned from
-#: its measurement does; trimmed and re-planned it does; nothing the study ran does.
-OUTCOMES = ("as designed", "after re-plan", "after trim", "fails")
 #: Rings of equal width, from the wafer's centre to its outermost die's centre, over
 #: which the yield against the radius is counted.
 RADIUS_RINGS = 5
@@ -33,20 +32,11 @@ def chip_outcome(result: ChipResult) -> tuple[str, list]:
     """``(outcome, causes)`` of one chip's result (:func:`planner.yield_.verify_chip`):
     the first of :data:`OUTCOMES` it reaches, and for ``fails`` the causes of the last
     stage run (the trim's, the re-plan's, or the failing checks of the plan's drive, in
-    the order of :data:`planner.afterfab.checks.KINDS`)."""
-    replan, trim = result.replan, result.trim
-    if result.passed:
-        return OUTCOMES[0], []
-    if replan is not None and replan.passed:
-        return OUTCOMES[1], []
-    if trim is not None and trim.passed:
-        return OUTCOMES[2], []
-    if trim is not None:
-        return OUTCOMES[3], list(trim.causes)
-    if replan is not None:
-        return OUTCOMES[3], list(replan.causes)
-    rank = {k: i for i, k in enumerate(KINDS)}
-    return OUTCOMES[3], sorted(result.failures, key=lambda k: (rank.get(k, 99), k))
+    the order of :data:`planner.afterfab.checks.KINDS`): :func:`planner.afterfab.
+    outcome.outcome_of`."""
+    outcome, causes = outcome_of(result.passed, result.failures, result.replan,
+                                 result.trim)
+    return outcome, list(causes)
 
 
 def outcome_counts(outcomes) -> dict:

@@ -7,7 +7,7 @@ import json
 
 from planner.arrayspec import TrimSpec
 from planner.afterfab.checks import KINDS
-from planner.yield_.chip import REPLAN_CAUSES
+from planner.afterfab.outcome import CAUSES, REPLAN_CAUSES
 from planner.yield_.results import ChipResult
 from planner.core.intervals import wilson_interval
 
@@ -61,8 +61,7 @@ def _trim_summary(results, chips):
             "ci95": wilson_interval(ok, chips),
             "trimmed": sum(1 for r in results if r.trim.trimmed),
             "rescued": sum(1 for r in results if r.trim.passed and not r.replan.passed),
-            "causes": _tally((t.causes for t in failed),
-                             REPLAN_CAUSES + ("cannot be trimmed",)),
+            "causes": _tally((t.causes for t in failed), CAUSES),
             "failures": _tally((t.failures for t in failed), KINDS)}
 
 
