@@ -175,33 +175,6 @@ def test_a_zero_wafer_draws_the_chips_of_no_wafer(tiny_plan_dir, specs, tmp_path
     assert not (tmp_path / "none" / "wafer_1.csv").exists()
 
 
-@pytest.mark.slow
-def test_without_a_wafer_yield_json_is_byte_identical_to_before_issue_39(tiny_plan_dir, specs,
-                                                                         tmp_path):
-    """cmp of yield.json (--replan --trim) written by this checkout and by the code of
-    main just before issue 39 was merged (652a325: issue 37's re-plan and issue 38's
-    refactors in, the wafer not), on the same plan and tolerances (~60 s: the old tree's
-    numba kernels compile)."""
-    base = "652a325"
-    old = tmp_path / "old"
-    old.mkdir()
-    archive = subprocess.run(["git", "-C", str(ROOT), "archive", base, "planner", "model"],
-                             capture_output=True)
-    if archive.returncode != 0:
-        pytest.skip(f"the commit before issue 39 is not in this clone's history ({base})")
-    subprocess.run(["tar", "-x", "-C", str(old)], input=archive.stdout, check=True)
-    outs = {}
-    for name, path in (("old", str(old)), ("new", str(ROOT))):
-        outs[name] = tmp_path / f"y_{name}"
-        env = {**os.environ, "PYTHONPATH": path}
-        proc = subprocess.run([sys.executable, "-m", "planner.cli", "yield", str(tiny_plan_dir),
-                               "--chips", "6", "--seed", "2", "--spec", str(specs["none"]),
-                               "--replan", "--trim", "--out", str(outs[name]), "--quiet"],
-                              capture_output=True, text=True, env=env, cwd=tmp_path)
-        assert proc.returncode == 0, proc.stderr
-    assert (outs["old"] / "yield.json").read_bytes() == (outs["new"] / "yield.json").read_bytes()
-
-
 def test_a_yield_on_wafers_maps_every_die(wafer_yield):
     d = json.loads((wafer_yield / "yield.json").read_text())
     w = d["wafer"]
