@@ -540,14 +540,16 @@ def redraw_slow(settings, drive: RescuedDrive, rows, failures, models, sliders, 
     slider at 0 mm/s from some x0 of the default's positioning step on 2 of 40 sampled
     chips).  As the plan's own loop does, :data:`SLOW_REDRAWS` new draws are tried
     (:func:`planner.planning.drives.synthesize_steps`'s ``draws``), each under the
-    acceleration limit and with its burst sized again; the first draw whose step passes
-    every check but the motion's is kept, else the one with the fewest such failures if
-    fewer than before.  Every check, the idle impacters' silence included, is on the
-    chip's models.
+    acceleration limit and a drive chain's input limit (new phases, a new peak at the
+    amplifier input: :func:`planner.planning.chain.limit_drives`) and with its burst
+    sized again; the first draw whose step passes every check but the motion's is kept,
+    else the one with the fewest such failures if fewer than before.  Every check, the
+    idle impacters' silence included, is on the chip's models.
 
     Parameters and returns as :func:`quieten`.
     """
-    from planner.planning.drives import limit_acceleration, synthesize_steps
+    from planner.planning.chain import limit_drives
+    from planner.planning.drives import synthesize_steps
     from planner.planning.verify import TOO_SLOW, TRAVEL_OVER, UNSETTLED
 
     def serious(fails):
@@ -564,8 +566,10 @@ def redraw_slow(settings, drive: RescuedDrive, rows, failures, models, sliders, 
         before = serious(f for f in failures if f.step == st.index)
         best = None
         for k in range(1, SLOW_REDRAWS + 1):
-            w, nt = limit_acceleration(settings, synthesize_steps(
-                settings, (st,), drive.tones, draws={st.key: k}))
+            # every draw held to the limits the plan's phases were: the acceleration's,
+            # and a drive chain's input volts (new phases, a new peak at the input)
+            w, nt = limit_drives(settings, synthesize_steps(
+                settings, (st,), drive.tones, draws={st.key: k}), (st,), drive.tones)
             (sub,), _ = size_within(settings, (st,), w, models, sliders,
                                     settings.max_travel_m)
             got_rows, got_fails = check([sub], w)

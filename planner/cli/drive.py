@@ -116,15 +116,21 @@ def command(spec_or_plan, step_name, fmt, out, plot, sample_rate, seed, reoptimi
     if chain is None and (um_per_v is None) != (gain is None):
         raise ValueError("--um-per-v and --amplifier-gain go together (volts need both)")
     limit = None if limit_um is None else limit_um * UM
+    # phases optimised afresh (--reoptimise) through a chain with an input limit: for
+    # the amplifier input's peak against it (and the die's against peak_limit_um)
+    through = {}
+    if chain is not None and chain.input_limit is not None:
+        through = {"transfer": chain.transfer, "input_limit": chain.input_limit[0]}
 
     notes = []
     if step.playback == "once":
         # a targets step: its tones gated one after the other, as the plan verified them
-        parts = _burst(step, tones, None if reoptimise else tones.phases, rate, seed, notes)
+        parts = _burst(step, tones, None if reoptimise else tones.phases, rate, seed, notes,
+                       through)
     else:
         parts = _synthesise(tones.frequencies, tones.amplitudes,
                             None if reoptimise else tones.phases, rate, seed, limit, mode,
-                            notes)
+                            notes, through)
     written = []
     for i, (idx, wf) in enumerate(parts, 1):
         path = out if len(parts) == 1 else _sub_path(out, exporter.suffix, i)
@@ -189,8 +195,10 @@ def _select_step(steps, name):
 # --------------------------------------------------------------------------- synthesis
 
 
-def _synthesise(freqs, amps, phases, rate, seed, limit, mode, notes):
-    """[(tone indices, Waveform)]: one part, or several sub-steps when splitting."""
+def _synthesise(freqs, amps, phases, rate, seed, limit, mode, notes, through=None):
+    """[(tone indices, Waveform)]: one part, or several sub-steps when splitting
+    (``through``: a drive chain's ``transfer`` and ``input_limit``, for phases optimised
+    afresh against its input's peak too, :func:`planner.synthesis.synthesize`)."""
     import numpy as np
 
     from planner.synthesis import LoopLengthError, split_tones, synthesize
@@ -207,16 +215,16 @@ def _synthesise(freqs, amps, phases, rate, seed, limit, mode, notes):
                          f"the one the plan verified")
             phases = None
     if phases is None:
-        wf = synthesize(f, amps, rate, seed=seed, peak_limit=limit)
+        wf = synthesize(f, amps, rate, seed=seed, peak_limit=limit, **(through or {}))
     if wf.scale < 1 and mode == "split":
-        groups = split_tones(f, amps, rate, limit, seed=seed)
+        groups = split_tones(f, amps, rate, limit, seed=seed, **(through or {}))
         notes.append(f"peak limit {limit / UM:g} um: split into {len(groups)} sub-steps "
                      f"instead of scaling by {wf.scale:.4f}")
         return groups
     return [(np.arange(len(f)), wf)]
 
 
-def _burst(step, drive, phases, rate, seed, notes):
+def _burst(step, drive, phases, rate, seed, notes, through=None):
     """[(tone indices, Burst)] of a gated step (``playback: once``): its tones, each
     gated at its recorded ``start_s`` and ``gate_s`` with the step's ramp
     (:func:`planner.synthesis.gating.gate`); one tone plays at a time, so no peak limit applies
@@ -232,7 +240,7 @@ def _burst(step, drive, phases, rate, seed, notes):
         raise ValueError(f"step {step.key}: a gated step (playback: once) needs each "
                          "tone's start_s and gate_s and gating.ramp_s")
     [(idx, wf)] = _synthesise(drive.frequencies, drive.amplitudes, phases, rate, seed, None,
-                              "scale", notes)
+                              "scale", notes, through)
     notes.append("a gated burst, played once (not looped): each tone fades in at its "
                  f"start_s and out at its gate_s over {ramp * 1e3:g} ms")
     return [(idx, gate(wf, np.asarray(starts), np.asarray(gates), ramp))]

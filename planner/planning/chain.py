@@ -4,9 +4,12 @@ chain, its voltage limits enforced, what plan.json records of it, and its figure
 The designs and the verification see the die's displacement, as without a chain; the
 chain changes what is *played*: the amplifier input [V], each tone divided by the
 chain's transfer at its frequency (:func:`planner.synthesis.chain.compensate`), so that
-the die feels the designed tones.  The limits are checked where they apply: the
+the die feels the designed tones, and with an input limit the phases it is played at
+(:func:`planner.planning.drives.synthesize_steps`: the input's peak held down where
+that leaves the die more of its tones).  The limits are checked where they apply: the
 generator's and amplifier's volts at the input (here), ``drive.peak_limit_um`` and
-``drive.max_acceleration_g`` at the die (:mod:`planner.planning.drives`, unchanged).
+``drive.max_acceleration_g`` at the die (:mod:`planner.planning.drives`, unchanged),
+both by :func:`limit_drives`.
 """
 
 from __future__ import annotations
@@ -144,6 +147,39 @@ def limit_input(settings: Settings, waveforms, steps, frequencies):
                 v = input_waveform(settings, w)
         out[key] = w
         notes[key] = {"input_peak_v": float(v.peak), "input_scale": scale}
+    return out, notes
+
+
+def limit_drives(settings: Settings, waveforms, steps, frequencies):
+    """Every limit on a step's loop, in turn: ``drive.max_acceleration_g`` at the die
+    (:func:`planner.planning.drives.limit_acceleration`), then with ``drive.chain`` its
+    voltage limits at the amplifier input (:func:`limit_input`: a tone it cannot
+    deliver refused, a step over the limit lowered).  Every place that synthesises a
+    step's loop anew (the plan's rounds, a re-plan's new phase draws) holds it to them
+    here.
+
+    Parameters
+    ----------
+    waveforms : dict
+        Step key -> the die's :class:`~planner.synthesis.Waveform` (loops, not gated
+        bursts).
+    steps : sequence of Step
+        The steps of ``waveforms`` (the input limit's messages name their impacters).
+    frequencies : dict
+        Node -> tone [Hz].
+
+    Returns
+    -------
+    (waveforms, notes)
+        As ``limit_acceleration``'s, with a chain each step's note also holding
+        ``input_peak_v`` and ``input_scale``.
+    """
+    from planner.planning.drives import limit_acceleration
+
+    out, notes = limit_acceleration(settings, waveforms)
+    if settings.chain is not None:
+        out, input_notes = limit_input(settings, out, steps, frequencies)
+        notes = {k: {**v, **input_notes[k]} for k, v in notes.items()}
     return out, notes
 
 
@@ -347,7 +383,10 @@ def chain_section(block):
              f"`signal: amplifier_input_v`): each tone divided by the chain's transfer, "
              f"{what}, so that the die feels the designed tones (figure: "
              f"[drive_chain.png](figures/drive_chain.png)). Input limit: "
-             + (f"{lim:.4g} V." if lim is not None else "none given."), ""]
+             + (f"{lim:.4g} V: a step of several tones plays the phases that hold down "
+                "the input's peak where that leaves the die more of its tones under every "
+                "limit, else the phases optimised for the die." if lim is not None else
+                "none given: the steps play the phases optimised for the die."), ""]
     rows = []
     for key, st in block["steps"].items():
         gains = [t["gain_m_per_v"] / UM for t in st["tones"]]

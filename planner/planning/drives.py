@@ -52,11 +52,28 @@ def synthesize_steps(settings: Settings, steps, assignment, seed=None, phases=No
     (seeded :func:`planner.core.rng.try_seed` ``(seed + i, k)``; 0, the first, is
     ``seed + i``): the plan's loop draws a multi-tone step's phases anew when an idle
     impacter cannot be made silent under its summed drive.
+
+    With ``drive.chain`` and an input limit (``max_input_v``, or ``max_output_v`` with
+    ``amplifier_gain``) a multi-tone step plays the phases that hold down the amplifier
+    input's peak relative to that limit (:func:`planner.synthesis.synthesize`'s
+    ``transfer`` and ``input_limit``) where they leave its tones more amplitude at the
+    die under every limit than the die's own phases do, which it plays otherwise (the
+    input limit does not set its amplitude: ``max_acceleration_g`` or none does).  The
+    waveforms are the die's.
     """
+    from planner.core.errors import PlanningError
     from planner.core.rng import try_seed
     from planner.synthesis import synthesize
+    from planner.synthesis.chain import ChainError
 
     seed = settings.seed if seed is None else seed
+    # through a drive chain with a voltage limit the phases may be chosen for the
+    # amplifier input's peak (the one the limit holds down), the die still feeling the
+    # designed tones; without a chain, or a chain without an input limit, the die's
+    # crest factor as before
+    limit = None if settings.chain is None else settings.chain.input_limit
+    through = ({} if limit is None else
+               {"transfer": settings.chain.transfer, "input_limit": limit[0]})
     frequencies = getattr(assignment, "frequencies", assignment)
     out = {}
     for st in steps:
@@ -76,11 +93,45 @@ def synthesize_steps(settings: Settings, steps, assignment, seed=None, phases=No
                 first.setdefault(tone_of[frequencies[n]], given[n])
             ph = [first[f] for f in freqs]
         draw = int((draws or {}).get(st.key, 0))
-        out[st.key] = synthesize(freqs, amps, settings.sample_rate_hz,
-                                 seed=try_seed(seed + st.index, draw),
-                                 peak_limit=settings.peak_limit_m, frequency_tolerance=tol,
-                                 phases=ph)
+
+        def synthesised(chain_kw, freqs=freqs, amps=amps, tol=tol, ph=ph, st=st, draw=draw):
+            return synthesize(freqs, amps, settings.sample_rate_hz,
+                              seed=try_seed(seed + st.index, draw),
+                              peak_limit=settings.peak_limit_m, frequency_tolerance=tol,
+                              phases=ph, **chain_kw)
+
+        try:
+            w = synthesised({})
+            if through and ph is None and len(freqs) > 1:
+                # the input's phases where they leave the die more of its tones under
+                # every limit (the input's lowers the step less); the die's where the
+                # input limit does not set the step's amplitude (phases held down at
+                # the input alone peak higher in the die's acceleration)
+                held = synthesised(through)
+                if _die_share(settings, held) > _die_share(settings, w):
+                    w = held
+        except ChainError as exc:
+            # a tone outside a measured transfer (as planner.planning.chain says it)
+            raise PlanningError(f"drive.chain: {exc}") from None
+        out[st.key] = w
     return out
+
+
+def _die_share(settings: Settings, waveform) -> float:
+    """The share of its tones' amplitudes [-] a step's loop keeps at the die under every
+    limit: the peak limit's scale (``waveform.scale``) times the factor
+    :func:`planner.planning.chain.limit_drives` will lower it by, for
+    ``drive.max_acceleration_g`` at the die and the drive chain's input limit (all
+    scale linearly with the amplitudes: the smallest ratio of limit to peak, or 1)."""
+    from planner.synthesis.chain import compensate
+
+    factor = 1.0
+    if settings.max_acceleration_m_s2 is not None:
+        factor = min(factor, settings.max_acceleration_m_s2 / drive_peaks(waveform)[1])
+    chain = settings.chain
+    if chain is not None and chain.input_limit is not None:
+        factor = min(factor, chain.input_limit[0] / compensate(waveform, chain.transfer).peak)
+    return waveform.scale * factor
 
 
 def drive_of(waveform) -> Drive:

@@ -19,9 +19,10 @@ from planner.runtime.cores import measured_free_cores, stage_threads
 from planner.assignment.assign import Assignment, assign
 from planner.core.errors import PlanningError
 from planner.core.nodes import device_key
+from planner.planning.chain import limit_drives
 from planner.planning.design_store import DesignStore, stage_digest
 from planner.planning.designs import design_all
-from planner.planning.drives import limit_acceleration, synthesize_steps
+from planner.planning.drives import synthesize_steps
 from planner.planning.manufacture import assess
 from planner.planning.motion import size_bursts
 from planner.planning.reach import measure_reach
@@ -153,15 +154,11 @@ def _design_round(settings, steps, assignment, clock, tick, design_cache, draws=
     # which must be silent under the summed drive of every step they sit out
     synthesized = clock.timed("drive", synthesize_steps, settings, steps, assignment,
                               draws=draws)
-    waveforms, drive_notes = clock.timed("drive", limit_acceleration, settings, synthesized)
-    if settings.chain is not None:
-        # the amplifier input's volts: a tone the chain cannot deliver is refused, a
-        # step over the limit lowered (the designs below are made for it as lowered)
-        from planner.planning.chain import limit_input
-
-        waveforms, input_notes = clock.timed("drive", limit_input, settings, waveforms,
-                                             steps, assignment.frequencies)
-        drive_notes = {k: {**v, **input_notes[k]} for k, v in drive_notes.items()}
+    # the acceleration limit, and with a chain the amplifier input's volts: a tone the
+    # chain cannot deliver is refused, a step over the limit lowered (the designs below
+    # are made for it as lowered)
+    waveforms, drive_notes = clock.timed("drive", limit_drives, settings, synthesized, steps,
+                                         assignment.frequencies)
     tick("design", total=len(assignment.frequencies))
     designs = clock.timed("design", design_all, settings, steps, assignment, design_cache,
                           progress=lambda n: tick("design", n), waveforms=waveforms,

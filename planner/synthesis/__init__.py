@@ -29,7 +29,9 @@ Layout of this package (each module imports only those listed below it):
 - :mod:`~planner.synthesis.api`: the public functions, :func:`synthesize`,
   :func:`split_tones` and :func:`tones_from_power`.
 - :mod:`~planner.synthesis.phases`: :func:`optimise_phases` (L_p continuation and the
-  minimax polish) and :func:`schroeder_phases`, with their references.
+  minimax polish), :func:`optimise_peaks` (the same over several signals of the same
+  tones: the die's displacement and acceleration and a drive chain's input, each
+  relative to its limit) and :func:`schroeder_phases`, with their references.
 - :mod:`~planner.synthesis.peak`: :func:`peak_of` and :func:`crest_factor`, the peak over
   continuous time.
 - :mod:`~planner.synthesis.waveform`: :class:`Waveform`, the drive-signal type.
@@ -47,9 +49,10 @@ from planner.synthesis.api import DEFAULT_POWER, split_tones, synthesize, tones_
 from planner.synthesis.loop import (FREQUENCY_TOLERANCE_REL, MAX_LOOP_LENGTH, LoopLengthError,
                                     check_loop_memory)
 from planner.synthesis.peak import crest_factor, peak_of
-from planner.synthesis.phases import optimise_phases, schroeder_phases
+from planner.synthesis.phases import optimise_peaks, optimise_phases, schroeder_phases
 from planner.synthesis.waveform import Waveform
 
 __all__ = ["Waveform", "LoopLengthError", "synthesize", "tones_from_power", "split_tones",
-           "as_generator", "optimise_phases", "schroeder_phases", "peak_of", "crest_factor",
-           "check_loop_memory", "DEFAULT_POWER", "FREQUENCY_TOLERANCE_REL", "MAX_LOOP_LENGTH"]
+           "as_generator", "optimise_phases", "optimise_peaks", "schroeder_phases", "peak_of",
+           "crest_factor", "check_loop_memory", "DEFAULT_POWER", "FREQUENCY_TOLERANCE_REL",
+           "MAX_LOOP_LENGTH"]

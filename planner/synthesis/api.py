@@ -13,6 +13,7 @@ m, s, Hz, rad.
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -24,7 +25,7 @@ from planner.core.rng import as_generator
 from planner.synthesis.kernels import _cosine_sum
 from planner.synthesis.loop import MAX_LOOP_LENGTH, _loop_for, _tolerance
 from planner.synthesis.peak import peak_of
-from planner.synthesis.phases import N_STARTS, _wrap, optimise_phases
+from planner.synthesis.phases import N_STARTS, _wrap, optimise_peaks, optimise_phases
 from planner.synthesis.validation import _as_tone_array, _check_positive, _positive_float
 from planner.synthesis.waveform import Waveform
 
@@ -60,7 +61,8 @@ def tones_from_power(frequencies, power: float = DEFAULT_POWER) -> np.ndarray:
 
 def synthesize(frequencies, amplitudes, sample_rate, duration=None, seed=None, peak_limit=None,
                *, phases=None, frequency_tolerance=None, max_loop_length=MAX_LOOP_LENGTH,
-               n_starts=N_STARTS) -> Waveform:
+               n_starts=N_STARTS, transfer=None, input_limit=None,
+               acceleration_limit=None) -> Waveform:
     """Synthesise one step's drive: summed tones with minimum crest factor, as a seamless loop.
 
     Parameters
@@ -92,6 +94,22 @@ def synthesize(frequencies, amplitudes, sample_rate, duration=None, seed=None, p
         Longest loop searched when ``duration`` is None [s].
     n_starts : int, optional
         Starting points of the phase optimisation: Schroeder's phases, then random ones.
+    transfer : object, optional
+        A drive chain's transfer ``H(f)`` [m/V] (anything with ``response(frequency_hz)``
+        -> complex, as :class:`planner.synthesis.chain.ModelTransfer`), from the volts
+        at the amplifier's input to the die's displacement.  The phases are then chosen
+        for the peak of the *input* that plays the die's tones (each tone
+        ``Z_i / |H(f_i)|`` at ``phi_i - arg H(f_i)``, at the snapped frequencies:
+        :func:`planner.synthesis.chain.compensate`) as well as the die's (see Notes).
+        The waveform is still the die's: its ``crest_factor`` and ``peak`` are the
+        die's, ``peak_limit`` applies at the die.
+    input_limit : float, optional
+        The amplifier input's peak limit [V] (with ``transfer``).  It only weighs the
+        input's peak against the die's limits when choosing the phases; nothing is
+        scaled to it here (:func:`planner.planning.chain.limit_input` does that).
+    acceleration_limit : float, optional
+        The die's peak acceleration limit [m/s^2], weighed as ``input_limit`` is (and
+        enforced by :func:`planner.planning.drives.limit_acceleration`).
 
     Returns
     -------
@@ -107,6 +125,15 @@ def synthesize(frequencies, amplitudes, sample_rate, duration=None, seed=None, p
 
     Notes
     -----
+    Without ``transfer`` and ``acceleration_limit`` the phases minimise the die's crest
+    factor (:func:`optimise_phases`).  With either, each limited peak counts relative to
+    its limit, since the one nearest its limit sets every tone's amplitude: the phases
+    minimise ``max(peak / peak_limit, peak acceleration / acceleration_limit, input
+    peak / input_limit)`` over the limits given (:func:`optimise_peaks`), starting also
+    from the die's optimum and the input's, so no worse than either.  An input without
+    a limit counts relative to the peak it has under the die's optimal phases: it never
+    peaks higher than that unless a die's limit binds harder.
+
     The crest factor that a set of phases can reach depends on the loop: a loop of length
     L holds about ``2 f_max L`` independent extrema that n phases must hold down, so longer
     loops (smaller tolerances) give higher crest factors.  See ``benchmarks/crest_factor.py``.
@@ -119,12 +146,22 @@ def synthesize(frequencies, amplitudes, sample_rate, duration=None, seed=None, p
     """
     f, fs, a, peak_limit, phases, tol = _checked_arguments(
         frequencies, amplitudes, sample_rate, peak_limit, phases, frequency_tolerance, n_starts)
+    if input_limit is not None:
+        if transfer is None:
+            raise ValueError("input_limit: the amplifier input's limit needs the chain's "
+                             "transfer (transfer=)")
+        input_limit = _positive_float(input_limit, "input_limit")
+    if acceleration_limit is not None:
+        acceleration_limit = _positive_float(acceleration_limit, "acceleration_limit")
     rng = as_generator(seed)
     loop_points, cycles, n_total = _loop_for(f, fs, tol, duration, max_loop_length)
     loop_length = loop_points / fs
     f_snapped = cycles * fs / loop_points
 
-    if phases is None:
+    if phases is None and (transfer is not None or acceleration_limit is not None):
+        ph = _limited_phases(cycles, f_snapped, a, rng, n_starts, peak_limit, transfer,
+                             input_limit, acceleration_limit)
+    elif phases is None:
         ph = optimise_phases(cycles, a, seed=rng, n_starts=n_starts)
     else:
         ph = np.asarray(phases, dtype=float)
@@ -141,6 +178,46 @@ def synthesize(frequencies, amplitudes, sample_rate, duration=None, seed=None, p
     return Waveform(samples=samples, sample_rate=fs, frequencies=f_snapped, amplitudes=a,
                     phases=ph, crest_factor=crest, loop_length=loop_length, peak=peak, rms=rms,
                     scale=scale, frequency_shift=f_snapped - f, warnings=tuple(warnings))
+
+
+def _limited_phases(cycles, f, a, rng, n_starts, peak_limit, transfer, input_limit,
+                    acceleration_limit):
+    """The phases of the smallest largest peak relative to its limit (see
+    :func:`synthesize`'s Notes): ``cycles``, ``f`` [Hz] and ``a`` [m] the snapped tones.
+
+    Raises
+    ------
+    ValueError
+        A transfer not finite and nonzero at a tone (naming it).
+    """
+    # the die's own optimum first, from the same draws as without a chain; the input's
+    # from the same random starts
+    same = copy.deepcopy(rng)
+    die = optimise_phases(cycles, a, seed=rng, n_starts=n_starts)
+    if len(a) == 1:
+        return die              # one tone: every peak is its amplitude, whatever the phase
+    starts, rows, offsets = [die], [], []
+    if peak_limit is not None:
+        rows.append(a / peak_limit)
+        offsets.append(np.zeros(len(a)))
+    if acceleration_limit is not None:
+        rows.append((2 * np.pi * f) ** 2 * a / acceleration_limit)
+        offsets.append(np.zeros(len(a)))
+    if transfer is not None:
+        h = np.asarray(transfer.response(f), dtype=complex)
+        bad = np.nonzero(~np.isfinite(h) | (h == 0))[0]
+        if len(bad):
+            i = int(bad[0])
+            raise ValueError(f"transfer: H({f[i]:g} Hz) = {h[i]}: a tone needs a finite, "
+                             "nonzero transfer to be played")
+        v, turn = a / np.abs(h), -np.angle(h)
+        starts.append(optimise_phases(cycles, v, seed=same, n_starts=n_starts, offsets=turn))
+        # no input limit: the input counts relative to its peak under the die's phases
+        limit = peak_of(cycles, v, die + turn) if input_limit is None else input_limit
+        rows.append(v / limit)
+        offsets.append(turn)
+    return optimise_peaks(cycles, np.array(rows), np.array(offsets), seed=rng,
+                          n_starts=n_starts, starts=starts)
 
 
 def _checked_arguments(frequencies, amplitudes, sample_rate, peak_limit, phases,

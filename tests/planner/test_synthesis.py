@@ -296,3 +296,94 @@ def test_offsets_are_checked():
         optimise_phases([3, 5], [1.0, 1.0], offsets=[0.0, np.nan])
     with pytest.raises(ValueError, match="offsets: shape"):
         optimise_phases([3, 5], [1.0, 1.0], offsets=[0.0])
+
+
+#: Chains that scale and turn the 25 tones of ``channel_subset(25, 4)`` (2.2-19 kHz):
+#: label -> (resonance [Hz], Q, low-pass [Hz] or None, the least relative fall of the
+#: amplifier input's crest factor).  Every one over a flat 1 um/V.
+INPUT_CHAINS = {
+    "Q 3 mid-band": (6000.0, 3.0, None, 0.05),
+    "Q 20 mid-band": (9000.0, 20.0, None, 0.05),
+    "Q 10 and a low-pass": (12000.0, 10.0, 8000.0, 0.03),
+}
+
+
+@pytest.mark.parametrize("label", sorted(INPUT_CHAINS))
+def test_synthesize_through_a_chain_lowers_the_inputs_crest_factor(label):
+    """``synthesize(..., transfer=)``: the die's tones as before, their phases chosen for
+    the amplifier input, whose crest factor is below that of the die's optimised phases
+    compensated afterwards (the same seed, loop and tones)."""
+    from planner.synthesis.chain import ModelTransfer, compensate
+
+    f_res, q, low_pass, fall = INPUT_CHAINS[label]
+    transfer = ModelTransfer(1e-6, ((f_res, q),), low_pass)
+    f = channel_subset(25, 4)
+    z = tones_from_power(f)
+    die = synthesize(f, z, FS, seed=0)
+    wired = synthesize(f, z, FS, seed=0, transfer=transfer)
+    assert wired.loop_length == die.loop_length
+    assert np.array_equal(wired.frequencies, die.frequencies)
+    assert np.array_equal(wired.amplitudes, die.amplitudes)
+    before = compensate(die, transfer).crest_factor
+    after = compensate(wired, transfer).crest_factor
+    assert after <= (1 - fall) * before, (before, after)
+    # the samples are still the die's tones (FFT)
+    amps, phases = loop_spectrum(wired)
+    np.testing.assert_allclose(amps, wired.amplitudes, rtol=1e-9)
+
+
+def test_limited_phases_are_no_worse_than_the_dies_or_the_inputs():
+    """With an input and an acceleration limit the phases minimise the largest peak
+    relative to its limit: no higher than the die's own optimum's or the input's."""
+    from planner.synthesis import optimise_phases, peak_of
+    from planner.synthesis.chain import ModelTransfer
+
+    transfer = ModelTransfer(1e-6, ((6000.0, 3.0),))
+    f = channel_subset(25, 4)
+    z = tones_from_power(f)
+    die = synthesize(f, z, FS, seed=0)
+    cycles = np.rint(die.frequencies * die.loop_length).astype(int)
+    h = transfer.response(die.frequencies)
+    w2 = (2 * np.pi * die.frequencies) ** 2
+
+    def worst(ph, input_limit, acceleration_limit):
+        return max(peak_of(cycles, z, ph) / 30e-6,
+                   peak_of(cycles, w2 * z, ph) / acceleration_limit,
+                   peak_of(cycles, z / np.abs(h), ph - np.angle(h)) / input_limit)
+
+    input_phases = optimise_phases(cycles, z / np.abs(h), seed=0, offsets=-np.angle(h))
+    # limits that bind in turn (the die's phases peak at 13.9 um, 2.1e4 m/s^2 and
+    # 16.4 V): the input's, the acceleration's, both about equally
+    for input_limit, acceleration_limit in ((5.0, 1e9), (1e3, 1e4), (16.0, 2.0e4)):
+        got = synthesize(f, z, FS, seed=0, peak_limit=30e-6, transfer=transfer,
+                         input_limit=input_limit, acceleration_limit=acceleration_limit)
+        value = worst(got.phases, input_limit, acceleration_limit)
+        assert value <= worst(die.phases, input_limit, acceleration_limit) * (1 + 1e-9)
+        assert value <= worst(input_phases, input_limit, acceleration_limit) * (1 + 1e-6)
+    with pytest.raises(ValueError, match="input_limit: .* needs the chain's transfer"):
+        synthesize(f, z, FS, input_limit=1.0)
+    with pytest.raises(ValueError, match="acceleration_limit must be positive"):
+        synthesize(f, z, FS, transfer=transfer, acceleration_limit=0.0)
+
+
+def test_optimise_peaks_is_no_higher_than_its_starts_and_checks_its_arguments():
+    from planner.synthesis import peak_of
+    from planner.synthesis.phases import optimise_peaks
+
+    rng = np.random.default_rng(5)
+    cycles = np.array([7, 11, 13, 17, 19, 23, 29])
+    amps = rng.uniform(0.5, 2.0, (3, 7))
+    offsets = rng.uniform(-np.pi, np.pi, (3, 7))
+    starts = [rng.uniform(0, 2 * np.pi, 7) for _ in range(2)]
+
+    def largest(ph):
+        return max(peak_of(cycles, a, ph + o) for a, o in zip(amps, offsets))
+
+    got = optimise_peaks(cycles, amps, offsets, seed=0, starts=starts)
+    assert largest(got) <= min(largest(s) for s in starts)
+    # deterministic for a seed
+    assert np.array_equal(got, optimise_peaks(cycles, amps, offsets, seed=0, starts=starts))
+    with pytest.raises(ValueError, match="offsets"):
+        optimise_peaks(cycles, amps, offsets[:, :3])
+    with pytest.raises(ValueError, match="starts"):
+        optimise_peaks(cycles, amps, offsets, starts=[np.zeros(3)])
