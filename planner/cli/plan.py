@@ -68,10 +68,11 @@ class _Bars:
                    "Checked before any work; a scheduler that stops answering ends the "
                    "run (exit 3).")
 @click.option("--cache-dir", type=click.Path(file_okay=False), default=None,
-              help="Folder of the design cache: a design already computed for the same "
-                   "inputs and code is read from it, not recomputed (the plan is "
-                   "byte-identical either way). Default: $VIBROPLAN_CACHE_DIR, else "
-                   "~/.cache/vibroplan.")
+              help="Folder of the design cache: a design, reach probe, verified step, "
+                   "coupling matrix, yield prediction or set of figures already computed "
+                   "for the same inputs and code is read from it, not recomputed (the "
+                   "plan is byte-identical either way). Default: $VIBROPLAN_CACHE_DIR, "
+                   "else ~/.cache/vibroplan.")
 @click.option("--no-cache", is_flag=True,
               help="Compute every design; neither read nor write the design cache.")
 @handle_errors
