@@ -596,6 +596,18 @@ def replan_section(replan: Replan, band_hz) -> Section:
                   "the plan's verified drive; each plays as sub-steps of neighbouring tones, "
                   "one after the other:", ""]
         lines += [f"- {k} -> {', '.join(v)}" for k, v in rp.split_steps.items()] + [""]
+    if rp.repairs:
+        # only where a repair fired (a re-plan that needed none reads as before)
+        lines += ["### Repairs", "",
+                  "The re-planned drive's repairs on the measured models, by kind: "
+                  + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in rp.repairs.items())
+                  + ".", ""]
+        lines += [f"- {m.id}'s tone moved {m.from_hz:.1f} -> {m.to_hz:.1f} Hz within its "
+                  + ("window" if m.window_hz is None else
+                     "window {:.1f}-{:.1f} Hz".format(*m.window_hz))
+                  + f" ({m.tries} positions tried; failed checks of its steps "
+                  f"{m.failures_before} -> {m.failures_after})" for m in rp.tone_moves]
+        lines += [""] if rp.tone_moves else []
     if rp.inseparable:
         lines += ["### Impacters no drive can tell apart (the re-plan fails)", ""]
         lines += [f"- {c.message}" for c in rp.inseparable] + [""]
