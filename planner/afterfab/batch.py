@@ -62,7 +62,7 @@ from planner.afterfab.wafer_file import die_name
 OUTCOMES = FLOOR_OUTCOMES
 #: The summary's columns.
 SUMMARY_COLUMNS = ("die_x", "die_y", "outcome", "causes", "trimmed", "checks_passed",
-                   "checks", "folder")
+                   "checks", "folder", "repairs")
 #: Version of the work folder's contents: a resume reads back only its own kind (3: a
 #: die not measured whole is "partly measured"; each die keyed on its own input, issue 44).
 WORK_FORMAT = 3
@@ -147,6 +147,9 @@ def _die_record(got, die_x: int, die_y: int) -> dict:
         ver = result.verification
         out.update(checks=len(ver), checks_passed=int(ver["passed"].sum()),
                    inseparable=[c.message for c in result.replan.inseparable])
+        # the repairs of the drive the die is to be played with (the trimmed chip's
+        # where a trim was re-planned): kind -> count
+        repairs = dict(result.replan.repairs)
         if trimmed is not None:
             write_trim_csv(trimmed.rows, folder / "trim.csv")
             out["trimmed"] = list(trimmed.trims.moved)
@@ -155,6 +158,9 @@ def _die_record(got, die_x: int, die_y: int) -> dict:
                                      timings=False)
                 tv = trimmed.plan.verification
                 out.update(checks=len(tv), checks_passed=int(tv["passed"].sum()))
+                repairs = dict(trimmed.plan.replan.repairs)
+        if repairs:
+            out["repairs"] = repairs
         reached = got.reached
         if reached == REACHED[1]:
             write_replan_outputs(result, folder, figures=False, timings=False)
@@ -382,7 +388,10 @@ def write_batch_outputs(record, results, work: Path, out: Path) -> None:
     for r in results:
         name = die_name(r["die_x"], r["die_y"])
         row = {**r, "causes": "; ".join(r["causes"]), "trimmed": " ".join(r["trimmed"]),
-               "folder": f"dies/{name}"}
+               "folder": f"dies/{name}",
+               # kind=count of the die's re-plan repairs (a die kept by an older batch
+               # has none recorded)
+               "repairs": " ".join(f"{k}={v}" for k, v in r.get("repairs", {}).items())}
         lines.append(",".join(_csv_cell(row[c]) for c in SUMMARY_COLUMNS))
     (out / "summary.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
     from planner.fabrication.wafer import die_size
@@ -434,6 +443,18 @@ def counts(results) -> dict:
     return out
 
 
+def repair_counts(results) -> dict:
+    """Repair kind -> repairs the dies' re-plans made (:data:`planner.afterfab.replan.
+    REPAIR_KINDS`' order; only the kinds that fired)."""
+    from planner.afterfab.replan import REPAIR_KINDS
+
+    made = dict.fromkeys(REPAIR_KINDS, 0)
+    for r in results:
+        for k, v in r.get("repairs", {}).items():
+            made[k] = made.get(k, 0) + int(v)
+    return {k: v for k, v in made.items() if v}
+
+
 def scrapped_causes(results) -> dict:
     """Cause -> scrapped dies it is given for, in the order first met."""
     causes = {}
@@ -459,6 +480,12 @@ def _report(record, results) -> str:
              "saying what fails); one line per die in summary.csv.", "",
              "| outcome | dies | fraction |", "|---|---|---|"]
     lines += [f"| {o} | {v} | {v / n:.3f} |" for o, v in c.items()]
+    made = repair_counts(results)
+    if made:
+        # only where a re-plan repaired its drive (a wafer that needed none: as before)
+        lines += ["", "The re-plans' repairs (kind: repairs made, over the dies; "
+                  "summary.csv's repairs column per die): "
+                  + ", ".join(f"{k} {v}" for k, v in made.items()) + "."]
     lines += ["", "![wafer map](wafer_map.png)", ""]
     partial = [r for r in results if r.get("not_measured")]
     if partial:

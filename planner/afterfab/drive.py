@@ -186,7 +186,7 @@ def inseparable(seps: Separations, measured: dict, pairs) -> list:
 
 
 def choose_tones(seps: Separations, tones: dict, measured: dict, pairs, windows=None,
-                 band=None) -> tuple:
+                 band=None, free_out: dict | None = None) -> tuple:
     """Each impacter's tone inside its window, inside the drive band and outside the
     silent band of every impacter it must be told apart from, nearest the window's
     middle.
@@ -206,6 +206,10 @@ def choose_tones(seps: Separations, tones: dict, measured: dict, pairs, windows=
         measured resonance.
     band : (float, float), optional
         The drive band (lo, hi) [Hz] (``drive.band_hz``): no tone is chosen outside it.
+    free_out : dict, optional
+        Filled with impacter id -> the free intervals [(lo, hi), ...] [Hz] its tone was
+        chosen in (its window, clear of the bands it must avoid, within the drive band):
+        where :func:`move_tones` may move it.
 
     Returns
     -------
@@ -261,6 +265,8 @@ def choose_tones(seps: Separations, tones: dict, measured: dict, pairs, windows=
                 out[n] = min(max(outside[n], b_lo), b_hi)
                 continue
             free = in_band
+        if free_out is not None:
+            free_out[n] = list(free)
         # the free point nearest the middle, kept off a band's edge by what the edge's
         # measurement and the synthesis' snapping may be off (or the middle of a
         # narrower free interval)
@@ -390,6 +396,14 @@ class RescuedDrive:
     #: impacter id -> the tone it would need [Hz], beyond the drive band (it plays at
     #: the band edge, ``tones``; :func:`choose_tones`)
     outside_band: dict = dataclasses.field(default_factory=dict)
+    #: impacter id -> the free intervals [(lo, hi), ...] [Hz] of its window its tone
+    #: may move in (:func:`choose_tones`' ``free_out``)
+    free: dict = dataclasses.field(default_factory=dict)
+    #: the tones :func:`move_tones` moved within their window, each a dict: ``id``,
+    #: ``from_hz``, ``to_hz``, ``window_hz`` (the free interval it moved in), ``tries``,
+    #: ``failures_before`` and ``failures_after`` (the checks of the steps it plays in
+    #: that fail by more than the motion)
+    tone_moves: tuple = ()
 
 
 def rescue(plan, measured: dict, settings, models: dict, sliders: dict,
@@ -427,8 +441,9 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict,
     if remeasure:
         by_id = {rec.id: models[rec.node] for rec in plan.impacters}
         seps = remeasured(seps, remeasure, by_id, middle, settings)
+    free = {}
     chosen, blocked, outside = choose_tones(seps, middle, measured, pairs, windows,
-                                            band=tuple(settings.band_hz))
+                                            band=tuple(settings.band_hz), free_out=free)
     tones = {rec.node: chosen[rec.id] for rec in plan.impacters}
     # what blocks a tone is named pair by pair, with the separation each would need
     bad = inseparable(seps, measured, pairs)
@@ -458,7 +473,7 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict,
     dwells = {st.key: plan.dwells.get(st.key, 0.0) for st in steps}
     return RescuedDrive(steps, waveforms, notes, dwells, tones, bad, {}, sizing,
                         weakened(steps, notes, scales), synthesize_and_limit,
-                        outside_band=outside)
+                        outside_band=outside, free=free)
 
 
 def split_weak(settings, drive: RescuedDrive, rows, failures, models, sliders, check):
@@ -668,4 +683,142 @@ def quieten(settings, drive: RescuedDrive, rows, failures, models, sliders, chec
         failures = [f for f in failures if f.step != st.index] + list(got_fails)
     rows.sort(key=lambda r: r["index"])
     return (dataclasses.replace(drive, steps=tuple(steps), waveforms=waveforms, notes=notes),
+            rows, failures)
+
+
+#: Positions :func:`move_tones` tries for a failing impacter's tone, as fractions of the
+#: free interval of its window it lies in (kept off the interval's edges as
+#: :func:`choose_tones` keeps a tone), nearest the tone first; the one within
+#: :data:`MOVE_MIN_FRACTION` of the interval's width of the tone is not tried [-].
+MOVE_FRACTIONS = (0.1, 0.3, 0.5, 0.7, 0.9)
+MOVE_MIN_FRACTION = 0.1
+#: Positions tried per failing impacter at most (0: the repair is off) [-].
+MOVE_TRIES = 5
+#: Failing impacters whose tone is moved at most per chip [-]: each try re-checks every
+#: step the impacter plays in (the costliest part of a re-plan).
+MOVE_IMPACTERS = 4
+
+
+def _suspects(drive: RescuedDrive, failures) -> list:
+    """The impacters whose tone a step fails by, in order of first failure: a slow
+    slider's moving impacter (its tone drives it too weakly), and for an idle impacter
+    that answers a step the step's tone nearest its own (the neighbour's tone it
+    answers).  Steps gated for targets are left (their gates are the tone's)."""
+    from planner.planning.verify import IDLE_RESPONSE, TOO_SLOW
+
+    by_index = {st.index: st for st in drive.steps}
+    out = []
+    for f in sorted(failures, key=lambda f: (f.step, f.device, f.kind)):
+        st = by_index.get(f.step)
+        if st is None or st.targets_m is not None:
+            continue
+        active = sorted((Node(d, r) for d, r in st.active_nodes()), key=lambda n: n.text)
+        if f.kind == TOO_SLOW:
+            got = [n for n in active if n.device == f.device]
+        elif f.kind == IDLE_RESPONSE and f.impacter is not None and active:
+            own = drive.tones[Node(*f.impacter)]
+            got = [min(active, key=lambda n: abs(drive.tones[n] - own))]
+        else:
+            continue
+        out += [n for n in got if n not in out]
+    return out
+
+
+def _positions(free, tone: float) -> list:
+    """The tones [Hz] :func:`move_tones` tries within ``free`` (intervals [Hz]) for a
+    tone now at ``tone`` [Hz], nearest first."""
+    out = []
+    for lo, hi in free:
+        edge = min(0.5 * (hi - lo), EDGE_MARGIN_HZ + EDGE_MARGIN_REL * tone)
+        lo, hi = lo + edge, hi - edge
+        if hi <= lo:
+            continue
+        for frac in MOVE_FRACTIONS:
+            t = lo + frac * (hi - lo)
+            if abs(t - tone) > MOVE_MIN_FRACTION * (hi - lo):
+                out.append(float(t))
+    return sorted(out, key=lambda t: (abs(t - tone), t))[:MOVE_TRIES]
+
+
+def move_tones(settings, drive: RescuedDrive, rows, failures, models, sliders, check):
+    """Move the tone of each impacter a step fails by to another place in its window,
+    where the steps it plays in then pass more checks.
+
+    The re-plan puts each tone in the middle of its window (the designs' measured tone
+    window scaled to the measured resonance, within the designed window; or a tuning
+    sweep's working window), clear of the silent bands it must avoid
+    (:func:`choose_tones`).  On the measured models a tone may still drive its slider too
+    slowly there, or an idle neighbour may answer it.  For each such impacter
+    (:func:`_suspects`, at most :data:`MOVE_IMPACTERS`), up to :data:`MOVE_TRIES`
+    positions of its free window (:data:`MOVE_FRACTIONS`, nearest first) are tried: the
+    steps it plays in are synthesised again with the moved tone (the plan's phases, the
+    acceleration and input limits), their bursts sized again, and checked; the first
+    position whose steps pass every check but the motion's is kept, else the one with the
+    fewest such failures if fewer than before.  A moved tone drops what the other
+    repairs did to its steps (a phase draw, a quietening): they run again after this.
+    Steps gated for targets are not moved (their gates are the tone's).
+
+    Parameters and returns as :func:`quieten`; the returned drive's ``tone_moves`` says
+    what moved.
+    """
+    from planner.planning.verify import TRAVEL_OVER, UNSETTLED
+
+    def serious(fails):
+        return sum(1 for f in fails if f.kind not in (TRAVEL_OVER, UNSETTLED))
+
+    if MOVE_TRIES <= 0 or drive.synthesize_and_limit is None:
+        return drive, rows, failures
+    suspects = _suspects(drive, [f for f in failures
+                                 if f.kind not in (TRAVEL_OVER, UNSETTLED)])
+    steps = list(drive.steps)
+    tones, waveforms, notes = dict(drive.tones), dict(drive.waveforms), dict(drive.notes)
+    rows, failures = list(rows), list(failures)
+    moves = list(drive.tone_moves)
+    for n in suspects[:MOVE_IMPACTERS]:
+        where = [pos for pos, st in enumerate(steps) if n in
+                 {Node(d, r) for d, r in st.active_nodes()}]
+        played = [steps[pos] for pos in where]
+        if not played or any(st.targets_m is not None for st in played):
+            continue
+        indices = {st.index for st in played}
+        before = serious(f for f in failures if f.step in indices)
+        if before == 0:
+            continue
+        free = drive.free.get(n.text, [])
+        best, tries = None, 0
+        for t in _positions(free, tones[n]):
+            tries += 1
+            w, nt = drive.synthesize_and_limit(tuple(played), {**tones, n: t})
+            subs, _ = size_within(settings, tuple(played), w, models, sliders,
+                                  settings.max_travel_m)
+            got_rows, got_fails = check(list(subs), w)
+            bad = serious(got_fails)
+            if best is None or bad < best[0]:
+                best = (bad, t, subs, w, nt, got_rows, got_fails)
+            # the nearest position that passes: the tone was placed for the most room
+            # (the window's middle), and the speeds rise toward the window's cliff,
+            # where the measured models' error matters most (keeping the fastest of the
+            # passing positions lost 2 chips more of 200 on their true models)
+            if bad == 0:
+                break
+        if best is None or best[0] >= before:
+            continue
+        bad, t, subs, w, nt, got_rows, got_fails = best
+        window = next(([float(lo), float(hi)] for lo, hi in free if lo <= t <= hi), None)
+        moves.append({"id": n.text, "from_hz": float(tones[n]), "to_hz": float(t),
+                      "window_hz": window, "tries": tries, "failures_before": before,
+                      "failures_after": bad})
+        tones[n] = t
+        for pos, sub in zip(where, subs):
+            steps[pos] = sub
+        waveforms.update(w)
+        for key, note in nt.items():
+            notes[key] = note
+        rows = [r for r in rows if r["index"] not in indices] + list(got_rows)
+        failures = [f for f in failures if f.step not in indices] + list(got_fails)
+    if len(moves) == len(drive.tone_moves):
+        return drive, rows, failures
+    rows.sort(key=lambda r: r["index"])
+    return (dataclasses.replace(drive, steps=tuple(steps), tones=tones, waveforms=waveforms,
+                                notes=notes, tone_moves=tuple(moves)),
             rows, failures)

@@ -283,7 +283,7 @@ def _replan(job: LoopJob, measured: dict, models, original, truth: Truth | None,
                       failures={}, collisions=collisions,
                       outside_band=tuple(rp.outside_band),
                       split_steps=tuple(sorted(rp.split_steps)),
-                      tones_moved=len(rp.moved))
+                      tones_moved=len(rp.moved), repairs=dict(rp.repairs))
         # no sweep tells a colliding pair apart
         tuned = TuneOutcome(**fields, windows=0) if job.tune else None
         return ReplanOutcome(**fields, tuned=tuned), plan
@@ -316,7 +316,8 @@ def _judged(ok: bool, rp, got: dict | None) -> dict:
             "outside_band": tuple(rp.outside_band),
             "split_steps": tuple(sorted(rp.split_steps)),
             "tones_moved": sum(1 for m in rp.moved
-                               if m.frequency_hz != m.original_frequency_hz)}
+                               if m.frequency_hz != m.original_frequency_hz),
+            "repairs": dict(rp.repairs)}
 
 
 def _tune(job: LoopJob, measured, models, original, remeasure, truth: Truth, plan,

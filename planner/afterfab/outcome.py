@@ -200,6 +200,9 @@ class _DriveOutcome:
     split_steps: tuple | None = None
     #: impacters whose tone the re-plan moved [-]; None as ``split_steps``
     tones_moved: int | None = None
+    #: the re-plan's repairs, kind -> count (plan.json's ``replan.repairs``; only the
+    #: kinds that fired, :data:`planner.afterfab.replan.REPAIR_KINDS`)
+    repairs: dict = field(default_factory=dict)
 
     def _common(self) -> dict:
         out = {"passed": self.passed, "measured_passed": self.measured_passed,
@@ -210,6 +213,8 @@ class _DriveOutcome:
             out["split_steps"] = list(self.split_steps)
         if self.tones_moved is not None:
             out["tones_moved"] = self.tones_moved
+        if self.repairs:
+            out["repairs"] = dict(self.repairs)
         return out
 
 

@@ -51,11 +51,21 @@ from planner.planning.chain import die_drives
 from planner.planning.record import build_record
 from planner.planning.repair import scenes_and_motion
 from planner.afterfab.as_built import AsBuilt, as_built, symmetric
-from planner.afterfab.drive import (REPLAN_TRAVEL_MARGIN, plan_phases, quieten, redraw_slow,
-                                    rescue, split_weak)
+from planner.afterfab.drive import (REPLAN_TRAVEL_MARGIN, move_tones, plan_phases, quieten,
+                                    redraw_slow, rescue, split_weak)
 from planner.planning.result import Plan
 from planner.planning.settings import plan_settings, tone_amplitudes
 from planner.planning.verify import check_step, check_steps, coupling_matrix, x0_grid
+
+#: The re-plan's repairs by kind (plan.json's ``replan.repairs``, yield.json's and the
+#: wafer summary's counts): a tone moved within its window, a step split into runs, a
+#: step's phases drawn anew, a step played weaker, a burst shortened, a dwell lengthened.
+TONE_MOVED, STEP_SPLIT, RE_PHASED, QUIETENED = ("tone_moved_in_window", "step_split",
+                                                "re_phased", "quietened")
+BURST_SHORTENED, DWELL_LENGTHENED = "burst_shortened", "dwell_lengthened"
+REPAIR_KINDS = (TONE_MOVED, STEP_SPLIT, RE_PHASED, QUIETENED, BURST_SHORTENED,
+                DWELL_LENGTHENED)
+
 
 def verify_drive(plan: PlanRecord, models: AsBuilt, settings=None):
     """Verify a plan's recorded drive on a chip's models.
@@ -243,9 +253,28 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
     # a step an idle impacter answers on this chip: played weaker, where that passes
     drive, ver_rows, failures = quieten(strict, drive, ver_rows, failures, models,
                                         sliders, check)
+    verified = drive, ver_rows, failures
     steps, ver_rows, failures, scene_rows, repairs, settle = scenes_and_motion(
         strict, drive.steps, die_drives(settings, drive.waveforms), models, sliders,
         ver_rows, failures, dwell_floor=drive.dwells)
+    if (not all(r["passed"] for r in ver_rows) and not drive.inseparable
+            and not drive.outside_band):
+        # the drive still fails on the measured models: a tone that drives its slider too
+        # slowly, or that an idle neighbour answers, moved within its window; the other
+        # repairs then again on the steps it plays in.  Kept where fewer checks fail
+        # (a chip whose re-plan passed is never touched)
+        moved, rows_, fails_ = move_tones(strict, *verified, models, sliders, check)
+        if moved.tone_moves:
+            moved, rows_, fails_ = redraw_slow(strict, moved, rows_, fails_, models,
+                                               sliders, check)
+            moved, rows_, fails_ = quieten(strict, moved, rows_, fails_, models,
+                                           sliders, check)
+            got = scenes_and_motion(strict, moved.steps, die_drives(settings, moved.waveforms),
+                                    models, sliders, rows_, fails_, dwell_floor=moved.dwells)
+            if (sum(not r["passed"] for r in got[1])
+                    < sum(not r["passed"] for r in ver_rows)):
+                drive = moved
+                steps, ver_rows, failures, scene_rows, repairs, settle = got
     timings["verify"] = time.perf_counter() - ts
 
     ts = time.perf_counter()
@@ -268,7 +297,7 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
                "failures": sum(1 for r in ver_rows if not r["passed"])}]
     sections = {"as_built": params,
                 "replan": _replan_record(plan, settings, params, drive, orig_passed,
-                                         orig_rows, windows)}
+                                         orig_rows, windows, repairs)}
     if settings.chain is not None:
         from planner.planning.chain import chain_record
 
@@ -373,10 +402,32 @@ def _assignment(steps, settings, chosen, lower_bound, warnings=True):
                       guard_violations(steps, freqs, settings.tone_rules) if warnings else [])
 
 
-def _replan_record(plan, settings, params, drive, orig_passed, orig_rows, windows=None):
+def repair_counts(drive, motion_repairs=()) -> dict:
+    """The re-plan's repairs by kind (:data:`REPAIR_KINDS`, in that order; only the kinds
+    that fired): tones moved within their window (:func:`planner.afterfab.drive.
+    move_tones`), steps split (:func:`~planner.afterfab.drive.split_weak`), steps played
+    at phases drawn anew (:func:`~planner.afterfab.drive.redraw_slow`), steps played
+    weaker (:func:`~planner.afterfab.drive.quieten`), and the motion repair's bursts
+    shortened and dwells lengthened (:func:`planner.planning.repair.scenes_and_motion`'s
+    rounds)."""
+    notes = drive.notes.values()
+    actions = [a for r in motion_repairs for a in r["actions"]]
+    got = {TONE_MOVED: len(getattr(drive, "tone_moves", ()) or ()),
+           STEP_SPLIT: len(drive.splits),
+           RE_PHASED: sum(1 for nt in notes if "phases_drawn" in nt),
+           QUIETENED: sum(1 for nt in notes if "quietened_by" in nt),
+           BURST_SHORTENED: sum(1 for a in actions if ": burst " in a),
+           DWELL_LENGTHENED: sum(1 for a in actions if ": dwell " in a)}
+    return {k: got[k] for k in REPAIR_KINDS if got[k]}
+
+
+def _replan_record(plan, settings, params, drive, orig_passed, orig_rows, windows=None,
+                   motion_repairs=()):
     """plan.json's ``replan`` block: what moved (with a tuning sweep's working window,
     ``working_window_hz``, where one was measured), the original drive on this chip, the
-    pairs no drive tells apart, the steps split, the tones beyond the band."""
+    pairs no drive tells apart, the steps split, the tones beyond the band; where the
+    re-plan repaired its drive, ``repairs`` (kind -> count, :func:`repair_counts`) and
+    where it moved a tone within its window, ``tone_moves``."""
     moved = []
     for rec in sorted(plan.impacters, key=lambda r: node_key(r.id)):
         n = rec.id
@@ -392,6 +443,13 @@ def _replan_record(plan, settings, params, drive, orig_passed, orig_rows, window
             moved[-1]["working_window_hz"] = [float(x) for x in windows[n]]
     fails = [r for r in orig_rows if not r["passed"]]
     outside = getattr(drive, "outside_band", {}) or {}
+    # added only where a repair fired: a re-plan that needed none is written as before
+    extra = {}
+    counts = repair_counts(drive, motion_repairs)
+    if counts:
+        extra["repairs"] = counts
+    if getattr(drive, "tone_moves", ()):
+        extra["tone_moves"] = [dict(m) for m in drive.tone_moves]
     return {
         "moved": moved,
         "original_drive": {
@@ -406,6 +464,7 @@ def _replan_record(plan, settings, params, drive, orig_passed, orig_rows, window
         "outside_band": [m["id"] for m in moved if m["id"] in outside],
         "outside_band_hz": {m["id"]: float(outside[m["id"]]) for m in moved
                             if m["id"] in outside},
+        **extra,
     }
 
 
@@ -537,6 +596,18 @@ def replan_section(replan: Replan, band_hz) -> Section:
                   "the plan's verified drive; each plays as sub-steps of neighbouring tones, "
                   "one after the other:", ""]
         lines += [f"- {k} -> {', '.join(v)}" for k, v in rp.split_steps.items()] + [""]
+    if rp.repairs:
+        # only where a repair fired (a re-plan that needed none reads as before)
+        lines += ["### Repairs", "",
+                  "The re-planned drive's repairs on the measured models, by kind: "
+                  + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in rp.repairs.items())
+                  + ".", ""]
+        lines += [f"- {m.id}'s tone moved {m.from_hz:.1f} -> {m.to_hz:.1f} Hz within its "
+                  + ("window" if m.window_hz is None else
+                     "window {:.1f}-{:.1f} Hz".format(*m.window_hz))
+                  + f" ({m.tries} positions tried; failed checks of its steps "
+                  f"{m.failures_before} -> {m.failures_after})" for m in rp.tone_moves]
+        lines += [""] if rp.tone_moves else []
     if rp.inseparable:
         lines += ["### Impacters no drive can tell apart (the re-plan fails)", ""]
         lines += [f"- {c.message}" for c in rp.inseparable] + [""]

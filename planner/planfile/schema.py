@@ -404,6 +404,22 @@ class Inseparable(_Record):
     message: str = ""
 
 
+class ToneMove(_Record):
+    """A tone the re-plan moved within its window because a step failed by it on the
+    measured models (plan.json's ``replan.tone_moves``,
+    :func:`planner.afterfab.drive.move_tones`): the impacter, its tone before and after
+    [Hz], the free interval of its window it moved in [Hz], the positions tried, and the
+    failed checks (beyond the motion's) of the steps it plays in before and after."""
+
+    id: Text
+    from_hz: Positive
+    to_hz: Positive
+    window_hz: tuple[Number, Number] | None = None
+    tries: Int
+    failures_before: Int
+    failures_after: Int
+
+
 class Replan(_Record):
     """plan.json's ``replan`` block (:func:`planner.afterfab.replan.replan`): what
     moved, the original drive on this chip, the impacters no drive tells apart, the
@@ -416,6 +432,11 @@ class Replan(_Record):
     split_steps: dict[str, tuple[str, ...]] = {}
     outside_band: tuple[str, ...] = ()
     outside_band_hz: dict[str, Number] = {}
+    #: the repairs the re-plan made, kind -> count (absent where none fired;
+    #: :data:`planner.afterfab.replan.REPAIR_KINDS`)
+    repairs: dict[str, Int] = {}
+    #: the tones moved within their window (absent where none was)
+    tone_moves: tuple[ToneMove, ...] = ()
 
 
 class TrimRecord(_Record):

@@ -74,7 +74,25 @@ def _replan_summary(results, chips):
             "lost": sum(1 for r in results if r.passed and not r.replan.passed),
             "measured_passed": sum(r.replan.measured_passed for r in results),
             "causes": _tally((r.replan.causes for r in results), REPLAN_CAUSES),
-            "failures": _tally((r.replan.failures for r in results), KINDS)}
+            "failures": _tally((r.replan.failures for r in results), KINDS),
+            **_repairs_summary([r.replan for r in results])}
+
+
+def _repairs_summary(outcomes) -> dict:
+    """``repairs`` (kind -> repairs made over the chips) and ``repaired_chips`` (kind ->
+    chips with one), kinds in :data:`planner.afterfab.replan.REPAIR_KINDS`' order; empty
+    when no re-plan repaired anything (yield.json then as before)."""
+    from planner.afterfab.replan import REPAIR_KINDS
+
+    made, chips = dict.fromkeys(REPAIR_KINDS, 0), dict.fromkeys(REPAIR_KINDS, 0)
+    for o in outcomes:
+        for k, v in (o.repairs or {}).items():
+            made[k] += int(v)
+            chips[k] += 1
+    if not any(made.values()):
+        return {}
+    return {"repairs": {k: v for k, v in made.items() if v},
+            "repaired_chips": {k: v for k, v in chips.items() if v}}
 
 
 def _tune_summary(results, chips):
@@ -100,6 +118,7 @@ def _chip_record(r: ChipResult) -> dict:
             "collisions": [c.to_dict() for c in rp.collisions],
             "outside_band": list(rp.outside_band),
             "split_steps": list(rp.split_steps or ()), "tones_moved": rp.tones_moved or 0,
+            **({"repairs": dict(rp.repairs)} if rp.repairs else {}),
             **({"tuned_passed": tu.passed, "tuned_causes": list(tu.causes),
                 "tuned_windows": tu.windows} if tu is not None else {}),
             **({"trim_passed": tr.passed, "trimmed": list(tr.trimmed),
@@ -156,6 +175,7 @@ def yield_record(payload, chips: int, scales: list[float], nominal: ChipResult,
             "rescued": rp["rescued"], "lost": rp["lost"],
             "measured_passed": rp["measured_passed"],
             "causes": rp["causes"], "failures": rp["failures"],
+            **{k: rp[k] for k in ("repairs", "repaired_chips") if k in rp},
             "nominal": _chip_record(nominal),
             "failed_chips": [r.chip for r in mine if not r.replan.passed],
             "per_chip": [_chip_record(r) for r in mine],

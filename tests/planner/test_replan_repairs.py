@@ -1,0 +1,133 @@
+"""A re-plan that repairs its own failures (issue 45, item 2): a tone that fails on the
+measured models moved within its window, and every repair counted by kind.
+
+The chip: the tiny plan's impacters measured at their designs, A1.forward with a tuning
+sweep's working window of 5200-5600 Hz (its design plays 5088 Hz, and its measured tone
+window reaches about 210 Hz above).  The re-plan puts the tone at the window's middle,
+5400 Hz, where A1's slider does not move on the measured models; of the positions the
+repair tries (nearest the middle first: 5320, 5480, then 5241 Hz), 5241 Hz drives it.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+import planner.afterfab.drive as drive_mod
+from planner.afterfab import Measurement
+from planner.afterfab.checks import check_drive
+from planner.afterfab.replan import (REPAIR_KINDS, TONE_MOVED, chip_models, replan,
+                                     repair_counts, write_replan_outputs)
+from planner.planning.verify import TOO_SLOW
+
+#: The working window [Hz] whose middle fails on the measured models (module notes).
+WINDOW_HZ = (5200.0, 5600.0)
+
+
+@pytest.fixture(scope="module")
+def plan(tiny_plan_dir):
+    from planner.planfile.reader import read_plan
+
+    return read_plan(tiny_plan_dir)
+
+
+def _measured(plan, window=WINDOW_HZ):
+    out = {r.id: Measurement((r.natural_frequency_hz,)) for r in plan.impacters}
+    if window is not None:
+        out["A1.forward"] = Measurement((out["A1.forward"].resonance,), window_hz=window)
+    return out
+
+
+def test_a_tone_that_fails_in_its_window_is_moved_and_the_drive_verifies(plan):
+    measured = _measured(plan)
+    result = replan(plan, measured, record=False)
+    rp = result.replan
+    assert result.passed
+    assert rp.repairs == {TONE_MOVED: 1}
+    (move,) = rp.tone_moves
+    assert move.id == "A1.forward" and move.from_hz == pytest.approx(5400.0)
+    assert WINDOW_HZ[0] < move.to_hz < WINDOW_HZ[1] and move.to_hz != move.from_hz
+    assert move.tries >= 2          # the nearest positions fail too: it was searched
+    assert (move.failures_before, move.failures_after) == (1, 0)
+    assert {m.id: m.frequency_hz for m in rp.moved}["A1.forward"] == move.to_hz
+    # the drive as it plays verifies on the chip's measured models, checked apart from
+    # the re-plan's own verification (every step, every x0, the scenes)
+    built = chip_models(plan, measured, 100.0 * result.settings.measurement_noise)
+    models = {r.node: built.impacters[r.id] for r in plan.impacters}
+    got = check_drive(result.settings, result.run_steps, result.waveforms, result.dwells,
+                      models, built.sliders)
+    assert got["passed"], got["failures"]
+
+
+def test_without_the_repair_the_same_chip_fails_too_slow(plan, monkeypatch):
+    monkeypatch.setattr(drive_mod, "MOVE_TRIES", 0)
+    result = replan(plan, _measured(plan), record=False)
+    assert not result.passed
+    assert {f.kind for f in result.failures} == {TOO_SLOW}
+    assert result.replan.repairs == {} and result.replan.tone_moves == ()
+    assert {m.id: m.frequency_hz for m in result.replan.moved}["A1.forward"] == 5400.0
+
+
+def test_plan_json_declares_the_repairs_and_a_clean_replan_writes_none(plan, tmp_path):
+    from planner.planfile.reader import read_plan
+
+    repaired = replan(plan, _measured(plan))
+    write_replan_outputs(repaired, tmp_path / "moved", figures=False, timings=False)
+    data = json.loads((tmp_path / "moved" / "plan.json").read_text())
+    assert data["replan"]["repairs"] == {TONE_MOVED: 1}
+    assert data["replan"]["tone_moves"][0]["id"] == "A1.forward"
+    from planner.planfile.schema import PlanFile
+
+    read_plan(tmp_path / "moved")                # read back through the schema
+    back = PlanFile.model_validate(data).replan
+    assert back.repairs == {TONE_MOVED: 1} and back.tone_moves[0].tries == 3
+    report = (tmp_path / "moved" / "report.md").read_text()
+    assert "### Repairs" in report and "A1.forward's tone moved 5400.0 ->" in report
+    # a chip whose re-plan needs no repair: its plan.json has no new key
+    clean = replan(plan, _measured(plan, window=None))
+    assert clean.passed
+    write_replan_outputs(clean, tmp_path / "clean", figures=False, timings=False)
+    data = json.loads((tmp_path / "clean" / "plan.json").read_text())
+    assert "repairs" not in data["replan"] and "tone_moves" not in data["replan"]
+    assert "### Repairs" not in (tmp_path / "clean" / "report.md").read_text()
+
+
+def test_repairs_are_counted_by_kind_in_order():
+    from dataclasses import dataclass
+
+    @dataclass
+    class _Drive:
+        notes: dict
+        splits: dict
+        tone_moves: tuple = ()
+
+    d = _Drive(notes={"a": {"quietened_by": 0.8}, "b": {"phases_drawn": 2},
+                      "c": {"quietened_by": 0.9}, "d": {}},
+               splits={"s": ["s.1", "s.2"]}, tone_moves=({"id": "A1.forward"},))
+    motion = [{"round": 1, "actions": ["x/a: burst 20 -> 10 ms (a slider travels ...)",
+                                       "x/b: dwell 2 -> 4 ms (idle sliders move ...)"]}]
+    got = repair_counts(d, motion)
+    assert got == {TONE_MOVED: 1, "step_split": 1, "re_phased": 1, "quietened": 2,
+                   "burst_shortened": 1, "dwell_lengthened": 1}
+    assert list(got) == [k for k in REPAIR_KINDS if k in got]
+    assert repair_counts(_Drive({}, {})) == {}
+
+
+def test_yield_and_wafer_summaries_count_the_repairs():
+    from types import SimpleNamespace
+
+    from planner.afterfab.batch import SUMMARY_COLUMNS, repair_counts as die_counts
+    from planner.yield_.statistics import _repairs_summary
+
+    chips = [SimpleNamespace(repairs={TONE_MOVED: 2, "quietened": 1}),
+             SimpleNamespace(repairs={}), SimpleNamespace(repairs={TONE_MOVED: 1})]
+    assert _repairs_summary(chips) == {"repairs": {TONE_MOVED: 3, "quietened": 1},
+                                       "repaired_chips": {TONE_MOVED: 2, "quietened": 1}}
+    assert _repairs_summary([SimpleNamespace(repairs={})]) == {}
+    dies = [{"repairs": {"quietened": 2}}, {}, {"repairs": {TONE_MOVED: 1}}]
+    assert die_counts(dies) == {TONE_MOVED: 1, "quietened": 2}
+    # the summary's columns as they were, the repairs added last
+    assert SUMMARY_COLUMNS[:-1] == ("die_x", "die_y", "outcome", "causes", "trimmed",
+                                    "checks_passed", "checks", "folder")
+    assert SUMMARY_COLUMNS[-1] == "repairs"
