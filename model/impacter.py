@@ -180,11 +180,17 @@ def _simulate_exact(impacter, drive, x0, v0, duration, *, sample_t, step, max_ev
         w, a, phi, coef, 0.0, duration, x0, v0, stuck0, 0, max_events, _k.MAX_STEPS,
         imp_t, imp_v, kinds, sample_t, sample_x)
     n_rec = min(n, cap)
-    kinds = kinds[:n_rec]
-    real = kinds == _k.IMPACT
+    if n_rec:
+        kinds = kinds[:n_rec]
+        real = kinds == _k.IMPACT
+        times, velocities = imp_t[:n_rec][real], imp_v[:n_rec][real]
+        chatter_times, chatter_sums = imp_t[:n_rec][~real], imp_v[:n_rec][~real]
+    else:   # no impact (most runs of an idle impacter): four empty arrays, as indexed
+        times, velocities, chatter_times, chatter_sums = (np.empty(0), np.empty(0),
+                                                          np.empty(0), np.empty(0))
     res = ImpactResult(
-        times=imp_t[:n_rec][real], velocities=imp_v[:n_rec][real],
-        chatter_times=imp_t[:n_rec][~real], chatter_sums=imp_v[:n_rec][~real],
+        times=times, velocities=velocities,
+        chatter_times=chatter_times, chatter_sums=chatter_sums,
         response=impacter.mass * sum_v / duration, status=STATUS[status],
         message=_message(status, n, duration, t_stop), x_end=x_end, v_end=v_end,
         stuck_end=bool(stuck_end), n_steps=int(steps),

@@ -154,6 +154,13 @@ class Kicks:
         share = float(share)
         if not 0.0 < share <= 1.0:
             raise ValueError(f"share must be in (0, 1], {share!r} was given")
+        if not impacts.times.size and not impacts.chatter_times.size:
+            # no impact (an idle impacter's usual run): the record of no kick
+            return cls(times=np.empty(0), velocities=np.empty(0),
+                       chatter=np.zeros(0, dtype=bool), direction=np.empty(0),
+                       mass_ratio=np.empty(0), impact_angle=np.empty(0),
+                       restitution=np.empty(0), velocity_changes=np.empty(0),
+                       slider_mass=slider.mass)
         times = np.concatenate([impacts.times, impacts.chatter_times])
         speeds = np.concatenate([impacts.velocities, impacts.chatter_sums])
         n = times.size
@@ -177,6 +184,12 @@ class Kicks:
         masses = {k.slider_mass for k in kicks}
         if len(masses) != 1:
             raise ValueError(f"kicks were built for sliders of different masses {sorted(masses)}")
+        # records without a kick add nothing; one record left is the concatenation
+        # (itself: its arrays are never written, and a copy would hold their very values)
+        live = [k for k in kicks if k.times.size]
+        if len(live) <= 1:
+            return live[0] if live else kicks[0]
+        kicks = live
         cat = {name: np.concatenate([getattr(k, name) for k in kicks])
                for name in ("times", "velocities", "chatter", "direction", "mass_ratio",
                             "impact_angle", "restitution", "velocity_changes")}
@@ -308,7 +321,7 @@ def slider_motion(slider, drive, kick_times, kick_dv=None, duration=None, z0=0.0
         kt = kick_times.times
         kd = kick_times.velocity_changes
         if code == _kc.TWO_BODY:
-            if not np.all(np.abs(kick_times.direction) == 1.0):
+            if not (np.abs(kick_times.direction) == 1.0).all():
                 raise ValueError(f"contact={contact!r} needs every kick's direction to be +1 or -1")
             rec = kick_times.record()
         else:

@@ -66,8 +66,20 @@ class Failure:
 
 
 def x0_grid(impacter, n):
-    """``n`` initial positions [m] over [-c, c]."""
-    return np.linspace(-impacter.gap, impacter.gap, n)
+    """``n`` initial positions [m] over [-c, c] (a fresh array)."""
+    key = (float(impacter.gap), int(n))
+    grid = _X0_GRIDS.get(key)
+    if grid is None:
+        if len(_X0_GRIDS) > 4096:
+            _X0_GRIDS.clear()
+        grid = _X0_GRIDS[key] = np.linspace(-impacter.gap, impacter.gap, n)
+        grid.flags.writeable = False
+    return grid.copy()
+
+
+#: (gap [m], n) -> the x0 grid (np.linspace's own digits), read-only: a chip's checks
+#: ask for the grid of each impacter many times over.
+_X0_GRIDS = {}
 
 
 def pair_responses(impacter, drive, n, duration, stop_at_first=False):
@@ -211,8 +223,12 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
                   settings.x0_points, settings.max_settle_s, settings.max_travel_m,
                   settings.min_speed_m_s, settings.idle_tolerance_m,
                   settings.position_tolerance_m)
+    # each device's impacters, in the order of ``impacters`` (one pass, not one per device)
+    by_device = {}
+    for n, imp in impacters.items():
+        by_device.setdefault(n.device, {})[n] = imp
     for dev in sorted(sliders, key=device_key):
-        own = {n: imp for n, imp in impacters.items() if n.device == dev}
+        own = by_device.get(dev, {})
         if shared is not None:
             key = (common, dev, settings.contacts[dev], sliders[dev], moves.get(dev),
                    tuple((n, imp, n in active) for n, imp in own.items()))

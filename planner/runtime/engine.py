@@ -201,6 +201,21 @@ def _signals_held():
             signal.raise_signal(got[0])
 
 
+#: Dask settings of a private local cluster's workers (a worker process takes the
+#: config its nanny had when it was made).  distributed sets ``MALLOC_TRIM_THRESHOLD_``
+#: in a worker's environment before spawning it; set, it turns glibc's dynamic mmap
+#: threshold off, so every array over 128 kB (a simulation's event buffers, a few a
+#: run, thousands of runs a chip) was mapped and unmapped afresh, each page faulted in:
+#: a fifth of a chip worker's CPU was system time.  Left unset (a user's own
+#: ``MALLOC_TRIM_THRESHOLD_`` in the environment still passes through).  The worker's
+#: statistical profiler (its stack sampled every 10 ms, for a dashboard a private
+#: cluster does not have) is off.  Neither changes what a task computes.
+LOCAL_WORKER_CONFIG = {
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+    "distributed.worker.profile.enabled": False,
+}
+
+
 @contextlib.contextmanager
 def _client(jobs, scheduler):
     from distributed import Client, LocalCluster
@@ -218,10 +233,12 @@ def _client(jobs, scheduler):
             with contextlib.suppress(Exception):
                 client.close(timeout=CLOSE_TIMEOUT_S)
         return
+    import dask
+
     cluster = client = None
     try:
         # a signal while they start is delivered once both are bound (to be closed)
-        with _signals_held():
+        with _signals_held(), dask.config.set(LOCAL_WORKER_CONFIG):
             cluster = LocalCluster(n_workers=int(jobs), threads_per_worker=1,
                                    processes=True, dashboard_address=None,
                                    silence_logs=logging.ERROR)

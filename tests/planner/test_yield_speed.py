@@ -158,3 +158,92 @@ def test_a_replans_guard_warnings_do_not_depend_on_the_string_hash():
         outs.append(proc.stdout)
     assert outs[0].count("\n") > 5, "the tones must give warnings for the test to mean anything"
     assert outs[0] == outs[1]
+
+
+def _worker_settings():
+    """A task's view of its worker: the malloc setting distributed would give it and
+    whether the worker's statistical profiler runs."""
+    import dask
+
+    return (os.environ.get("MALLOC_TRIM_THRESHOLD_"),
+            dask.config.get("distributed.worker.profile.enabled"))
+
+
+def test_a_local_clusters_workers_map_no_buffer_afresh_and_profile_nothing(monkeypatch):
+    """distributed sets MALLOC_TRIM_THRESHOLD_ in a worker's environment, which turns
+    glibc's dynamic mmap threshold off: every event buffer of every run was mapped and
+    unmapped afresh (a fifth of a chip worker's CPU in system time).  The engine's
+    local workers run without it and without the 10 ms stack sampler; the tasks'
+    results are those of the plain loop."""
+    from planner.runtime.engine import run_tasks
+
+    monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
+    got = run_tasks(_worker_settings_task, None, [(0,), (1,)], jobs=2)
+    assert got == [(None, False), (None, False)]
+    assert run_tasks(pow, 3, [(2,), (4,)], jobs=2) == run_tasks(pow, 3, [(2,), (4,)])
+
+
+def _worker_settings_task(_shared, _index):
+    return _worker_settings()
+
+
+def _kicks_by_hand(records):
+    """Kicks.concatenate's general path: every field concatenated, empty records too."""
+    import numpy as np
+
+    from model import Kicks
+
+    fields = ("times", "velocities", "chatter", "direction", "mass_ratio", "impact_angle",
+              "restitution", "velocity_changes")
+    return Kicks(slider_mass=records[0].slider_mass,
+                 **{f: np.concatenate([getattr(k, f) for k in records]) for f in fields})
+
+
+def test_kicks_without_impacts_add_nothing_to_a_sliders_run():
+    """A run without impacts gives the record of no kick (the general path's empty
+    arrays, same dtypes); concatenating drops such records, and the slider's run on
+    the result has the digits of its run on every record concatenated."""
+    import numpy as np
+
+    import model
+    from model import Drive, Impacter, Kicks, Slider
+
+    imp = Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6).with_natural_frequency(5200)
+    sl = Slider.from_geometry(8.0e-8)
+    near, far = Drive.tone(6200.0), Drive.tone(60000.0, 1e-9)
+    silent = model.simulate(imp, far, 0.0, 0.0, 3e-3)
+    assert silent.n_impacts == 0 and silent.chatter_times.size == 0
+    for arr in (silent.times, silent.velocities, silent.chatter_times, silent.chatter_sums):
+        assert arr.dtype == np.float64 and arr.shape == (0,)
+    loud = model.simulate(imp, near, 0.0, 0.0, 3e-3)
+    assert loud.n_impacts > 0
+    for share in (1.0, 0.5):
+        none = Kicks.from_impacts(imp, sl, silent, -1.0, share)
+        some = Kicks.from_impacts(imp, sl, loud, 1.0, share)
+        for name in ("times", "velocities", "chatter", "direction", "mass_ratio",
+                     "impact_angle", "restitution", "velocity_changes"):
+            ref = np.concatenate([getattr(some, name)[:0], getattr(some, name)[:0]])
+            got = getattr(none, name)
+            assert got.dtype == ref.dtype and got.shape == (0,), name
+        for records in ([some, none], [none, some], [none, none], [some, none, some]):
+            fast, slow = Kicks.concatenate(records), _kicks_by_hand(records)
+            for contact in ("paper", "two_body"):
+                a = model.slider_motion(sl, near, fast, duration=3e-3, contact=contact)
+                b = model.slider_motion(sl, near, slow, duration=3e-3, contact=contact)
+                assert a[2:] == b[2:]
+            assert np.array_equal(fast.times, slow.times)
+            assert np.array_equal(fast.velocity_changes, slow.velocity_changes)
+
+
+def test_the_x0_grid_is_linspaces_and_a_fresh_array_each_time():
+    import numpy as np
+
+    from model import Impacter
+    from planner.planning.verify import x0_grid
+
+    imp = Impacter.from_geometry(1.5e-8, 4e-6, 1242e-6, 3e-6)
+    for n in (1, 5, 9):
+        first = x0_grid(imp, n)
+        assert first.tobytes() == np.linspace(-imp.gap, imp.gap, n).tobytes()
+        first[:] = 7.0
+        assert x0_grid(imp, n).tobytes() == np.linspace(-imp.gap, imp.gap, n).tobytes()
