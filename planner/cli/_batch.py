@@ -7,7 +7,7 @@ import sys
 
 import click
 
-from planner.cli._common import check_output_folder, output_folder
+from planner.cli._common import check_output_folder, exit_note, output_folder
 
 #: Warning lines printed at most before a batch (the report lists every die).
 MAX_WARNINGS = 20
@@ -73,17 +73,21 @@ def replan_wafer_command(plan_path, measured, out_dir, *, trim, jobs, scheduler,
         elif done > resumed:
             click.echo(f"  die {done}/{total}", err=True)
 
+    def kept_note():
+        kept = sum(1 for p in work.glob("die_*") if (p / "result.json").is_file()) \
+            if work.is_dir() else 0
+        return f"{kept} finished dies kept in {work}: run the same command again to resume"
+
     try:
-        with output_folder(out_dir, command="replan", inputs=inputs, force=force) as tmp:
+        # said by the signal watchdog too, when it ends a run stuck in a kernel
+        with exit_note(kept_note), output_folder(out_dir, command="replan", inputs=inputs,
+                                                 force=force) as tmp:
             results = replan_wafer(plan, dies, tmp, plan_path=plan.path,
                                    measured_paths=files + ([test_map] if test_map else []),
                                    trim=trim, jobs=jobs, scheduler=scheduler,
                                    progress=progress, work=work, sources=sources)
     except KeyboardInterrupt:
-        kept = sum(1 for p in work.glob("die_*") if (p / "result.json").is_file()) \
-            if work.is_dir() else 0
-        click.echo(f"{kept} finished dies kept in {work}: run the same command again to "
-                   "resume", err=True)
+        click.echo(kept_note(), err=True)
         raise
     remove_work(work)
     c = counts(results)

@@ -69,6 +69,24 @@ STUCK_S = 3.0
 UNWIND_S = 30.0
 
 
+#: What a command must still say when the watchdog ends it (its main thread did not
+#: answer a signal in time, so its own ``except KeyboardInterrupt`` does not run):
+#: functions of no arguments returning a line, registered by :func:`exit_note`.
+_EXIT_NOTES: list = []
+
+
+@contextlib.contextmanager
+def exit_note(note):
+    """Within the block, ``note()`` (a line of text) is also written to stderr when the
+    signal watchdog ends the run (e.g. a wafer batch's "N finished dies kept in WORK:
+    run the same command again to resume")."""
+    _EXIT_NOTES.append(note)
+    try:
+        yield
+    finally:
+        _EXIT_NOTES.remove(note)
+
+
 class _SignalGuard:
     """Turn the first SIGINT, SIGTERM or SIGHUP into :class:`Interrupted` in the main
     thread (SIGHUP: the terminal went away; its default would end the process without
@@ -155,6 +173,9 @@ class _SignalGuard:
                 name = _NAMES.get(signum, signum)
                 try:
                     os.write(2, f"interrupted ({name}): stopped, nothing written\n".encode())
+                    for note in list(_EXIT_NOTES):
+                        with contextlib.suppress(Exception):
+                            os.write(2, (note() + "\n").encode())
                 finally:
                     os._exit(128 + signum)
         with contextlib.suppress(OSError):

@@ -183,8 +183,12 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
             click.echo("from the same cache: " + ", ".join(
                 f"{name} {c['read']} read, {c['written']} computed and stored"
                 for name, c in st.items()))
+    # a plan fails on an infeasible design even when every simulated check passes: say so
+    problems = (result.data.get("verification") or {}).get("design_problems") or []
+    why = (f"; {len(problems)} design(s) infeasible: "
+           + ", ".join(p["impacter"] for p in problems)) if problems else ""
     click.echo(f"verification: {'PASSED' if result.passed else 'FAILED'} "
-               f"({int(ver['passed'].sum())}/{len(ver)} checks); wrote {out_dir}/ "
+               f"({int(ver['passed'].sum())}/{len(ver)} checks{why}); wrote {out_dir}/ "
                f"(see {out_dir}/report.md)")
     if not result.passed:
         sys.exit(1)
