@@ -565,10 +565,7 @@ def redraw_slow(settings, drive: RescuedDrive, rows, failures, models, sliders, 
     """
     from planner.planning.chain import limit_drives
     from planner.planning.drives import synthesize_steps
-    from planner.planning.verify import TOO_SLOW, TRAVEL_OVER, UNSETTLED
-
-    def serious(fails):
-        return sum(1 for f in fails if f.kind not in (TRAVEL_OVER, UNSETTLED))
+    from planner.planning.verify import TOO_SLOW
 
     slow = {f.step for f in failures if f.kind == TOO_SLOW}
     steps = list(drive.steps)
@@ -578,9 +575,8 @@ def redraw_slow(settings, drive: RescuedDrive, rows, failures, models, sliders, 
         if (st.index not in slow or st.targets_m is not None
                 or len(np.atleast_1d(waveforms[st.key].frequencies)) < 2):
             continue
-        before = serious(f for f in failures if f.step == st.index)
-        best = None
-        for k in range(1, SLOW_REDRAWS + 1):
+        before = _serious(f for f in failures if f.step == st.index)
+        def draw(k):
             # every draw held to the limits the plan's phases were: the acceleration's,
             # and a drive chain's input volts (new phases, a new peak at the input)
             w, nt = limit_drives(settings, synthesize_steps(
@@ -588,14 +584,12 @@ def redraw_slow(settings, drive: RescuedDrive, rows, failures, models, sliders, 
             (sub,), _ = size_within(settings, (st,), w, models, sliders,
                                     settings.max_travel_m)
             got_rows, got_fails = check([sub], w)
-            bad = serious(got_fails)
-            if best is None or bad < best[0]:
-                best = (bad, k, sub, w, nt, got_rows, got_fails)
-            if bad == 0:
-                break
+            return _serious(got_fails), (sub, w, nt, got_rows, got_fails)
+
+        best = _least_serious(range(1, SLOW_REDRAWS + 1), draw)
         if best is None or best[0] >= before:
             continue
-        _, k, sub, w, nt, got_rows, got_fails = best
+        _, k, (sub, w, nt, got_rows, got_fails), _ = best
         steps[pos] = sub
         waveforms.update(w)
         notes[st.key] = {**nt[st.key], "phases_drawn": k}
@@ -609,6 +603,30 @@ def redraw_slow(settings, drive: RescuedDrive, rows, failures, models, sliders, 
 #: Amplitude factors :func:`quieten` tries, in turn, on a step an idle impacter answers
 #: (relative to the step's drive as re-planned) [-].
 QUIET_FACTORS = (0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3)
+
+
+def _serious(fails) -> int:
+    """The failures a re-plan's repair counts: every kind but the motion's (a travel over
+    the limit, a step that does not settle), which the motion repair acts on after it."""
+    from planner.planning.verify import TRAVEL_OVER, UNSETTLED
+
+    return sum(1 for f in fails if f.kind not in (TRAVEL_OVER, UNSETTLED))
+
+
+def _least_serious(candidates, attempt):
+    """The repairs' loop: ``attempt(c)`` -> (serious failures, result) for each of
+    ``candidates`` in order, stopping at the first with none.  Returns (failures,
+    candidate, result, tries) of the one with the fewest (the first of equals), or None
+    when there is no candidate."""
+    best, tries = None, 0
+    for c in candidates:
+        tries += 1
+        bad, result = attempt(c)
+        if best is None or bad < best[0]:
+            best = (bad, c, result)
+        if bad == 0:
+            break
+    return None if best is None else (*best, tries)
 
 
 def quieten(settings, drive: RescuedDrive, rows, failures, models, sliders, check):
@@ -641,10 +659,7 @@ def quieten(settings, drive: RescuedDrive, rows, failures, models, sliders, chec
         of every step as it now stands.
     """
     from planner.planning.drives import drive_peaks, scaled
-    from planner.planning.verify import IDLE_RESPONSE, TRAVEL_OVER, UNSETTLED
-
-    def serious(fails):
-        return sum(1 for f in fails if f.kind not in (TRAVEL_OVER, UNSETTLED))
+    from planner.planning.verify import IDLE_RESPONSE
 
     answered = {f.step for f in failures if f.kind == IDLE_RESPONSE}
     if not answered:
@@ -655,22 +670,19 @@ def quieten(settings, drive: RescuedDrive, rows, failures, models, sliders, chec
     for pos, st in enumerate(drive.steps):
         if st.index not in answered:
             continue
-        before = serious(f for f in failures if f.step == st.index)
-        best = None
-        for factor in QUIET_FACTORS:
+        before = _serious(f for f in failures if f.step == st.index)
+        def lowered(factor):
             w = scaled(waveforms[st.key], factor, f"every amplitude lowered by x{factor:g} "
                        "more: an idle impacter answered the step on this chip")
             (sub,), _ = size_within(settings, (st,), {st.key: w}, models, sliders,
                                     settings.max_travel_m)
             got_rows, got_fails = check([sub], {st.key: w})
-            bad = serious(got_fails)
-            if best is None or bad < best[0]:
-                best = (bad, factor, sub, w, got_rows, got_fails)
-            if bad == 0:
-                break
+            return _serious(got_fails), (sub, w, got_rows, got_fails)
+
+        best = _least_serious(QUIET_FACTORS, lowered)
         if best is None or best[0] >= before:
             continue
-        _, factor, sub, w, got_rows, got_fails = best
+        _, factor, (sub, w, got_rows, got_fails), _ = best
         steps[pos] = sub
         waveforms[st.key] = w
         zp, ap = drive_peaks(w)
@@ -763,9 +775,6 @@ def move_tones(settings, drive: RescuedDrive, rows, failures, models, sliders, c
     """
     from planner.planning.verify import TRAVEL_OVER, UNSETTLED
 
-    def serious(fails):
-        return sum(1 for f in fails if f.kind not in (TRAVEL_OVER, UNSETTLED))
-
     if MOVE_TRIES <= 0 or drive.synthesize_and_limit is None:
         return drive, rows, failures
     suspects = _suspects(drive, [f for f in failures
@@ -781,29 +790,25 @@ def move_tones(settings, drive: RescuedDrive, rows, failures, models, sliders, c
         if not played or any(st.targets_m is not None for st in played):
             continue
         indices = {st.index for st in played}
-        before = serious(f for f in failures if f.step in indices)
+        before = _serious(f for f in failures if f.step in indices)
         if before == 0:
             continue
         free = drive.free.get(n.text, [])
-        best, tries = None, 0
-        for t in _positions(free, tones[n]):
-            tries += 1
+        def moved(t):
             w, nt = drive.synthesize_and_limit(tuple(played), {**tones, n: t})
             subs, _ = size_within(settings, tuple(played), w, models, sliders,
                                   settings.max_travel_m)
             got_rows, got_fails = check(list(subs), w)
-            bad = serious(got_fails)
-            if best is None or bad < best[0]:
-                best = (bad, t, subs, w, nt, got_rows, got_fails)
-            # the nearest position that passes: the tone was placed for the most room
-            # (the window's middle), and the speeds rise toward the window's cliff,
-            # where the measured models' error matters most (keeping the fastest of the
-            # passing positions lost 2 chips more of 200 on their true models)
-            if bad == 0:
-                break
+            return _serious(got_fails), (subs, w, nt, got_rows, got_fails)
+
+        # the nearest position that passes: the tone was placed for the most room
+        # (the window's middle), and the speeds rise toward the window's cliff, where
+        # the measured models' error matters most (keeping the fastest of the passing
+        # positions lost 2 chips more of 200 on their true models)
+        best = _least_serious(_positions(free, tones[n]), moved)
         if best is None or best[0] >= before:
             continue
-        bad, t, subs, w, nt, got_rows, got_fails = best
+        bad, t, (subs, w, nt, got_rows, got_fails), tries = best
         window = next(([float(lo), float(hi)] for lo, hi in free if lo <= t <= hi), None)
         moves.append({"id": n.text, "from_hz": float(tones[n]), "to_hz": float(t),
                       "window_hz": window, "tries": tries, "failures_before": before,
