@@ -353,37 +353,9 @@ def _minimax_polish(k, a, ph, m):
     x(u_j) with the phases is ``-a_i sin(theta_ij) dphi_i`` (the extrema's own motion is
     second order), so ``min s  s.t.  sgn_j (x_j + J_j dphi) <= s, |dphi| <= r`` is a linear
     programme.  A step is kept if the continuous peak falls, otherwise r is halved.
+    One signal of :func:`_minimax_joint`, which does it (the same digits).
     """
-    n = len(k)
-    w = 2 * np.pi * k
-    u, x = _extrema(k, a, ph, m, MINIMAX_BAND)
-    peak = float(np.abs(x).max())
-    radius = MINIMAX_RADIUS
-    cost = np.zeros(n + 1)
-    cost[-1] = 1.0
-    for _ in range(MINIMAX_ITERATIONS):
-        theta = np.outer(u, w) + ph
-        sign = np.sign(x)[:, None]
-        a_ub = np.hstack([-sign * np.sin(theta) * a, -np.ones((len(u), 1))])
-        b_ub = -np.abs(x)
-        res = linprog(cost, A_ub=a_ub, b_ub=b_ub,
-                      bounds=[(-radius, radius)] * n + [(None, None)], method="highs")
-        if res.status != 0:
-            break
-        trial = ph + res.x[:n]
-        u_t, x_t = _extrema(k, a, trial, m, MINIMAX_BAND)
-        peak_t = float(np.abs(x_t).max())
-        if peak_t < peak:
-            gain = 1 - peak_t / peak
-            ph, u, x, peak = trial, u_t, x_t, peak_t
-            if gain < MINIMAX_RTOL:
-                break
-        else:
-            radius /= 2
-            if radius < MINIMAX_MIN_RADIUS:
-                break
-    return ph
-
+    return _minimax_joint(k, np.asarray(a)[None, :], np.zeros((1, len(k))), ph, m)
 
 
 def _wrap(phases) -> np.ndarray:

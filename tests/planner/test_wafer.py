@@ -304,6 +304,26 @@ def test_jobs_1_and_2_write_the_same_bytes(tiny_plan_dir, wafer_yield, wafer_bat
     assert _tree(out) == _tree(wafer_batch)
 
 
+def _interrupted(cmd, cwd, ready, polls=60000):
+    """Run ``cmd`` in ``cwd``, SIGINT it once ``ready()`` holds (polled every 5 ms; no time
+    limit is asserted, a hang guard of ``polls`` polls and 120 s to unwind); returns
+    (the finished process, its stderr)."""
+    proc = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        for _ in range(polls):
+            if ready() or proc.poll() is not None:
+                break
+            time.sleep(0.005)
+        assert proc.poll() is None, "the batch ended before it could be interrupted"
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    return proc, err
+
+
 def test_an_interrupted_batch_resumes_without_redoing_finished_dies(tiny_plan_dir, wafer_yield,
                                                                    wafer_batch, tmp_path):
     """SIGINT once three dies are kept: exit 130, no output folder, the dies kept; the
@@ -312,19 +332,8 @@ def test_an_interrupted_batch_resumes_without_redoing_finished_dies(tiny_plan_di
     work = tmp_path / ".r3.dies"
     cmd = [sys.executable, "-m", "planner.cli", "replan", str(tiny_plan_dir), "--measured",
            str(wafer_yield / "wafer_1.csv"), "--trim", "--jobs", "1", "--out", str(out)]
-    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
-    try:
-        for _ in range(6000):       # poll the work folder (no time limit is asserted)
-            if len(list(work.glob("die_*/result.json"))) >= 3 or proc.poll() is not None:
-                break
-            time.sleep(0.01)
-        assert proc.poll() is None, "the batch ended before it could be interrupted"
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    proc, err = _interrupted(cmd, tmp_path,
+                             lambda: len(list(work.glob("die_*/result.json"))) >= 3)
     assert proc.returncode == 130, err
     kept = sorted(p.parent.name for p in work.glob("die_*/result.json"))
     assert len(kept) >= 3 and "run the same command again to resume" in err
@@ -598,19 +607,8 @@ def test_a_resume_reuses_a_die_only_for_its_own_measurement(tiny_plan_dir, tmp_p
     work = tmp_path / ".r.dies"
     cmd = [sys.executable, "-m", "planner.cli", "replan", str(tiny_plan_dir), "--measured-dir",
            str(folder), "--jobs", "1", "--out", "r"]
-    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
-    try:
-        for _ in range(60000):      # poll the work folder (no time limit is asserted)
-            if (work / "die_0_5" / "result.json").is_file() or proc.poll() is not None:
-                break
-            time.sleep(0.005)
-        assert proc.poll() is None, "the batch ended before it could be interrupted"
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    proc, err = _interrupted(cmd, tmp_path,
+                             lambda: (work / "die_0_5" / "result.json").is_file())
     assert proc.returncode == 130, err
     assert (work / "die_0_5" / "result.json").is_file()
     os.rename(folder / "die_0_5.csv", folder / "die_0_6.csv")
