@@ -17,7 +17,7 @@ Public API
 ----------
 :func:`design_impacter`, :func:`design_pair`, :func:`response_band`,
 :func:`response_curves`, :func:`x0_grid`, :class:`DesignBounds`, :class:`DesignResult`,
-:class:`PairDesign`, :data:`BUDGETS`, :func:`recheck_design`.
+:class:`PairDesign`, :data:`BUDGETS`, :func:`recheck_design`, :func:`response_alone`.
 
 Layout of this package (each module imports only those listed above it)
 
@@ -35,7 +35,8 @@ Layout of this package (each module imports only those listed above it)
   re-checks and the exchange method.
 - :mod:`~planner.designer.design`: :func:`design_impacter`, :func:`design_pair`.
 - :mod:`~planner.designer.recheck`: :func:`recheck_design`, a finished design kept when
-  some of its forbidden tones or drives change, re-checked where they changed.
+  some of its forbidden tones or drives change, re-checked where they changed;
+  :func:`response_alone`, a design's response to its own tone without the summed drives.
 
 Notes
 -----
@@ -130,12 +131,12 @@ from planner.designer.bounds import DEFAULT_UPPER, PAPER_LOWER, UM, DesignBounds
 from planner.designer.budget import BUDGETS, Budget
 from planner.designer.design import GUARD, design_impacter, design_pair
 from planner.designer.problem import NATURAL_RATIO, natural_ratio
-from planner.designer.recheck import recheck_design
+from planner.designer.recheck import recheck_design, response_alone
 from planner.designer.response import response_band, response_curves
 from planner.designer.result import DesignResult, PairDesign
 from planner.designer.runs import Ensemble, x0_grid
 
 __all__ = ["BUDGETS", "Budget", "DEFAULT_UPPER", "DesignBounds", "DesignResult", "Ensemble",
            "GUARD", "NATURAL_RATIO", "PAPER_LOWER", "PairDesign", "UM", "design_impacter",
-           "design_pair", "natural_ratio", "recheck_design", "response_band",
+           "design_pair", "natural_ratio", "recheck_design", "response_alone", "response_band",
            "response_curves", "x0_grid"]

@@ -17,6 +17,8 @@ import dataclasses
 import time
 import warnings
 
+import numpy as np
+
 from model import SolverWarning
 from planner.designer.design import _checked_inputs, _message, shortfalls
 from planner.designer.problem import _Problem
@@ -133,3 +135,49 @@ def recheck_design(previous, frequency, forbidden=(), *, new_forbidden=(), forbi
         seconds=float(previous.seconds) + (time.perf_counter() - t0),
         evaluations=previous.evaluations, simulations=previous.simulations + problem.simulations)
 
+
+
+def response_alone(design, *, process=None, environment=None, power=50.0, amplitude=None,
+                   bounds=None, window=3e-3, budget=None, slider=None, guard=0.02,
+                   impact_angle=None, restitution=None, max_mass_ratio=None, contact="paper",
+                   sensitivity=None, seed=0, x0_points=None, tone_window=0.0, **_ignored):
+    """Where ``design`` (a :class:`~planner.designer.DesignResult`) does not respond to
+    its own tone, and to its tone window's edges, *alone*: the designer's response
+    check (its fine x0 grid, refined where r jumps) without the summed drives it plays
+    in.
+
+    An array planner asks this of a design that misses only its response under a
+    multi-tone step's summed drive over the designer's short window: whether the tone
+    itself drives it from every x0 (then the step's own simulation, over its whole
+    burst, can settle the summed drive; :func:`planner.planning.verify.confirm_responses`).
+
+    Parameters
+    ----------
+    design : DesignResult
+        Any design, feasible or not; its own budget is used unless ``budget`` is given.
+    process, environment, power, amplitude, bounds, window, budget, slider, guard,
+    impact_angle, restitution, max_mass_ratio, contact, sensitivity, seed, x0_points,
+    tone_window :
+        As :func:`planner.designer.design_impacter` (the design's own settings).
+
+    Returns
+    -------
+    (missed, points) : (int, int)
+        The x0 of the re-check grid from which it does not respond, and the grid's size.
+    """
+    kw = dict(impact_angle=design.impact_angle_rad if impact_angle is None else impact_angle,
+              restitution=design.restitution if restitution is None else restitution)
+    a = _checked_inputs(float(design.frequency_hz), (), process, environment, bounds, window,
+                        slider, design.budget if budget is None else budget, x0_points, power,
+                        amplitude, seed, guard, kw["impact_angle"], kw["restitution"], (), (),
+                        contact, max_mass_ratio, None, sensitivity, None, tone_window)
+    problem = _Problem(a.frequency, (), a.factory, a.tones, a.bounds, a.window, a.budget,
+                       a.guard, (), mass_cap=a.mass_cap, q_per_kg=a.q_per_kg,
+                       tone_window=a.tone_window)
+    geometry = tuple(float(v) for v in (design.geometry.area, design.geometry.width,
+                                        design.geometry.length, design.geometry.gap))
+    b = a.budget
+    with problem.kernel_scope():
+        u, r = problem.target(geometry, _u_grid(b.verify_x0_points), b.verify_refine_levels,
+                              ensembles=False)
+    return int(np.count_nonzero(r <= 0)), int(u.size)

@@ -282,6 +282,10 @@ class VerificationRecord(_Record):
     repair_rounds: list[JSON] | None = None
     motion_repairs: list[JSON] | None = None
     design_problems: list[JSON] | None = None
+    #: infeasible designs whose one miss (the response under a summed drive within the
+    #: designer's window) the steps' own simulation settles
+    #: (:func:`planner.planning.verify.confirm_responses`); absent when there are none
+    confirmed_designs: list[JSON] | None = None
     max_travel_m: Number | None = None
     position_tolerance_m: Number | None = None
     steps: dict[str, dict[str, dict]] | None = None

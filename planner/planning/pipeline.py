@@ -10,8 +10,9 @@ dwells) -> coupling -> manufacturability -> record.  Data flows one way; every s
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import pandas as pd
 
@@ -32,7 +33,8 @@ from planner.planning.repair import (reseed_idle, reseed_slow, scenes_and_motion
 from planner.planning.result import Plan
 from planner.planning.settings import Settings, resolve_settings
 from planner.planning.targets import place_targets
-from planner.planning.verify import TRAVEL_OVER, UNSETTLED, check_steps, coupling_matrix
+from planner.planning.verify import (TRAVEL_OVER, UNSETTLED, check_steps, confirm_responses,
+                                     coupling_matrix)
 
 
 #: Failure kinds the motion repair (shorter bursts, longer dwells) acts on, after the
@@ -58,9 +60,10 @@ ADVICE = {
 }
 
 
-def design_problems(designs, settings, rounds=()):
+def design_problems(designs, settings, rounds=(), confirmed=()):
     """One readable entry per infeasible design: which impacter, the constraint it
-    misses and by how much, what the planner's loop tried, and what to change."""
+    misses and by how much, what the planner's loop tried, and what to change (but the
+    designs in ``confirmed``: :func:`planner.planning.verify.confirm_responses`)."""
     tried = {}
     for rnd in rounds:
         for mv in rnd.get("moved", ()):
@@ -77,7 +80,7 @@ def design_problems(designs, settings, rounds=()):
     out = []
     for n in sorted(designs):
         d = designs[n]
-        if d.feasible:
+        if d.feasible or n in confirmed:
             continue
         kinds = [sf["constraint"] for sf in d.shortfalls] or ["silence"]
         advice = [ADVICE.get(k, "") for k in dict.fromkeys(kinds)]
@@ -134,13 +137,22 @@ class _Round:
     sizing: dict
     ver_rows: list
     failures: list
+    #: the infeasible designs whose steps' own simulation settles their one miss
+    #: (:func:`planner.planning.verify.confirm_responses`): node -> entry
+    confirmed: dict = field(default_factory=dict)
+
+    @property
+    def infeasible(self):
+        """The infeasible designs' nodes, sorted, but those the steps confirm."""
+        return sorted(n for n, d in self.designs.items()
+                      if not d.feasible and n not in self.confirmed)
 
     @property
     def score(self):
         """Infeasible designs, then failures the motion repair cannot mend: a repair
         round can make things worse (a widened separation moves other tones into
         trouble), so the plan keeps the round with the lowest score."""
-        return (sum(1 for d in self.designs.values() if not d.feasible),
+        return (len(self.infeasible),
                 sum(1 for f in self.failures if f.kind not in MOTION_KINDS))
 
 
@@ -201,9 +213,12 @@ def _design_round(settings, steps, assignment, clock, tick, design_cache, draws=
                                        store=design_kw.get("store")):
             ver_rows += rows
             failures += fails
+        # a design that misses only its response under a summed drive within the
+        # designer's short window, while every step it plays in moves its slider
+        confirmed = confirm_responses(settings, run_steps, checked, designs, sliders)
         clock.add("verify", ts)
     return _Round(assignment, waveforms, played, drive_notes, gating, designs, impacters,
-                  sliders, run_steps, sizing, ver_rows, failures)
+                  sliders, run_steps, sizing, ver_rows, failures, confirmed)
 
 
 def _design_stats(designs, before):
@@ -266,17 +281,22 @@ def _repair_rounds(settings, clock, tick, on_assignment, design_kw, first, free_
                             draws=dict(draws), reseed=dict(reseed), previous=previous,
                             free_cores=free_cores, **design_kw)
         failed_rows = sum(1 for r in got.ver_rows if not r["passed"])
-        infeasible = sorted(n for n, d in got.designs.items() if not d.feasible)
+        infeasible = got.infeasible
         entry = {"round": round_, "span": assignment.span, "failures": failed_rows,
                  "infeasible": [n.text for n in infeasible],
                  "designs": _design_stats(got.designs, before)}
+        if got.confirmed:
+            entry["confirmed"] = [n.text for n in sorted(got.confirmed)]
         rounds.append(entry)
         if best is None or got.score <= best[0].score:
             best = (got, round_)
         if (not failed_rows and not infeasible) or round_ == settings.repair_rounds:
             break
         offsets, drawn_before = dict(reseed), dict(draws)
-        actions, away = design_levers(got.designs, steps, assignment, draws, pair_sep, sep,
+        # a confirmed design needs no lever: it counts as feasible here
+        levered = {n: (dataclasses.replace(d, feasible=True) if n in got.confirmed else d)
+                   for n, d in got.designs.items()}
+        actions, away = design_levers(levered, steps, assignment, draws, pair_sep, sep,
                                       reseed, reseeded)
         answered = reseed_idle(got.failures, got.designs, reseed, idle_redesigned)
         for n, near in widen_separations(got.failures, got.designs, steps, assignment,
@@ -432,12 +452,20 @@ def _finish(settings, kept: _Round, rounds, clock, scheduler, store=None,
         manufacturability = clock.timed("manufacturability", assess, settings, run_steps,
                                         assignment, designs, kept.waveforms, store=store)
     ver = pd.DataFrame(ver_rows)
-    problems = design_problems(designs, settings, rounds)
+    # the kept round's confirmations again, on the steps as they now play (the motion
+    # repair may have shortened a burst)
+    ts = time.perf_counter()
+    confirmed = (confirm_responses(settings, run_steps, felt, designs, kept.sliders)
+                 if kept.confirmed else {})
+    clock.add("verify", ts)
+    problems = design_problems(designs, settings, rounds, confirmed)
     # an infeasible design fails the plan even if the steps happen to verify: it was
     # not shown silent at its forbidden tones on the designer's fine grid
     passed = bool(ver["passed"].all()) and not problems
     motion = {"sizing": kept.sizing, "drive": kept.drive_notes, "settle_s": step_settle,
-              "repairs": motion_repairs, "design_problems": problems, "gating": kept.gating}
+              "repairs": motion_repairs, "design_problems": problems,
+              "confirmed_designs": [confirmed[n] for n in sorted(confirmed)],
+              "gating": kept.gating}
     sections = {}
     if settings.chain is not None:
         from planner.planning.chain import chain_record

@@ -202,6 +202,9 @@ def build_record(settings, steps, assignment, designs, sliders, waveforms, ver_r
         "verification": {"passed": passed, "repair_rounds": rounds,
                          "motion_repairs": (motion or {}).get("repairs", []),
                          "design_problems": (motion or {}).get("design_problems", []),
+                         # only when a design was confirmed (plan.json as before otherwise)
+                         **({"confirmed_designs": (motion or {})["confirmed_designs"]}
+                            if (motion or {}).get("confirmed_designs") else {}),
                          "max_travel_m": settings.max_travel_m,
                          "position_tolerance_m": settings.position_tolerance_m,
                          "steps": per_step},

@@ -171,7 +171,27 @@ def _head(result):
         lines += [f"- {p['impacter']} at {p['frequency_hz'] / 1e3:.2f} kHz: {p['why']}."
                   + (f" The planner tried: {'; '.join(p['tried'])}." if p.get("tried") else "")
                   + f" What to change: {p['what_to_change']}." for p in problems] + [""]
+    confirmed = d["verification"].get("confirmed_designs", [])
+    if confirmed:
+        lines += [f"**{len(confirmed)} design(s) confirmed by simulation**: the designer found "
+                  "no response under a summed drive from some x0 within its "
+                  f"{d['spec']['design']['window_ms']:g} ms window, but each responds to "
+                  "its own tone alone from every x0 of its fine grid, and every step it plays "
+                  "in, simulated for its whole burst, moves its slider from every x0 of a "
+                  "dense grid:", ""]
+        lines += [f"- {c['impacter']} at {c['frequency_hz'] / 1e3:.2f} kHz ({c['shortfall']}): "
+                  + "; ".join(f"{key} {_confirmed_worst(row)}"
+                              for key, row in c["steps"].items())
+                  + f", from {c['x0_points']} x0." for c in confirmed] + [""]
     return lines
+
+
+def _confirmed_worst(row):
+    """A confirmed design's step, as the report says it: its slowest speed or its
+    largest position error from the dense grid."""
+    if "min_speed_m_s" in row:
+        return f"at least {row['min_speed_m_s'] * 1e3:.3g} mm/s"
+    return f"within {abs(row['worst_position_error_m']) / UM:.3g} um of its move"
 
 
 def _assignment_section(a):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -427,3 +428,81 @@ def coupling_matrix(impacters, tones, settings: Settings, duration, *, store=Non
                                                     duration)))
     return pd.DataFrame(mat, index=[n.text for n in names],
                         columns=[f"{f:.3f}" for f in freqs])
+
+
+#: x0 points of :func:`confirm_responses`' check: twice the designer's refined re-check
+#: grid of the default budget (~130 points), evenly over [-c, c].
+CONFIRM_X0_POINTS = 257
+
+
+def confirm_responses(settings: Settings, steps, drives, designs, sliders,
+                      points=CONFIRM_X0_POINTS):
+    """The infeasible designs whose one miss the steps' own simulation settles.
+
+    The designer asks an impacter to respond under the summed drive of every
+    multi-tone step it plays in from every x0 of its fine grid *within its short window*
+    (``design.window_ms``, 3 ms by default): a proxy, cheap enough to ask of every
+    candidate.  A step plays for its whole burst (10-60 ms), and what the plan needs of
+    it is the check of :func:`check_step`: the slider moving (fast enough, or to its
+    target) from every start.  A design that misses nothing but that response is
+    confirmed when
+
+    - it responds to its own tone and its tone window's edges *alone* from every x0 of
+      the designer's fine grid (:func:`planner.designer.response_alone`), and
+    - every step it plays in, simulated with the drive the die feels for its whole burst,
+      passes its device's check from each of ``points`` x0 over [-c, c] (a grid 28 times
+      the verification's nine).
+
+    Parameters
+    ----------
+    settings : Settings
+    steps : sequence of Step
+        The steps as they play (bursts sized, gated).
+    drives : dict
+        Step key -> what the die feels in it (the played loop or burst, through the
+        chain when the spec has one).
+    designs : dict
+        Node -> DesignResult.
+    sliders : dict
+        Device -> model.Slider.
+    points : int
+        x0 of each step's check.
+
+    Returns
+    -------
+    dict
+        Node -> plan.json's ``verification.confirmed_designs`` entry (the design's miss,
+        the steps simulated, their worst speed or position error), for every design it
+        confirms; the others keep their miss.
+    """
+    from planner.designer import response_alone
+
+    out = {}
+    dense = None
+    for n in sorted(designs):
+        d = designs[n]
+        if d.feasible or {s["constraint"] for s in d.shortfalls} != {"response"}:
+            continue
+        if not d.checks.get("unanswered_target_drives"):
+            continue
+        missed, grid = response_alone(d, **settings.design_kwargs(n))
+        if missed:
+            continue
+        if dense is None:
+            dense = dataclasses.replace(settings, x0_points=int(points))
+        own = {m: dm.impacter for m, dm in designs.items() if m.device == n.device}
+        rows = []
+        for st in steps:
+            if n not in st.active_nodes():
+                continue
+            got, _ = check_step(dense, st, drives[st.key], own, {n.device: sliders[n.device]})
+            rows.append((st.key, got[0]))
+        if not rows or not all(row["passed"] for _, row in rows):
+            continue
+        out[n] = {"impacter": n.text, "frequency_hz": float(d.frequency_hz),
+                  "shortfall": next(s["text"] for s in d.shortfalls),
+                  "alone_x0_points": grid, "x0_points": int(points),
+                  "steps": {key: {k: row[k] for k in ("min_speed_m_s",
+                                                       "worst_position_error_m")
+                                  if k in row} for key, row in rows}}
+    return out
