@@ -192,8 +192,7 @@ def inseparable(seps: Separations, measured: dict, pairs) -> list:
 
 
 def choose_tones(seps: Separations, tones: dict, measured: dict, pairs, windows=None,
-                 band=None, free_out: dict | None = None, margin: float = 0.0,
-                 fallback: dict | None = None) -> tuple:
+                 band=None, free_out: dict | None = None, margin: float = 0.0) -> tuple:
     """Each impacter's tone inside its window, inside the drive band and outside the
     silent band of every impacter it must be told apart from, nearest the window's
     middle.
@@ -223,11 +222,6 @@ def choose_tones(seps: Separations, tones: dict, measured: dict, pairs, windows=
         (:data:`MARGIN_SIGMAS` sigmas of it), its true band reaches that much further.
         An impacter whose window the widened bands cover wholly has its tone chosen
         between the bands as measured (it is blocked only if those cover it).
-    fallback : dict, optional
-        Impacter id -> the middle of its window scaled from its measured resonance [Hz]
-        (:func:`rescaled_tones`), for an impacter given a swept window: with ``margin``,
-        that window is tried (widened bands) when the swept one has no room clear of
-        the widened bands.
 
     Returns
     -------
@@ -254,18 +248,9 @@ def choose_tones(seps: Separations, tones: dict, measured: dict, pairs, windows=
             half = 0.5 * (seps.lo[k] + seps.hi[k]) * scale
             return [(middle - half, middle + half)]
 
-        if windows and n in windows:
-            own = [tuple(float(x) for x in windows[n])]
-            # a swept window with no room clear of the widened bands (the sweep's few
-            # tones and its noise place its edges coarsely): the measured resonance's
-            # window, widened bands, before the swept one with the bands as measured
-            tries = [(own, margin)]
-            if margin > 0 and fallback and n in fallback:
-                tries.append((scaled(fallback[n]), margin))
-        else:
-            own = scaled(tones[n])
-            tries = [(own, margin)] if margin > 0 else []
-        tries.append((own, 0.0))
+        own = ([tuple(float(x) for x in windows[n])] if windows and n in windows
+               else scaled(tones[n]))
+        tries = ([(own, margin)] if margin > 0 else []) + [(own, 0.0)]
         for window, widen in tries:
             free, covers = list(window), []
             for m in sorted(partners[n]):
@@ -468,7 +453,6 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict,
     seps = separations_of(plan, settings)
     pairs = must_differ(settings.steps)
     middle = rescaled_tones(plan, measured, seps, settings.tone_window)
-    rescaled = dict(middle)
     for n, (lo, hi) in (windows or {}).items():
         middle[n] = 0.5 * (lo + hi)
     remeasure = sorted(set(remeasure))
@@ -478,8 +462,7 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict,
     free = {}
     chosen, blocked, outside = choose_tones(seps, middle, measured, pairs, windows,
                                             band=tuple(settings.band_hz), free_out=free,
-                                            margin=MARGIN_SIGMAS * settings.measurement_noise,
-                                            fallback=rescaled)
+                                            margin=MARGIN_SIGMAS * settings.measurement_noise)
     tones = {rec.node: chosen[rec.id] for rec in plan.impacters}
     # what blocks a tone is named pair by pair, with the separation each would need
     bad = inseparable(seps, measured, pairs)

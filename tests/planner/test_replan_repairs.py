@@ -182,9 +182,8 @@ def test_a_tone_keeps_the_measurement_s_error_from_a_neighbour_s_band():
 def test_a_window_the_widened_bands_cover_falls_back_to_the_bands_as_measured():
     """A1's window (19 970-20 000 Hz) has 10 Hz of room below A2's band as measured
     (resonance 20 280 Hz, its edge at 19 980 Hz); the widened band (20.3 Hz further)
-    covers it, so the tone is chosen as without the margin, not blocked.  A swept window
-    covered so falls back to the window scaled from the measured resonance
-    (``fallback``: its middle, 19 950 Hz), clear of the widened band."""
+    covers it, so the tone is chosen as without the margin, not blocked; so is a tone in
+    a swept working window covered so (the sweep measured it on the chip itself)."""
     seps = _two(window=15.0)
     measured = {"A1.forward": 19985.0, "A2.forward": 20280.0}
     tones = dict(measured)
@@ -197,11 +196,9 @@ def test_a_window_the_widened_bands_cover_falls_back_to_the_bands_as_measured():
     tones_swept = {**tones, "A1.forward": 19986.0}
     free = {}
     got, blocked, _ = drive_mod.choose_tones(seps, tones_swept, measured, PAIR, swept,
-                                             margin=1e-3, fallback={"A1.forward": 19950.0},
-                                             free_out=free)
-    assert not blocked
-    assert free["A1.forward"] == [(pytest.approx(19935.0, abs=0.1), pytest.approx(wide_edge))]
-    assert 19935.0 < got["A1.forward"] < wide_edge
+                                             margin=1e-3, free_out=free)
+    assert not blocked and free["A1.forward"] == [(19972.0, edge)]
+    assert 19972.0 < got["A1.forward"] < edge
 
 
 def test_shifted_models_move_every_resonance_by_the_ratio(plan):
