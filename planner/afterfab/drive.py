@@ -44,12 +44,6 @@ from planner.afterfab.separations import Separations, remeasured, separations_of
 #: snapping of a single tone (planner.planning.drives.SINGLE_TONE_TOLERANCE_REL) [Hz, -].
 EDGE_MARGIN_HZ = 1.0
 EDGE_MARGIN_REL = 2e-4
-#: Sigmas of a measured resonance's error (``fabrication.measurement_noise_pct``) a
-#: re-plan keeps its tones from the idle neighbours' silent bands (:func:`choose_tones`'
-#: ``margin``), and by which every resonance is shifted, up and down, when a moved tone
-#: is checked again (:func:`move_tones`, :func:`shifted_models`) [-]: the true chip
-#: differs from the measured one by about that much.
-MARGIN_SIGMAS = 2.0
 #: Sub-steps a multi-tone step may be split into at most (each a run of neighbouring
 #: tones); further would make it a sequence of single-tone steps.
 MAX_SPLIT = 8
@@ -192,7 +186,7 @@ def inseparable(seps: Separations, measured: dict, pairs) -> list:
 
 
 def choose_tones(seps: Separations, tones: dict, measured: dict, pairs, windows=None,
-                 band=None, free_out: dict | None = None, margin: float = 0.0) -> tuple:
+                 band=None, free_out: dict | None = None) -> tuple:
     """Each impacter's tone inside its window, inside the drive band and outside the
     silent band of every impacter it must be told apart from, nearest the window's
     middle.
@@ -216,12 +210,6 @@ def choose_tones(seps: Separations, tones: dict, measured: dict, pairs, windows=
         Filled with impacter id -> the free intervals [(lo, hi), ...] [Hz] its tone was
         chosen in (its window, clear of the bands it must avoid, within the drive band):
         where :func:`move_tones` may move it.
-    margin : float
-        Relative widening of each neighbour's silent band on both sides [-]: where its
-        measured resonance may be off by the measurement's error
-        (:data:`MARGIN_SIGMAS` sigmas of it), its true band reaches that much further.
-        An impacter whose window the widened bands cover wholly has its tone chosen
-        between the bands as measured (it is blocked only if those cover it).
 
     Returns
     -------
@@ -243,33 +231,27 @@ def choose_tones(seps: Separations, tones: dict, measured: dict, pairs, windows=
     out, blocked, outside = dict(tones), {}, {}
     for n in seps.ids:
         k = index[n]
-        def scaled(middle):
-            scale = nu[n] / (middle / seps.rho[k]) if middle else 1.0
+        if windows and n in windows:
+            free = [tuple(float(x) for x in windows[n])]
+        else:
+            scale = nu[n] / (tones[n] / seps.rho[k]) if tones[n] else 1.0
             half = 0.5 * (seps.lo[k] + seps.hi[k]) * scale
-            return [(middle - half, middle + half)]
-
-        own = ([tuple(float(x) for x in windows[n])] if windows and n in windows
-               else scaled(tones[n]))
-        tries = ([(own, margin)] if margin > 0 else []) + [(own, 0.0)]
-        for window, widen in tries:
-            free, covers = list(window), []
-            for m in sorted(partners[n]):
-                j = index[m]
-                band = (nu[m] * (1.0 - widen) - seps.below[j],
-                        nu[m] * (1.0 + widen) + seps.above[j])
-                cut = []
-                for lo, hi in free:
-                    if band[1] <= lo or band[0] >= hi:
-                        cut.append((lo, hi))
-                        continue
-                    covers.append(m)
-                    if lo < band[0]:
-                        cut.append((lo, band[0]))
-                    if band[1] < hi:
-                        cut.append((band[1], hi))
-                free = cut
-            if free:
-                break
+            free = [(tones[n] - half, tones[n] + half)]
+        covers = []
+        for m in sorted(partners[n]):
+            j = index[m]
+            band = (nu[m] - seps.below[j], nu[m] + seps.above[j])
+            cut = []
+            for lo, hi in free:
+                if band[1] <= lo or band[0] >= hi:
+                    cut.append((lo, hi))
+                    continue
+                covers.append(m)
+                if lo < band[0]:
+                    cut.append((lo, band[0]))
+                if band[1] < hi:
+                    cut.append((band[1], hi))
+            free = cut
         if not free:
             blocked[n] = sorted(set(covers))
             continue
@@ -461,8 +443,7 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict,
         seps = remeasured(seps, remeasure, by_id, middle, settings)
     free = {}
     chosen, blocked, outside = choose_tones(seps, middle, measured, pairs, windows,
-                                            band=tuple(settings.band_hz), free_out=free,
-                                            margin=MARGIN_SIGMAS * settings.measurement_noise)
+                                            band=tuple(settings.band_hz), free_out=free)
     tones = {rec.node: chosen[rec.id] for rec in plan.impacters}
     # what blocks a tone is named pair by pair, with the separation each would need
     bad = inseparable(seps, measured, pairs)
@@ -730,23 +711,6 @@ MOVE_TRIES = 5
 MOVE_IMPACTERS = 4
 
 
-def shifted_models(models: dict, ratio: float) -> dict:
-    """Node -> the model with its natural frequency times ``ratio`` [-] (the stiffness
-    times ratio^2, both halves of a pair alike; mass, damping and gap kept): a chip whose
-    every resonance sits where a measurement's error may have hidden it."""
-    import model
-
-    def shifted(imp):
-        return model.Impacter(imp.mass, imp.stiffness * ratio * ratio, imp.damping, imp.gap,
-                              imp.impact_angle, imp.restitution, imp.geometry)
-
-    out = {}
-    for n, imp in models.items():
-        parts = [shifted(h) for h, _ in model.halves(imp)]
-        out[n] = parts[0] if len(parts) == 1 else model.pair_of(*parts)
-    return out
-
-
 def _suspects(drive: RescuedDrive, failures) -> list:
     """The impacters whose tone a step fails by, in order of first failure: a slow
     slider's moving impacter (its tone drives it too weakly), and for an idle impacter
@@ -788,8 +752,7 @@ def _positions(free, tone: float) -> list:
     return sorted(out, key=lambda t: (abs(t - tone), t))[:MOVE_TRIES]
 
 
-def move_tones(settings, drive: RescuedDrive, rows, failures, models, sliders, check,
-               noise=0.0):
+def move_tones(settings, drive: RescuedDrive, rows, failures, models, sliders, check):
     """Move the tone of each impacter a step fails by to another place in its window,
     where the steps it plays in then pass more checks.
 
@@ -807,16 +770,8 @@ def move_tones(settings, drive: RescuedDrive, rows, failures, models, sliders, c
     repairs did to its steps (a phase draw, a quietening): they run again after this.
     Steps gated for targets are not moved (their gates are the tone's).
 
-    With ``noise`` (one sigma of a measured resonance's relative error [-]) a position
-    that passes on the measured models is checked again on them with every resonance
-    shifted up and down by :data:`MARGIN_SIGMAS` sigmas (:func:`shifted_models`):
-    the true chip differs from the measured one by about that much, and a tone moved to
-    the edge of an idle neighbour's band answers it there (2 of 200 chips of the
-    default failed so, on their true models only).  The first position passing all three
-    is kept, else the first passing on the measured models.
-
-    Parameters and returns as :func:`quieten` (``check(steps, waveforms, on=models)``
-    checks on other models); the returned drive's ``tone_moves`` says what moved.
+    Parameters and returns as :func:`quieten`; the returned drive's ``tone_moves`` says
+    what moved.
     """
     from planner.planning.verify import TRAVEL_OVER, UNSETTLED
 
@@ -828,15 +783,6 @@ def move_tones(settings, drive: RescuedDrive, rows, failures, models, sliders, c
     tones, waveforms, notes = dict(drive.tones), dict(drive.waveforms), dict(drive.notes)
     rows, failures = list(rows), list(failures)
     moves = list(drive.tone_moves)
-    margin = MARGIN_SIGMAS * float(noise)
-    shifted_sets = []
-
-    def margins():
-        # the measured models shifted down and up, made once a chip
-        if not shifted_sets:
-            shifted_sets.extend(shifted_models(models, 1.0 + s * margin) for s in (-1, 1))
-        return shifted_sets
-
     for n in suspects[:MOVE_IMPACTERS]:
         where = [pos for pos, st in enumerate(steps) if n in
                  {Node(d, r) for d, r in st.active_nodes()}]
@@ -853,14 +799,7 @@ def move_tones(settings, drive: RescuedDrive, rows, failures, models, sliders, c
             subs, _ = size_within(settings, tuple(played), w, models, sliders,
                                   settings.max_travel_m)
             got_rows, got_fails = check(list(subs), w)
-            bad = _serious(got_fails)
-            if bad == 0 and margin > 0:
-                # passing where the measurement says; half a failure where the
-                # measurement's error may move a resonance: the search goes on
-                if any(_serious(check(list(subs), w, on=shifted)[1])
-                       for shifted in margins()):
-                    bad = 0.5
-            return bad, (subs, w, nt, got_rows, got_fails)
+            return _serious(got_fails), (subs, w, nt, got_rows, got_fails)
 
         # the nearest position that passes: the tone was placed for the most room
         # (the window's middle), and the speeds rise toward the window's cliff, where
@@ -873,7 +812,7 @@ def move_tones(settings, drive: RescuedDrive, rows, failures, models, sliders, c
         window = next(([float(lo), float(hi)] for lo, hi in free if lo <= t <= hi), None)
         moves.append({"id": n.text, "from_hz": float(tones[n]), "to_hz": float(t),
                       "window_hz": window, "tries": tries, "failures_before": before,
-                      "failures_after": _serious(got_fails)})
+                      "failures_after": bad})
         tones[n] = t
         for pos, sub in zip(where, subs):
             steps[pos] = sub

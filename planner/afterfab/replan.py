@@ -232,13 +232,11 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
     timings["drive"] = time.perf_counter() - ts
     ts = time.perf_counter()
     tick("verify", total=len(drive.steps))
-    def check(steps, waveforms, progress=None, on=None):
-        # ``on``: other models of the chip (a tone move's margin: the measured ones with
-        # every resonance shifted by the measurement's error)
+    def check(steps, waveforms, progress=None):
         rows, fails = [], []
         # through a distorting chain the die feels the tones and their products
-        for r, f in check_steps(strict, steps, die_drives(settings, waveforms),
-                                models if on is None else on, sliders, progress=progress):
+        for r, f in check_steps(strict, steps, die_drives(settings, waveforms), models,
+                                sliders, progress=progress):
             rows += r
             fails += f
         return rows, fails
@@ -265,8 +263,7 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
         # slowly, or that an idle neighbour answers, moved within its window; the other
         # repairs then again on the steps it plays in.  Kept where fewer checks fail
         # (a chip whose re-plan passed is never touched)
-        moved, rows_, fails_ = move_tones(strict, *verified, models, sliders, check,
-                                          noise=settings.measurement_noise)
+        moved, rows_, fails_ = move_tones(strict, *verified, models, sliders, check)
         if moved.tone_moves:
             moved, rows_, fails_ = redraw_slow(strict, moved, rows_, fails_, models,
                                                sliders, check)
