@@ -54,6 +54,9 @@ class YieldPrediction:
     closest_pair_hz: dict
     limiting_pairs: list
     nominal_collisions: list
+    #: with ``sigma_measure``: the fraction of chips whose *measured* resonances have no
+    #: colliding pair (what a re-plan from the measurement can tell apart) [-]
+    told_apart: float | None = None
 
     def to_dict(self) -> dict:
         return {"value": self.value, "ci95": list(self.ci95), "chips": self.chips}
@@ -90,7 +93,7 @@ def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,
                          silent_below, silent_above, responds_below=None,
                          responds_above=None, chips=CHIPS, seed=0,
                          sigma_pair=None, sigma_field_line_width=0.0, sigma_gradient=0.0,
-                         positions=None) -> YieldPrediction:
+                         positions=None, sigma_measure=0.0) -> YieldPrediction:
     """Monte Carlo of the collision-free yield (first order in the errors).
 
     Parameters
@@ -128,6 +131,13 @@ def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,
         chip.
     positions : array_like, shape (n, 2), optional
         Every impacter's place from its die's centre [m].
+    sigma_measure : float
+        One sigma of a measured resonance's relative error [-]
+        (``fabrication.measurement_noise_pct`` / 100): with it, ``told_apart`` is the
+        share of chips whose measured resonances (each as-built one times
+        exp(sigma_measure z), z drawn per chip and impacter after every other draw) have
+        no colliding pair: what a re-plan, which reads only the measurement, can tell
+        apart (:func:`planner.afterfab.drive.inseparable` on the same rule).
 
     Returns
     -------
@@ -170,13 +180,19 @@ def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,
         # line width [um] per chip and impacter: the die's field value plus the gradient
         lw_wafer = (float(sigma_field_line_width) * z_wafer[:, :1]
                     + float(sigma_gradient) * (z_wafer[:, 1:] @ pos.T))
+    # the measurement's error, drawn after everything else: without it the chips are
+    # the same
+    sigma_measure = float(sigma_measure)
+    z_meas = rng.standard_normal((chips, n)) if sigma_measure > 0 else None
     args = (nu, tone, below, above, lo, hi)
     ok_none = ~_collisions(*args, np.ones((1, n)), pairs)[0]
     nominal = [[ids[a], ids[b]] for (a, b), ok in zip(pairs, ok_none) if not ok]
     if pairs.size == 0:
         return YieldPrediction(1.0, tuple(wilson_interval(chips, chips)), chips, 1.0, 1.0,
-                               {"p5": None, "median": None, "p95": None}, [], nominal)
+                               {"p5": None, "median": None, "p95": None}, [], nominal,
+                               told_apart=1.0 if float(sigma_measure) > 0 else None)
     ok_both = np.zeros(chips, bool)
+    ok_meas = np.zeros(chips, bool)
     ok_die = np.zeros(chips, bool)
     ok_dev = np.zeros(chips, bool)
     gaps = np.zeros(chips)
@@ -197,6 +213,9 @@ def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,
             split = 0.5 * (h[..., 0] - h[..., 1])
         both = _collisions(*args, np.exp(die_part + dev_part), pairs, split)
         ok_both[a:b] = ~both.any(axis=1)
+        if z_meas is not None:
+            seen = die_part + dev_part + sigma_measure * z_meas[a:b]
+            ok_meas[a:b] = ~_collisions(*args, np.exp(seen), pairs, split).any(axis=1)
         hits += both.sum(axis=0)
         ok_die[a:b] = ~_collisions(*args, np.exp(die_part), pairs).any(axis=1)
         ok_dev[a:b] = ~_collisions(*args, np.exp(dev_part), pairs, split).any(axis=1)
@@ -214,7 +233,8 @@ def collision_free_yield(ids, nu, tone, sens, sigma_die, sigma_device, pairs, *,
     die_only, device_only = float(np.mean(ok_die)), float(np.mean(ok_dev))
     passed = int(round(value * chips))
     return YieldPrediction(value, tuple(wilson_interval(passed, chips)), chips, die_only,
-                           device_only, closest, limiting, nominal)
+                           device_only, closest, limiting, nominal,
+                           told_apart=float(np.mean(ok_meas)) if z_meas is not None else None)
 
 
 def predict_from_channels(spec, assignment, *, chips=CHIPS, seed=0) -> YieldPrediction | None:

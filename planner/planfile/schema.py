@@ -318,6 +318,9 @@ class ManufacturabilityRecord(_Record):
     target_yield: JSON = None
     sensitivity_band_per_um: JSON = None
     collision_free_yield: JSON = None
+    #: the share of chips whose *measured* resonances (the spec's measurement noise on
+    #: top) have no colliding pair: what a re-plan can tell apart
+    told_apart_yield: JSON = None
     die_only_yield: JSON = None
     device_only_yield: JSON = None
     closest_pair_hz: JSON = None

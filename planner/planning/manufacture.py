@@ -22,6 +22,7 @@ from planner.manufacturability import (
     sensitivities,
     z_for,
 )
+from planner.core.intervals import wilson_interval
 from planner.core.nodes import Node
 
 
@@ -160,9 +161,17 @@ def _assess(settings, nodes, assignment, designs, amps, pairs, chips) -> dict:
         responds_below=[seps[n].responds_below_hz for n in nodes],
         responds_above=[seps[n].responds_above_hz for n in nodes],
         chips=chips, seed=settings.seed,
-        sigma_pair=tol.pair, **_wafer_terms(settings, nodes))
+        sigma_pair=tol.pair, **_wafer_terms(settings, nodes),
+        sigma_measure=settings.measurement_noise)
+    told = {}
+    if pred.told_apart is not None:
+        passed = int(round(pred.told_apart * pred.chips))
+        told = {"told_apart_yield": {
+            "value": pred.told_apart, "ci95": list(wilson_interval(passed, pred.chips)),
+            "chips": pred.chips,
+            "measurement_noise_pct": 100.0 * settings.measurement_noise}}
     out.update(
-        collision_free_yield=pred.to_dict(), die_only_yield=pred.die_only,
+        collision_free_yield=pred.to_dict(), **told, die_only_yield=pred.die_only,
         device_only_yield=pred.device_only, closest_pair_hz=pred.closest_pair_hz,
         limiting_pairs=pred.limiting_pairs, nominal_collisions=pred.nominal_collisions,
         meets_target=bool(pred.value >= settings.target_yield),

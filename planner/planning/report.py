@@ -373,6 +373,14 @@ def _manufacturability_section(d):
                 f"that must be told apart.  Die-level errors alone: {m['die_only_yield']:.3f}; "
                 f"device-level alone: {m['device_only_yield']:.3f}.  Closest as-built pair: "
                 f"median {c['median']:.0f} Hz (5-95 %: {c['p5']:.0f}-{c['p95']:.0f} Hz).", ""]
+        t = m.get("told_apart_yield")
+        if t is not None:
+            out += [f"With the measurement's own error on each resonance "
+                    f"(fabrication.measurement_noise_pct {t['measurement_noise_pct']:g} %), "
+                    f"as a re-plan reads them: **{t['value']:.3f}** of the chips told apart "
+                    f"(95 % CI {t['ci95'][0]:.3f}-{t['ci95'][1]:.3f}); the rest need a trim "
+                    "or a measurement again (benchmarks/results/collision_calibration.md "
+                    "holds this against sampled chips).", ""]
         if m["limiting_pairs"]:
             out += md_table(["pair", "collides on", "designed distance [Hz]"],
                             [[" / ".join(p["pair"]), f"{100 * p['collision_fraction']:.2f} %",

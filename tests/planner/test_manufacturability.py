@@ -448,3 +448,40 @@ def test_the_collision_kernel_gives_numpys_booleans_bit_for_bit(case):
     assert got.dtype == bool and got.shape == want.shape
     assert np.array_equal(got, want)
     assert 0 < want.sum() < want.size or want.size < 50
+
+
+def test_the_measurement_noise_gives_the_share_a_re_plan_can_tell_apart():
+    """Two impacters 700 Hz apart at 30 kHz, each moved by 150 Hz (one sigma) of device
+    error and read with 60 Hz (0.2 %) of measurement error; silent bands 400 Hz and tone
+    windows 80 Hz, so a pair collides when its resonances (as built, or as measured) sit
+    within 320 Hz.  First order, the difference is normal: the collision-free yield is
+    1 - P(|N(700, 2 x 150^2)| < 320) = 0.963 and the told-apart share
+    1 - P(|N(700, 2 x 150^2 + 2 x 60^2)| < 320) = 0.952; the noise is drawn after every
+    other draw, so the collision-free yield is the same number with and without it."""
+    from scipy.stats import norm
+
+    from planner.fabrication.tolerances import ERRORS
+    from planner.manufacturability import collision_free_yield
+
+    nu = np.array([30000.0, 30700.0])
+    sens = np.zeros((2, len(ERRORS)))
+    sens[:, 0] = 0.25                                      # 1/um
+    zero = np.zeros(len(ERRORS))
+    dev = zero.copy()
+    dev[0] = 0.02                                          # um: 150 Hz at 30 kHz
+    kw = dict(silent_below=[400, 400], silent_above=[400, 400], responds_below=[80, 80],
+              responds_above=[80, 80], chips=40000, seed=3)
+    base = collision_free_yield(["a", "b"], nu, nu, sens, zero, dev, [[0, 1]], **kw)
+    noisy = collision_free_yield(["a", "b"], nu, nu, sens, zero, dev, [[0, 1]],
+                                 sigma_measure=0.002, **kw)
+    assert base.told_apart is None
+    assert noisy.value == base.value and noisy.die_only == base.die_only
+
+    def free(sd):
+        return 1.0 - (norm.cdf((320 - 700) / sd) - norm.cdf((-320 - 700) / sd))
+
+    sd_built = np.sqrt(2) * 30000 * 0.25 * 0.02
+    sd_read = np.sqrt(sd_built ** 2 + 2 * (30000 * 0.002) ** 2)
+    assert base.value == pytest.approx(free(sd_built), abs=0.005)
+    assert noisy.told_apart == pytest.approx(free(sd_read), abs=0.005)
+    assert noisy.told_apart < base.value - 0.005

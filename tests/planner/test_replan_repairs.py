@@ -131,3 +131,24 @@ def test_yield_and_wafer_summaries_count_the_repairs():
     assert SUMMARY_COLUMNS[:-1] == ("die_x", "die_y", "outcome", "causes", "trimmed",
                                     "checks_passed", "checks", "folder")
     assert SUMMARY_COLUMNS[-1] == "repairs"
+
+
+def test_a_tuned_re_plan_too_slow_only_where_the_sweep_says_it_moves_is_kept(
+        plan, monkeypatch):
+    """`yield --tune` keeps the re-plan before the sweep when the tuned one fails on the
+    measured models, unless every failure is a slider too slow at a tone inside the
+    working window the sweep measured (the sweep is the measurement there).  The chip of
+    this module without the tone move fails so: A1.forward at 5400 Hz, too slow on the
+    measured models, inside the swept 5200-5600 Hz."""
+    from planner.afterfab.loop import _swept_speeds_hold
+
+    monkeypatch.setattr(drive_mod, "MOVE_TRIES", 0)
+    slow = replan(plan, _measured(plan), record=False)
+    assert {f.kind for f in slow.failures} == {TOO_SLOW}
+    assert _swept_speeds_hold(slow, {"A1.forward": WINDOW_HZ})
+    # the sweep saw no motion there: the measured models' verdict stands
+    assert not _swept_speeds_hold(slow, {"A1.forward": (5450.0, 5600.0)})
+    assert not _swept_speeds_hold(slow, {})
+    # nothing failed: nothing for the sweep to overrule
+    clean = replan(plan, _measured(plan, window=None), record=False)
+    assert clean.passed and not _swept_speeds_hold(clean, {"A1.forward": WINDOW_HZ})
