@@ -68,9 +68,11 @@ class YieldPrediction:
         y = block.get("collision_free_yield")
         if y is None:
             return None
+        told = block.get("told_apart_yield")
         return cls(y["value"], tuple(y["ci95"]), y["chips"], block.get("die_only_yield"),
                    block.get("device_only_yield"), block.get("closest_pair_hz") or {},
-                   block.get("limiting_pairs") or [], block.get("nominal_collisions") or [])
+                   block.get("limiting_pairs") or [], block.get("nominal_collisions") or [],
+                   told_apart=None if told is None else told["value"])
 
 
 def _collisions(nu, tone, below, above, lo, hi, g, pairs, split=None):
@@ -282,4 +284,7 @@ def prediction_lines(pred: YieldPrediction | None, target: float, *, before_desi
                      + ("; most often colliding: " + ", ".join(
                          f"{'/'.join(p['pair'])} {100 * p['collision_fraction']:.1f} %"
                          for p in pred.limiting_pairs[:3]) if pred.limiting_pairs else ""))
+    if pred.told_apart is not None:
+        lines.append(f"  as a re-plan reads them (with the spec's measurement noise): "
+                     f"{pred.told_apart:.3f} of the chips told apart")
     return lines

@@ -485,3 +485,21 @@ def test_the_measurement_noise_gives_the_share_a_re_plan_can_tell_apart():
     assert base.value == pytest.approx(free(sd_built), abs=0.005)
     assert noisy.told_apart == pytest.approx(free(sd_read), abs=0.005)
     assert noisy.told_apart < base.value - 0.005
+
+
+def test_the_cli_says_the_told_apart_share_a_plan_records():
+    """`vibroplan plan` prints plan.json's told-apart share under the collision-free
+    yield (read back through YieldPrediction.from_block); a plan made before it has none
+    and prints the lines it printed."""
+    from planner.manufacturability import YieldPrediction, prediction_lines
+
+    block = {"collision_free_yield": {"value": 0.969, "ci95": [0.966, 0.972], "chips": 10000},
+             "die_only_yield": 1.0, "device_only_yield": 0.969,
+             "closest_pair_hz": {"p5": 339.0, "median": 395.0, "p95": 427.0},
+             "limiting_pairs": [], "nominal_collisions": []}
+    old = prediction_lines(YieldPrediction.from_block(block), 0.95, before_designs=False)
+    told = {**block, "told_apart_yield": {"value": 0.9675, "ci95": [0.964, 0.971],
+                                          "chips": 10000, "measurement_noise_pct": 0.05}}
+    new = prediction_lines(YieldPrediction.from_block(told), 0.95, before_designs=False)
+    assert new[:len(old)] == old and len(new) == len(old) + 1
+    assert "0.968 of the chips told apart" in new[-1]
