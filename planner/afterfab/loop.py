@@ -344,7 +344,7 @@ def _tune(job: LoopJob, measured, models, original, remeasure, truth: Truth, pla
     swept = windows_of(fitted, keep_flagged=True)
     tones = {n.text: f for n, f in plan.assignment.frequencies.items()}
     # a tone already in the middle half of its window stays (a lab retunes the others)
-    windows = {n: w for n, w in windows_of(fitted, keep_flagged=True).items()
+    windows = {n: w for n, w in swept.items()
                if abs(tones[n] - 0.5 * (w[0] + w[1])) > TUNE_CENTRE * (w[1] - w[0])}
     if not windows:
         return TuneOutcome(**first, windows=0)

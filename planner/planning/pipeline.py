@@ -10,7 +10,6 @@ dwells) -> coupling -> manufacturability -> record.  Data flows one way; every s
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import time
 from dataclasses import dataclass, field
 
@@ -293,11 +292,8 @@ def _repair_rounds(settings, clock, tick, on_assignment, design_kw, first, free_
         if (not failed_rows and not infeasible) or round_ == settings.repair_rounds:
             break
         offsets, drawn_before = dict(reseed), dict(draws)
-        # a confirmed design needs no lever: it counts as feasible here
-        levered = {n: (dataclasses.replace(d, feasible=True) if n in got.confirmed else d)
-                   for n, d in got.designs.items()}
-        actions, away = design_levers(levered, steps, assignment, draws, pair_sep, sep,
-                                      reseed, reseeded)
+        actions, away = design_levers(got.designs, steps, assignment, draws, pair_sep, sep,
+                                      reseed, reseeded, confirmed=got.confirmed)
         answered = reseed_idle(got.failures, got.designs, reseed, idle_redesigned)
         for n, near in widen_separations(got.failures, got.designs, steps, assignment,
                                          pair_sep, sep, skip=answered).items():

@@ -60,7 +60,8 @@ def _nearest_tones(node, designs, assignment, count=1):
     return below + above
 
 
-def design_levers(designs, steps, assignment, draws, pair_sep, sep, reseed, reseeded):
+def design_levers(designs, steps, assignment, draws, pair_sep, sep, reseed, reseeded,
+                  confirmed=()):
     """What the loop changes for every infeasible design (their shortfalls say why).
 
     - it answers the summed drive of a multi-tone step it sits out: that step's phases
@@ -73,6 +74,9 @@ def design_levers(designs, steps, assignment, draws, pair_sep, sep, reseed, rese
     - it misses only the speed floor, the mass cap, a bound or its sensitivity: it is
       re-designed from further seeds (``reseed``, in place) once (``reseeded``, a set
       updated in place), then moves away from its nearest neighbours.
+
+    ``confirmed``: the nodes whose design the steps' own simulation confirms
+    (:func:`planner.planning.verify.confirm_responses`): no lever acts on them.
 
     Returns
     -------
@@ -99,7 +103,8 @@ def design_levers(designs, steps, assignment, draws, pair_sep, sep, reseed, rese
 
     for n in sorted(designs):
         d = designs[n]
-        if d.feasible:
+        if d.feasible or n in confirmed:
+            # a design the steps' own simulation confirms needs no lever
             continue
         kinds = {s["constraint"] for s in d.shortfalls}
         drives = [k for k in d.checks.get("violated_drives", ()) if k in by_key]
