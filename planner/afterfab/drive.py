@@ -827,3 +827,98 @@ def move_tones(settings, drive: RescuedDrive, rows, failures, models, sliders, c
     return (dataclasses.replace(drive, steps=tuple(steps), tones=tones, waveforms=waveforms,
                                 notes=notes, tone_moves=tuple(moves)),
             rows, failures)
+
+
+#: Factors :func:`raise_slow` raises a slow slider's tones by, in turn (the step's other
+#: tones as they were; the step then held to the peak and acceleration limits, which may
+#: lower every tone of it) [-].
+RAISE_FACTORS = (1.03, 1.06, 1.1, 1.15)
+
+
+def raise_slow(settings, steps, waveforms, tones, failures, models, sliders, check_models,
+               check_chip):
+    """Raise the tone of each impacter whose slider a lab sees too slow on the chip, in
+    the steps it is too slow in: the drive of that impacter's steps changed before the
+    chip is scrapped (issue 45, item 2).
+
+    The re-plan placed every tone for the chip's *measured* models; on the chip itself a
+    slider may still move below the speed floor (its impacter's true resonance a little
+    further from the tone than measured, so that the tone drives it from fewer starting
+    states).  A stronger tone widens the band in which an impacter answers it: for each
+    step a slider is too slow in (``failures``: the chip's, as the lab sees them playing
+    the drive), the tones of its moving impacters are raised by :data:`RAISE_FACTORS` in
+    turn, the step held to ``drive.peak_limit_um`` and ``drive.max_acceleration_g`` (the
+    other tones lowered with it where a limit binds) and its burst sized again within the
+    travel limit; the first factor whose step passes every check but the motion's on the
+    measured models (the idle impacters' silence among them) and then on the chip is
+    kept.  Steps gated for targets, and a plan with a drive chain (whose input limit the
+    re-synthesis would have to hold), are left as they are.
+
+    Parameters
+    ----------
+    steps : sequence of Step
+    waveforms : dict
+        Step key -> its loop (:class:`planner.synthesis.Waveform`).
+    tones : dict
+        Node -> the impacter's tone [Hz] in this drive.
+    failures : sequence of Failure
+        The drive's failed checks on the chip.
+    models, sliders :
+        The measured models the bursts are sized on.
+    check_models, check_chip : callable
+        ``(steps, waveforms) -> (rows, failures)``: the per-step checks on the measured
+        models and on the chip.
+
+    Returns
+    -------
+    (steps, waveforms, raised)
+        The drive with the raised steps, and one record per raised step (``step``,
+        ``ids``, ``factor``).
+    """
+    from planner.planning.drives import limit_acceleration, reweighted, scaled
+    from planner.planning.verify import TOO_SLOW
+    from planner.synthesis import Waveform
+
+    if settings.chain is not None:
+        return tuple(steps), dict(waveforms), ()
+    slow = {}
+    for f in failures:
+        if f.kind == TOO_SLOW:
+            slow.setdefault(f.step, set()).add(f.device)
+    steps, waveforms, raised = list(steps), dict(waveforms), []
+    for pos, st in enumerate(steps):
+        w = waveforms.get(st.key)
+        if st.index not in slow or st.targets_m is not None or not isinstance(w, Waveform):
+            continue
+        movers = sorted(Node(d, r) for d, r in st.active_nodes() if d in slow[st.index])
+        freqs = np.atleast_1d(w.frequencies)
+        idx = sorted({int(np.argmin(np.abs(freqs - tones[n]))) for n in movers if n in tones})
+        if not idx:
+            continue
+
+        def attempt(factor, st=st, w=w, idx=idx):
+            a = np.array(w.amplitudes, dtype=float)
+            a[idx] *= factor
+            got = reweighted(w, a, f"tone(s) {', '.join(f'{freqs[i]:.1f}' for i in idx)} Hz "
+                                   f"raised x{factor:g}: a slider moved too slowly on the chip")
+            limit = settings.peak_limit_m
+            if limit is not None and got.peak > limit:
+                got = scaled(got, limit / got.peak * (1.0 - 1e-6),
+                             "every amplitude lowered to meet drive.peak_limit_um")
+            held, _ = limit_acceleration(settings, {st.key: got})
+            (sub,), _ = size_within(settings, (st,), held, models, sliders,
+                                    settings.max_travel_m)
+            _, on_models = check_models([sub], held)
+            if _serious(on_models):
+                return 1 + _serious(on_models), None
+            _, on_chip = check_chip([sub], held)
+            return _serious(on_chip), (sub, held)
+
+        best = _least_serious(RAISE_FACTORS, attempt)
+        if best is None or best[0] > 0 or best[2] is None:
+            continue
+        _, factor, (sub, held), _ = best
+        steps[pos] = sub
+        waveforms.update(held)
+        raised.append({"step": st.key, "ids": [n.text for n in movers], "factor": factor})
+    return tuple(steps), waveforms, tuple(raised)

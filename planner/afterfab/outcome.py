@@ -246,13 +246,18 @@ class TuneOutcome(_DriveOutcome):
     windows : int
         Impacters whose tone was moved to its working window's middle [-] (0: the
         re-plan stands as it was).
+    kept_replan : bool
+        The tuned drive, played on the chip, failed where the re-plan before the sweep
+        worked, and the lab kept that re-plan (``windows`` is then 0) [-].
     """
 
     windows: int = 0
+    kept_replan: bool = False
 
     def to_dict(self) -> dict:
-        """The re-plan's keys plus ``windows``."""
-        return {**self._common(), "windows": self.windows}
+        """The re-plan's keys plus ``windows`` (and ``kept_replan`` where true)."""
+        return {**self._common(), "windows": self.windows,
+                **({"kept_replan": True} if self.kept_replan else {})}
 
 
 @dataclass(frozen=True)

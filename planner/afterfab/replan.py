@@ -63,8 +63,11 @@ from planner.planning.verify import check_step, check_steps, coupling_matrix, x0
 TONE_MOVED, STEP_SPLIT, RE_PHASED, QUIETENED = ("tone_moved_in_window", "step_split",
                                                 "re_phased", "quietened")
 BURST_SHORTENED, DWELL_LENGTHENED = "burst_shortened", "dwell_lengthened"
+#: A tone raised because its slider moved too slowly on the chip itself (the loop's tune
+#: stage, where the chip is played: :func:`planner.afterfab.loop._raise_on_chip`).
+AMPLITUDE_RAISED = "amplitude_raised"
 REPAIR_KINDS = (TONE_MOVED, STEP_SPLIT, RE_PHASED, QUIETENED, BURST_SHORTENED,
-                DWELL_LENGTHENED)
+                DWELL_LENGTHENED, AMPLITUDE_RAISED)
 
 
 def verify_drive(plan: PlanRecord, models: AsBuilt, settings=None):
@@ -418,7 +421,7 @@ def repair_counts(drive, motion_repairs=()) -> dict:
            QUIETENED: sum(1 for nt in notes if "quietened_by" in nt),
            BURST_SHORTENED: sum(1 for a in actions if ": burst " in a),
            DWELL_LENGTHENED: sum(1 for a in actions if ": dwell " in a)}
-    return {k: got[k] for k in REPAIR_KINDS if got[k]}
+    return {k: got[k] for k in REPAIR_KINDS if got.get(k)}
 
 
 def _replan_record(plan, settings, params, drive, orig_passed, orig_rows, windows=None,

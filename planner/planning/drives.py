@@ -169,6 +169,32 @@ def scaled(waveform, factor, why):
         warnings=waveform.warnings + (why,))
 
 
+def reweighted(waveform, amplitudes, why):
+    """``waveform`` with its tones at ``amplitudes`` [m], on the same loop, frequencies
+    and phases: the samples, the continuous peak, rms and crest factor computed again
+    (as :func:`planner.synthesis.chain.compensate` does for the amplifier input); ``why``
+    is added to its warnings.  A loop only (a gated burst's gates are its tones')."""
+    import dataclasses
+    import math
+
+    import numpy as np
+
+    from planner.synthesis.kernels import _cosine_sum
+    from planner.synthesis.peak import peak_of
+
+    a = np.asarray(amplitudes, dtype=float)
+    cycles = np.rint(waveform.frequencies * waveform.loop_length).astype(np.int64)
+    n = waveform.loop_points
+    loop = _cosine_sum(cycles, n, a, waveform.phases)
+    n_loops = max(1, len(waveform.samples) // n)
+    samples = np.tile(loop, n_loops) if n_loops > 1 else loop
+    peak = max(peak_of(cycles, a, waveform.phases), float(np.max(np.abs(samples))))
+    rms = math.sqrt(float(np.sum(a ** 2)) / 2.0)
+    return dataclasses.replace(waveform, samples=samples, amplitudes=a, peak=peak, rms=rms,
+                               crest_factor=peak / rms if rms > 0 else 0.0,
+                               warnings=waveform.warnings + (why,))
+
+
 def limit_acceleration(settings: Settings, waveforms):
     """Enforce ``drive.max_acceleration_g``: every step whose summed drive's peak base
     acceleration exceeds it has all its tone amplitudes lowered by one factor (limit /

@@ -168,6 +168,13 @@ def _replan_lines(data: dict, timings: dict | None) -> list[str]:
                   f"**Tuned yield {tu['yield']:.3f}** (95 % CI [{tu['ci95'][0]:.3f}, "
                   f"{tu['ci95'][1]:.3f}], {tu['passed']} / {tu['chips']} chips); rescued "
                   f"{tu['rescued']} the re-plan lost, lost {tu['lost']} it had.", ""]
+        kept = tu.get("kept_replan", 0)
+        raised = (tu.get("repaired_chips") or {}).get("amplitude_raised", 0)
+        if kept or raised:
+            lines += [f"Played on the chip: on {kept} chip(s) the tuned drive failed where the "
+                      "re-plan before the sweep worked, and the re-plan was kept; on "
+                      f"{raised} chip(s) a slider too slow on the chip had its tone raised "
+                      f"({(tu.get('repairs') or {}).get('amplitude_raised', 0)} step(s)).", ""]
         if tu["causes"]:
             lines += ["| why a tuned chip still fails | chips |", "|---|---|"]
             lines += [f"| {k} | {v} |" for k, v in tu["causes"].items()] + [""]

@@ -105,8 +105,10 @@ def _tune_summary(results, chips):
                            if t.passed and not r.replan.passed),
             "lost": sum(1 for r, t in zip(results, tuned)
                         if r.replan.passed and not t.passed),
+            "kept_replan": sum(1 for t in tuned if t.kept_replan),
             "causes": _tally((t.causes for t in tuned), REPLAN_CAUSES),
-            "failures": _tally((t.failures for t in tuned), KINDS)}
+            "failures": _tally((t.failures for t in tuned), KINDS),
+            **_repairs_summary(tuned)}
 
 
 def _chip_record(r: ChipResult) -> dict:
@@ -120,7 +122,9 @@ def _chip_record(r: ChipResult) -> dict:
             "split_steps": list(rp.split_steps or ()), "tones_moved": rp.tones_moved or 0,
             **({"repairs": dict(rp.repairs)} if rp.repairs else {}),
             **({"tuned_passed": tu.passed, "tuned_causes": list(tu.causes),
-                "tuned_windows": tu.windows} if tu is not None else {}),
+                "tuned_windows": tu.windows,
+                **({"tuned_kept_replan": True} if tu.kept_replan else {})}
+               if tu is not None else {}),
             **({"trim_passed": tr.passed, "trimmed": list(tr.trimmed),
                 "trim_causes": list(tr.causes)} if tr is not None else {})}
 
@@ -186,7 +190,8 @@ def yield_record(payload, chips: int, scales: list[float], nominal: ChipResult,
             "tones_per_impacter": payload.tune_tones,
             "speed_noise_pct": payload.tune_noise_pct,
             **{k: tu[k] for k in ("chips", "passed", "yield", "ci95", "rescued", "lost",
-                                  "causes", "failures")},
+                                  "kept_replan", "causes", "failures")},
+            **{k: tu[k] for k in ("repairs", "repaired_chips") if k in tu},
             "failed_chips": [r.chip for r in mine if not r.replan.tuned.passed],
         }
     if payload.trim:

@@ -10,6 +10,7 @@ repair tries (nearest the middle first: 5320, 5480, then 5241 Hz), 5241 Hz drive
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import pytest
@@ -152,3 +153,105 @@ def test_a_tuned_re_plan_too_slow_only_where_the_sweep_says_it_moves_is_kept(
     # nothing failed: nothing for the sweep to overrule
     clean = replan(plan, _measured(plan, window=None), record=False)
     assert clean.passed and not _swept_speeds_hold(clean, {"A1.forward": WINDOW_HZ})
+
+
+def _raise_setup(plan, window):
+    """The module's chip with A1.forward's window at ``window``, re-planned without the
+    tone move (A1's slider too slow at the window's middle), and the checks of a step on
+    its measured models."""
+    from planner.afterfab.replan import chip_models
+
+    measured = _measured(plan, window)
+    result = replan(plan, measured, record=False)
+    built = chip_models(plan, measured, 100.0 * result.settings.measurement_noise)
+    models = {r.node: built.impacters[r.id] for r in plan.impacters}
+
+    def check(steps, waveforms):
+        got = check_drive(result.settings, steps, waveforms, result.dwells, models,
+                          built.sliders, scenes=False)
+        return got["rows"], got["records"]
+
+    return result, models, built.sliders, check
+
+
+def test_a_slider_too_slow_on_the_chip_has_its_tone_raised_until_it_moves(
+        plan, monkeypatch):
+    """Issue 45, item 2: the drive of a too-slow impacter's step changed before the
+    chip is scrapped.  A1.forward at 5330 Hz (its window 5230-5430 Hz) moves its slider
+    too slowly; raised by the first factors it still does, by a later one it moves, and
+    the loop's samples carry the raised tone (read back by FFT)."""
+    import numpy as np
+
+    from planner.afterfab.drive import RAISE_FACTORS, raise_slow
+
+    monkeypatch.setattr(drive_mod, "MOVE_TRIES", 0)
+    result, models, sliders, check = _raise_setup(plan, (5230.0, 5430.0))
+    assert {f.kind for f in result.failures} == {TOO_SLOW}
+    steps, waveforms, raised = raise_slow(result.settings, result.run_steps,
+                                          result.waveforms, result.assignment.frequencies,
+                                          result.failures, models, sliders, check, check)
+    (r,) = raised
+    assert r["ids"] == ["A1.forward"] and r["factor"] in RAISE_FACTORS[1:]
+    before, after = result.waveforms[r["step"]], waveforms[r["step"]]
+    tone = result.assignment.frequencies[next(n for n in result.assignment.frequencies
+                                              if n.text == "A1.forward")]
+    i = int(np.argmin(np.abs(before.frequencies - tone)))
+    assert after.amplitudes[i] == pytest.approx(r["factor"] * before.amplitudes[i])
+    others = np.arange(before.frequencies.size) != i
+    np.testing.assert_allclose(after.amplitudes[others], before.amplitudes[others])
+    np.testing.assert_array_equal(after.phases, before.phases)
+    # the samples: one loop's spectrum has the raised line
+    n = after.loop_points
+    spec = np.abs(np.fft.rfft(after.samples[:n])) * 2.0 / n
+    k = int(round(after.frequencies[i] * after.loop_length))
+    assert spec[k] == pytest.approx(after.amplitudes[i], rel=1e-6)
+    # the raised drive passes every check on the chip it was raised for, scenes included
+    got = check_drive(result.settings, steps, waveforms, result.dwells, models, sliders)
+    assert got["passed"], got["failures"]
+    # the steps it did not raise are the re-plan's own
+    assert {k_: w for k_, w in waveforms.items() if k_ != r["step"]} == {
+        k_: w for k_, w in result.waveforms.items() if k_ != r["step"]}
+
+
+def test_a_tone_no_raise_makes_work_is_left_as_it_was(plan, monkeypatch):
+    """At 5400 Hz (the window 5300-5500 Hz) A1.forward's slider does not move however far
+    the tone is raised: nothing is raised and the drive is returned as it was."""
+    from planner.afterfab.drive import raise_slow
+
+    monkeypatch.setattr(drive_mod, "MOVE_TRIES", 0)
+    result, models, sliders, check = _raise_setup(plan, (5300.0, 5500.0))
+    assert {f.kind for f in result.failures} == {TOO_SLOW}
+    steps, waveforms, raised = raise_slow(result.settings, result.run_steps,
+                                          result.waveforms, result.assignment.frequencies,
+                                          result.failures, models, sliders, check, check)
+    assert raised == ()
+    assert steps == tuple(result.run_steps) and waveforms == dict(result.waveforms)
+
+
+def test_the_tune_keeps_the_re_plan_that_worked_on_the_chip(plan, monkeypatch):
+    """A tuned drive that fails on the chip where the re-plan before the sweep worked
+    gives way to that re-plan (``kept_replan``): the lab played both.  The chip is the
+    module's plan as designed (measured exactly); the sweep's fit is replaced by a
+    working window whose middle, 5400 Hz, does not drive A1.forward (the sweep reads an
+    impacter alone; what it reads is not this test's subject)."""
+    import numpy as np
+
+    import planner.afterfab.tune as tune_mod
+    from planner.afterfab.loop import run_loop
+    from planner.fabrication.tolerances import sample_chip
+    from planner.yield_.chip import loop_job, truth_of
+    from planner.yield_.inputs import make_payload
+
+    monkeypatch.setattr(drive_mod, "MOVE_TRIES", 0)
+    monkeypatch.setattr(tune_mod, "windows_of",
+                        lambda fitted, keep_flagged=False: {"A1.forward": (5300.0, 5500.0)})
+    payload = make_payload(plan, 0, replan=True, tune=True, measure_noise_pct=0.0,
+                           allow_zero=True)
+    chip = sample_chip(payload.design, payload.fabrication, np.random.default_rng(0), 0.0)
+    out = run_loop(loop_job(payload), truth=truth_of(payload, 0.0, 0, chip))
+    assert out.replan.passed                   # the re-plan at the designed tones works
+    tuned = out.replan.tuned
+    assert tuned.kept_replan and tuned.windows == 0 and tuned.passed
+    assert tuned.to_dict()["kept_replan"] is True
+    # without the new key where the rule did not fire
+    assert "kept_replan" not in dataclasses.replace(tuned, kept_replan=False).to_dict()
