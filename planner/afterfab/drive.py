@@ -876,9 +876,11 @@ def raise_slow(settings, steps, waveforms, tones, failures, models, sliders, che
         ``ids``, ``factor``).
     """
     from planner.planning.drives import limit_acceleration, reweighted, scaled
+    from planner.planning.motion import by_node
     from planner.planning.verify import TOO_SLOW
     from planner.synthesis import Waveform
 
+    models = by_node(models)        # a chip's models may be keyed by impacter id
     if settings.chain is not None:
         return tuple(steps), dict(waveforms), ()
     slow = {}

@@ -187,9 +187,11 @@ def test_a_slider_too_slow_on_the_chip_has_its_tone_raised_until_it_moves(
     monkeypatch.setattr(drive_mod, "MOVE_TRIES", 0)
     result, models, sliders, check = _raise_setup(plan, (5230.0, 5430.0))
     assert {f.kind for f in result.failures} == {TOO_SLOW}
+    # the models keyed by impacter id, as the loop holds a chip's (AsBuilt, Truth)
+    by_id = {n.text: m for n, m in models.items()}
     steps, waveforms, raised = raise_slow(result.settings, result.run_steps,
                                           result.waveforms, result.assignment.frequencies,
-                                          result.failures, models, sliders, check, check)
+                                          result.failures, by_id, sliders, check, check)
     (r,) = raised
     assert r["ids"] == ["A1.forward"] and r["factor"] in RAISE_FACTORS[1:]
     before, after = result.waveforms[r["step"]], waveforms[r["step"]]
