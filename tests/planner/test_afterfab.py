@@ -347,3 +347,6 @@ def test_yield_tune_reports_its_block_and_counts_failures_by_kind(tiny_plan_dir,
     assert len(per) == 4 and all("tuned_passed" in c for c in per)
     assert sum(c["tuned_passed"] for c in per) == t["passed"]
     assert "tuned" in (out / "report.md").read_text().lower()
+    # played on the chip: the re-plans kept, counted (a tuned chip never lost now)
+    assert t["kept_replan"] == sum(1 for c in per if c.get("tuned_kept_replan"))
+    assert t["lost"] == 0
