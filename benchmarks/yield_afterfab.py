@@ -94,10 +94,12 @@ def level_lines(noise, shown, y, wall, chips):
     tu = y.get("tune") or {}
     if "kept_replan" in tu:
         raised = tu.get("repaired_chips", {}).get("amplitude_raised", 0)
+        timed = tu.get("repaired_chips", {}).get("gates_timed_on_chip", 0)
         lines += [f"Played on the chip (the tune stage): the re-plan kept where the tuned drive "
                   f"failed on the chip and it worked: {tu['kept_replan']} chips; a slider too "
                   f"slow on the chip, its tone raised: {raised} chips "
-                  f"({tu.get('repairs', {}).get('amplitude_raised', 0)} steps).", ""]
+                  f"({tu.get('repairs', {}).get('amplitude_raised', 0)} steps); a slider off "
+                  f"its target, the step's gates timed on the chip: {timed} chips.", ""]
     lines += [f"Wall time {wall / 60:.1f} min for {chips} chips ({wall / max(chips, 1):.1f} s "
               f"per chip; budget {BUDGET_MIN:g} min for 200: "
               f"{'met' if wall * 200 / max(chips, 1) <= 60 * BUDGET_MIN else 'missed'}).", ""]

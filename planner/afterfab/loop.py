@@ -333,7 +333,7 @@ def _tune(job: LoopJob, measured, models, original, remeasure, truth: Truth, pla
     it when the tuned re-plan fails the checks on the chip's measured models that the
     re-plan passed (a lab keeps the drive that verifies), or fails on the chip where the
     re-plan worked (the lab played both).  The drive kept, where a slider is still too
-    slow on the chip, has that slider's tones raised (:func:`_raise_on_chip`).
+    slow or off its target on the chip, is repaired there (:func:`_played_on_chip`).
     """
     from planner.afterfab.tune import fit_windows, sweep_speeds, windows_of
 
@@ -349,7 +349,7 @@ def _tune(job: LoopJob, measured, models, original, remeasure, truth: Truth, pla
     windows = {n: w for n, w in swept.items()
                if abs(tones[n] - 0.5 * (w[0] + w[1])) > TUNE_CENTRE * (w[1] - w[0])}
     if not windows:
-        return TuneOutcome(**_raise_on_chip(job, models, truth, plan, first_got, first),
+        return TuneOutcome(**_played_on_chip(job, models, truth, plan, first_got, first),
                            windows=0)
     tuned = {n: (m.with_window(windows[n]) if n in windows else m)
              for n, m in measured.items()}
@@ -361,7 +361,7 @@ def _tune(job: LoopJob, measured, models, original, remeasure, truth: Truth, pla
         # where the re-plan before the sweep passed them: a lab keeps the drive that
         # verifies (at 0.01 % noise, 200 chips of the default: 7 chips lost to the tune
         # without this, 185 rather than 178 tuned chips working)
-        return TuneOutcome(**_raise_on_chip(job, models, truth, plan, first_got, first),
+        return TuneOutcome(**_played_on_chip(job, models, truth, plan, first_got, first),
                            windows=0)
     rp = again.replan
     got = check_drive(settings, again.run_steps, again.waveforms, again.dwells,
@@ -374,29 +374,44 @@ def _tune(job: LoopJob, measured, models, original, remeasure, truth: Truth, pla
         # every sweep said the tone works (200 chips of the default: 2 chips at 0.01 %,
         # 1 at 0.05 % lost to the tune without this)
         return TuneOutcome(**first, windows=0, kept_replan=True)
-    return TuneOutcome(**_raise_on_chip(job, models, truth, again, got,
+    return TuneOutcome(**_played_on_chip(job, models, truth, again, got,
                                         _judged(ok, rp, got)), windows=len(windows))
 
 
-def _raise_on_chip(job: LoopJob, models, truth: Truth, plan, got: dict | None,
-                   fields: dict) -> dict:
-    """A drive that leaves a slider too slow on the chip, with that slider's tones raised
-    (:func:`planner.afterfab.drive.raise_slow`), as a lab that plays the drive and sees
-    the slider crawl raises its tone before it scraps the chip; every raised step checked
-    on the measured models and on the chip, and the drive then checked on the chip again
-    as a whole (the scenes' carried state included).
+def _played_on_chip(job: LoopJob, models, truth: Truth, plan, got: dict | None,
+                    fields: dict) -> dict:
+    """The drive a lab keeps, played on the chip and repaired where the lab sees it fail:
 
-    Returns the outcome's fields (``fields``, the drive's as it was, when nothing was
-    raised), the raises counted under ``repairs["amplitude_raised"]``.
+    - a slider too slow: its moving impacters' tones raised in that step
+      (:func:`planner.afterfab.drive.raise_slow`), as a lab that sees the slider crawl
+      raises its tone before it scraps the chip, each raised step checked on the measured
+      models and on the chip;
+    - a slider off its target (a ``targets_um`` step): the step's tone gates found again
+      on the chip (:func:`planner.afterfab.replan.regate` with the chip as the models),
+      as a lab times each tone by playing the step and reading where its sliders end: the
+      gates the re-plan found on the measured models put a slider wherever the measured
+      speed would have, and a 0.05 % error in a resonance changes a slider's speed by
+      tens of per cent near its window's edge, against a position tolerance of a few um.
+      The positions are read exactly (a microscope reads ~0.1 um; a few plays of the
+      step, as the plan's own search makes them).
+
+    The drive is then checked on the chip again as a whole (the scenes' carried state
+    included).  Returns the outcome's fields (``fields``, the drive's as it was, when
+    nothing was repaired), the repairs counted by kind in ``repairs``
+    (``amplitude_raised``, ``gates_timed_on_chip``).
     """
-    from planner.afterfab.drive import raise_slow
-    from planner.afterfab.replan import AMPLITUDE_RAISED
-    from planner.planning.verify import TOO_SLOW
+    from planner.afterfab.drive import plan_phases, raise_slow
+    from planner.afterfab.replan import AMPLITUDE_RAISED, GATES_ON_CHIP, regate
+    from planner.planning.motion import by_node
+    from planner.planning.verify import OFF_TARGET, TOO_SLOW
 
-    if (got is None or got["passed"] or plan is None
-            or not any(f.kind == TOO_SLOW for f in got["records"])):
+    if got is None or got["passed"] or plan is None:
+        return fields
+    kinds = {f.kind for f in got["records"]}
+    if not kinds & {TOO_SLOW, OFF_TARGET}:
         return fields
     settings = job.settings
+    steps, waveforms, repairs = tuple(plan.run_steps), dict(plan.waveforms), {}
 
     def check_on(on):
         def run(steps, waveforms):
@@ -405,16 +420,26 @@ def _raise_on_chip(job: LoopJob, models, truth: Truth, plan, got: dict | None,
             return g["rows"], g["records"]
         return run
 
-    steps, waveforms, raised = raise_slow(
-        settings, plan.run_steps, plan.waveforms, plan.assignment.frequencies,
-        got["records"], models.impacters, models.sliders, check_on(models), check_on(truth))
-    if not raised:
+    if TOO_SLOW in kinds:
+        steps, waveforms, raised = raise_slow(
+            settings, steps, waveforms, plan.assignment.frequencies, got["records"],
+            models.impacters, models.sliders, check_on(models), check_on(truth))
+        if raised:
+            repairs[AMPLITUDE_RAISED] = len(raised)
+    if OFF_TARGET in kinds:
+        timed, waves, gating = regate(settings, steps, waveforms, plan.assignment.frequencies,
+                                      by_node(truth.impacters), truth.sliders,
+                                      plan_phases(job.record))
+        if gating:
+            steps, waveforms = tuple(timed), dict(waves)
+            repairs[GATES_ON_CHIP] = len(gating)
+    if not repairs:
         return fields
     again = check_drive(settings, steps, waveforms, plan.dwells, truth.impacters,
                         truth.sliders)
     return {**fields, "passed": again["passed"], "failures": again["failures"],
             "causes": replan_causes(fields["measured_passed"], plan.replan, again),
-            "repairs": {**fields["repairs"], AMPLITUDE_RAISED: len(raised)}}
+            "repairs": {**fields["repairs"], **repairs}}
 
 
 def _swept_speeds_hold(plan, swept: dict) -> bool:

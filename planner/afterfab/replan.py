@@ -66,8 +66,11 @@ BURST_SHORTENED, DWELL_LENGTHENED = "burst_shortened", "dwell_lengthened"
 #: A tone raised because its slider moved too slowly on the chip itself (the loop's tune
 #: stage, where the chip is played: :func:`planner.afterfab.loop._raise_on_chip`).
 AMPLITUDE_RAISED = "amplitude_raised"
+#: A ``targets_um`` step's tone gates found again on the chip itself, its sliders'
+#: positions read after each play (:func:`planner.afterfab.loop._played_on_chip`).
+GATES_ON_CHIP = "gates_timed_on_chip"
 REPAIR_KINDS = (TONE_MOVED, STEP_SPLIT, RE_PHASED, QUIETENED, BURST_SHORTENED,
-                DWELL_LENGTHENED, AMPLITUDE_RAISED)
+                DWELL_LENGTHENED, AMPLITUDE_RAISED, GATES_ON_CHIP)
 
 
 def verify_drive(plan: PlanRecord, models: AsBuilt, settings=None):

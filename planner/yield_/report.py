@@ -169,12 +169,16 @@ def _replan_lines(data: dict, timings: dict | None) -> list[str]:
                   f"{tu['ci95'][1]:.3f}], {tu['passed']} / {tu['chips']} chips); rescued "
                   f"{tu['rescued']} the re-plan lost, lost {tu['lost']} it had.", ""]
         kept = tu.get("kept_replan", 0)
-        raised = (tu.get("repaired_chips") or {}).get("amplitude_raised", 0)
-        if kept or raised:
+        chips_by = tu.get("repaired_chips") or {}
+        raised = chips_by.get("amplitude_raised", 0)
+        timed = chips_by.get("gates_timed_on_chip", 0)
+        if kept or raised or timed:
             lines += [f"Played on the chip: on {kept} chip(s) the tuned drive failed where the "
                       "re-plan before the sweep worked, and the re-plan was kept; on "
                       f"{raised} chip(s) a slider too slow on the chip had its tone raised "
-                      f"({(tu.get('repairs') or {}).get('amplitude_raised', 0)} step(s)).", ""]
+                      f"({(tu.get('repairs') or {}).get('amplitude_raised', 0)} step(s)); on "
+                      f"{timed} chip(s) a slider off its target had its step's gates timed "
+                      "on the chip.", ""]
         if tu["causes"]:
             lines += ["| why a tuned chip still fails | chips |", "|---|---|"]
             lines += [f"| {k} | {v} |" for k, v in tu["causes"].items()] + [""]

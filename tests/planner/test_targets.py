@@ -323,3 +323,34 @@ def test_replan_of_a_perfectly_measured_chip_of_a_targets_plan_verifies(two_plan
     rows = json.loads((out / "plan.json").read_text())["verification"]["steps"]["s/write"]
     for dev in ("A1", "A2"):
         assert abs(rows[dev]["worst_position_error_m"]) <= 2e-6
+
+
+def test_a_slider_off_its_target_on_the_chip_has_its_gates_timed_there(two_plan):
+    """Issue 45's loop on a scene of positions: a chip whose A1 slider slides on 1.5 x
+    (and 0.6 x) its design's dynamic friction (a slider's friction is not measured): the
+    re-plan's gates, found on the measured models, leave it off its target on the chip;
+    the loop's tune stage plays the step on the chip and times the gates there
+    (``gates_timed_on_chip``), and the drive then passes every check on the chip."""
+    from planner.afterfab.checks import KINDS
+    from planner.afterfab.loop import run_loop
+    from planner.afterfab.replan import GATES_ON_CHIP
+    from planner.fabrication.tolerances import sample_chip
+    from planner.planfile.reader import read_plan
+    from planner.yield_.chip import loop_job, truth_of
+    from planner.yield_.inputs import make_payload
+
+    rec = read_plan(two_plan.out_dir)
+    payload = make_payload(rec, 0, replan=True, tune=True, measure_noise_pct=0.0,
+                           allow_zero=True)
+    truth = truth_of(payload, 0.0, 0, sample_chip(payload.design, payload.fabrication,
+                                                  np.random.default_rng(0), 0.0))
+    for factor in (1.5, 0.6):
+        sliders = dict(truth.sliders)
+        sliders["A1"] = dataclasses.replace(
+            sliders["A1"], dynamic_friction=sliders["A1"].dynamic_friction * factor)
+        out = run_loop(loop_job(payload), truth=dataclasses.replace(truth, sliders=sliders))
+        assert out.replan.measured_passed and not out.replan.passed
+        assert "off target" in out.replan.failures and set(out.replan.failures) <= set(KINDS)
+        tuned = out.replan.tuned
+        assert tuned.passed, tuned.failures
+        assert tuned.repairs.get(GATES_ON_CHIP, 0) >= 1
