@@ -59,8 +59,11 @@ from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_err
                    "on: a speed-against-tone sweep around each re-planned tone on the chip "
                    "(its true models, a speed reading's noise), the working windows fitted "
                    "(vibroplan calibrate --motion), the drive re-planned with each tone in "
-                   "its window's middle and verified again; yield.json gets a tune block, "
-                   "and --trim trims from the tuned re-plan.")
+                   "its window's middle and verified again, then played on the chip: the "
+                   "re-plan before the sweep kept where the tuned drive fails there and it "
+                   "worked, a slider too slow there given its tone raised (x1.03-1.15), a "
+                   "positioning step's gates timed there (docs/yield.md 2b); yield.json gets "
+                   "a tune block, and --trim trims from the tuned re-plan.")
 @click.option("--tune-tones", "tune_tones", type=int, default=7, show_default=True,
               metavar="N", help="With --tune: tones of each impacter's first sweep "
                                 "(3-50); a window reaching the sweep's end is followed on "
