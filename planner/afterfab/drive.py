@@ -902,7 +902,7 @@ def raise_slow(settings, steps, waveforms, tones, failures, models, sliders, che
             a = np.array(w.amplitudes, dtype=float)
             a[idx] *= factor
             got = reweighted(w, a, f"tone(s) {', '.join(f'{freqs[i]:.1f}' for i in idx)} Hz "
-                                   f"raised x{factor:g}: a slider moved too slowly on the chip")
+                                   f"raised x{factor:g}: its slider moved too slowly")
             limit = settings.peak_limit_m
             if limit is not None and got.peak > limit:
                 got = scaled(got, limit / got.peak * (1.0 - 1e-6),

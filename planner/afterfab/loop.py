@@ -442,7 +442,8 @@ def _played_on_chip(job: LoopJob, models, truth: Truth, plan, got: dict | None,
                         truth.sliders)
     return {**fields, "passed": again["passed"], "failures": again["failures"],
             "causes": replan_causes(fields["measured_passed"], plan.replan, again),
-            "repairs": {**fields["repairs"], **repairs}}
+            "repairs": {**fields["repairs"],
+                        **{k: fields["repairs"].get(k, 0) + v for k, v in repairs.items()}}}
 
 
 def _swept_speeds_hold(plan, swept: dict) -> bool:

@@ -55,7 +55,8 @@ from planner.afterfab.drive import (REPLAN_TRAVEL_MARGIN, move_tones, plan_phase
                                     redraw_slow, rescue, split_weak)
 from planner.planning.result import Plan
 from planner.planning.settings import plan_settings, tone_amplitudes
-from planner.planning.verify import check_step, check_steps, coupling_matrix, x0_grid
+from planner.planning.verify import (TOO_SLOW, check_step, check_steps, coupling_matrix,
+                                     x0_grid)
 
 #: The re-plan's repairs by kind (plan.json's ``replan.repairs``, yield.json's and the
 #: wafer summary's counts): a tone moved within its window, a step split into runs, a
@@ -281,6 +282,20 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
                     < sum(not r["passed"] for r in ver_rows)):
                 drive = moved
                 steps, ver_rows, failures, scene_rows, repairs, settle = got
+    if (any(f.kind == TOO_SLOW for f in failures) and not drive.inseparable
+            and not drive.outside_band):
+        # a slider still too slow at every place its tone was tried: its tone raised in
+        # that step (issue 45, item 2: the drive changed before the chip is scrapped),
+        # kept where fewer checks fail
+        raised = _raised(strict, drive, failures, models, sliders, check)
+        if raised is not None:
+            got = scenes_and_motion(strict, raised.steps, die_drives(settings, raised.waveforms),
+                                    models, sliders, *check(raised.steps, raised.waveforms),
+                                    dwell_floor=raised.dwells)
+            if (sum(not r["passed"] for r in got[1])
+                    < sum(not r["passed"] for r in ver_rows)):
+                drive = raised
+                steps, ver_rows, failures, scene_rows, repairs, settle = got
     timings["verify"] = time.perf_counter() - ts
 
     ts = time.perf_counter()
@@ -408,6 +423,23 @@ def _assignment(steps, settings, chosen, lower_bound, warnings=True):
                       guard_violations(steps, freqs, settings.tone_rules) if warnings else [])
 
 
+def _raised(settings, drive, failures, models, sliders, check):
+    """``drive`` with the tones of its sliders too slow on the measured models raised
+    (:func:`planner.afterfab.drive.raise_slow`, every factor checked on those models),
+    each raised step's note saying by how much (``raised_by``); None when none was."""
+    from planner.afterfab.drive import raise_slow
+
+    steps, waveforms, raised = raise_slow(settings, drive.steps, drive.waveforms, drive.tones,
+                                          failures, models, sliders, check, check)
+    if not raised:
+        return None
+    notes = dict(drive.notes)
+    for r in raised:
+        notes[r["step"]] = {**notes.get(r["step"], {}), "raised_by": r["factor"],
+                            "raised_ids": list(r["ids"])}
+    return dataclasses.replace(drive, steps=tuple(steps), waveforms=waveforms, notes=notes)
+
+
 def repair_counts(drive, motion_repairs=()) -> dict:
     """The re-plan's repairs by kind (:data:`REPAIR_KINDS`, in that order; only the kinds
     that fired): tones moved within their window (:func:`planner.afterfab.drive.
@@ -422,6 +454,7 @@ def repair_counts(drive, motion_repairs=()) -> dict:
            STEP_SPLIT: len(drive.splits),
            RE_PHASED: sum(1 for nt in notes if "phases_drawn" in nt),
            QUIETENED: sum(1 for nt in notes if "quietened_by" in nt),
+           AMPLITUDE_RAISED: sum(1 for nt in notes if "raised_by" in nt),
            BURST_SHORTENED: sum(1 for a in actions if ": burst " in a),
            DWELL_LENGTHENED: sum(1 for a in actions if ": dwell " in a)}
     return {k: got[k] for k in REPAIR_KINDS if got.get(k)}

@@ -155,14 +155,17 @@ def test_a_tuned_re_plan_too_slow_only_where_the_sweep_says_it_moves_is_kept(
     assert clean.passed and not _swept_speeds_hold(clean, {"A1.forward": WINDOW_HZ})
 
 
-def _raise_setup(plan, window):
+def _raise_setup(plan, window, monkeypatch):
     """The module's chip with A1.forward's window at ``window``, re-planned without the
-    tone move (A1's slider too slow at the window's middle), and the checks of a step on
-    its measured models."""
+    tone move and without the raise (A1's slider too slow at the window's middle), and
+    the checks of a step on its measured models."""
     from planner.afterfab.replan import chip_models
 
     measured = _measured(plan, window)
+    factors = drive_mod.RAISE_FACTORS
+    monkeypatch.setattr(drive_mod, "RAISE_FACTORS", ())
     result = replan(plan, measured, record=False)
+    monkeypatch.setattr(drive_mod, "RAISE_FACTORS", factors)
     built = chip_models(plan, measured, 100.0 * result.settings.measurement_noise)
     models = {r.node: built.impacters[r.id] for r in plan.impacters}
 
@@ -185,7 +188,7 @@ def test_a_slider_too_slow_on_the_chip_has_its_tone_raised_until_it_moves(
     from planner.afterfab.drive import RAISE_FACTORS, raise_slow
 
     monkeypatch.setattr(drive_mod, "MOVE_TRIES", 0)
-    result, models, sliders, check = _raise_setup(plan, (5230.0, 5430.0))
+    result, models, sliders, check = _raise_setup(plan, (5230.0, 5430.0), monkeypatch)
     assert {f.kind for f in result.failures} == {TOO_SLOW}
     # the models keyed by impacter id, as the loop holds a chip's (AsBuilt, Truth)
     by_id = {n.text: m for n, m in models.items()}
@@ -221,7 +224,7 @@ def test_a_tone_no_raise_makes_work_is_left_as_it_was(plan, monkeypatch):
     from planner.afterfab.drive import raise_slow
 
     monkeypatch.setattr(drive_mod, "MOVE_TRIES", 0)
-    result, models, sliders, check = _raise_setup(plan, (5300.0, 5500.0))
+    result, models, sliders, check = _raise_setup(plan, (5300.0, 5500.0), monkeypatch)
     assert {f.kind for f in result.failures} == {TOO_SLOW}
     steps, waveforms, raised = raise_slow(result.settings, result.run_steps,
                                           result.waveforms, result.assignment.frequencies,
@@ -257,3 +260,21 @@ def test_the_tune_keeps_the_re_plan_that_worked_on_the_chip(plan, monkeypatch):
     assert tuned.to_dict()["kept_replan"] is True
     # without the new key where the rule did not fire
     assert "kept_replan" not in dataclasses.replace(tuned, kept_replan=False).to_dict()
+
+
+def test_a_re_plan_raises_a_tone_no_place_in_its_window_drives(plan, monkeypatch):
+    """Issue 45, item 2, on the measured models (the test floor's re-plan too): without
+    the tone move, A1.forward at 5330 Hz is too slow; the re-plan raises its tone, the
+    drive verifies, and the repair is counted and noted; at 5400 Hz no factor helps and
+    the re-plan fails as before, with no repair."""
+    from planner.afterfab.replan import AMPLITUDE_RAISED
+
+    monkeypatch.setattr(drive_mod, "MOVE_TRIES", 0)
+    result = replan(plan, _measured(plan, (5230.0, 5430.0)), record=False)
+    assert result.passed
+    assert result.replan.repairs == {AMPLITUDE_RAISED: 1}
+    (raised,) = [w for w in result.waveforms.values()
+                 if any("its slider moved too slowly" in x for x in w.warnings)]
+    assert any(f"raised x{f:g}" in x for f in drive_mod.RAISE_FACTORS for x in raised.warnings)
+    failing = replan(plan, _measured(plan), record=False)
+    assert not failing.passed and failing.replan.repairs == {}
