@@ -641,7 +641,8 @@ def quieten(settings, drive: RescuedDrive, rows, failures, models, sliders, chec
     its burst sized again for the slower sliders, and the first factor whose step passes
     every check but the motion's is kept (else the one with the fewest such failures, if
     fewer than before); the movers' speed floor is one of the checks, so a step is never
-    weakened below what moves its sliders.  A slider that then travels too far, or
+    weakened below what moves its sliders; a step gated for targets is not tried (its
+    gates are its amplitudes').  A slider that then travels too far, or
     settles too late, is the motion repair's (shorter bursts, longer dwells:
     :func:`planner.planning.repair.repair_motion`), which runs after this.
 
@@ -668,7 +669,11 @@ def quieten(settings, drive: RescuedDrive, rows, failures, models, sliders, chec
     waveforms, notes = dict(drive.waveforms), dict(drive.notes)
     rows, failures = list(rows), list(failures)
     for pos, st in enumerate(drive.steps):
-        if st.index not in answered:
+        if st.index not in answered or st.targets_m is not None:
+            # a step gated for targets plays its tones one at a time for the times that
+            # put each slider on its target: weaker, every slider falls short (and each
+            # try simulates a burst of up to a second from every x0: on configs/
+            # pattern_5x5.yaml's 24 moves, minutes a chip)
             continue
         before = _serious(f for f in failures if f.step == st.index)
         def lowered(factor):
