@@ -262,7 +262,7 @@ def test_the_tune_keeps_the_re_plan_that_worked_on_the_chip(plan, monkeypatch):
     assert "kept_replan" not in dataclasses.replace(tuned, kept_replan=False).to_dict()
 
 
-def test_a_re_plan_raises_a_tone_no_place_in_its_window_drives(plan, monkeypatch):
+def test_a_re_plan_raises_a_tone_no_place_in_its_window_drives(plan, monkeypatch, tmp_path):
     """Issue 45, item 2, on the measured models (the test floor's re-plan too): without
     the tone move, A1.forward at 5330 Hz is too slow; the re-plan raises its tone, the
     drive verifies, and the repair is counted and noted; at 5400 Hz no factor helps and
@@ -276,5 +276,17 @@ def test_a_re_plan_raises_a_tone_no_place_in_its_window_drives(plan, monkeypatch
     (raised,) = [w for w in result.waveforms.values()
                  if any("its slider moved too slowly" in x for x in w.warnings)]
     assert any(f"raised x{f:g}" in x for f in drive_mod.RAISE_FACTORS for x in raised.warnings)
+    # plan.json says so, and reads back through the schema; the report names it
+    from planner.planfile.reader import read_plan
+
+    full = replan(plan, _measured(plan, (5230.0, 5430.0)))
+    write_replan_outputs(full, tmp_path / "raised", figures=False, timings=False)
+    data = json.loads((tmp_path / "raised" / "plan.json").read_text())
+    assert data["replan"]["repairs"] == {AMPLITUDE_RAISED: 1}
+    from planner.planfile.schema import PlanFile
+
+    read_plan(tmp_path / "raised")                     # read back through the schema
+    assert PlanFile.model_validate(data).replan.repairs == {AMPLITUDE_RAISED: 1}
+    assert "amplitude raised 1" in (tmp_path / "raised" / "report.md").read_text()
     failing = replan(plan, _measured(plan), record=False)
     assert not failing.passed and failing.replan.repairs == {}
