@@ -440,10 +440,9 @@ def _played_on_chip(job: LoopJob, models, truth: Truth, plan, got: dict | None,
         return fields
     again = check_drive(settings, steps, waveforms, plan.dwells, truth.impacters,
                         truth.sliders)
-    return {**fields, "passed": again["passed"], "failures": again["failures"],
-            "causes": replan_causes(fields["measured_passed"], plan.replan, again),
-            "repairs": {**fields["repairs"],
-                        **{k: fields["repairs"].get(k, 0) + v for k, v in repairs.items()}}}
+    judged = _judged(fields["measured_passed"], plan.replan, again)
+    return {**judged, "repairs": {**judged["repairs"], **{
+        k: judged["repairs"].get(k, 0) + v for k, v in repairs.items()}}}
 
 
 def _swept_speeds_hold(plan, swept: dict) -> bool:

@@ -64,8 +64,9 @@ from planner.planning.verify import (TOO_SLOW, check_step, check_steps, coupling
 TONE_MOVED, STEP_SPLIT, RE_PHASED, QUIETENED = ("tone_moved_in_window", "step_split",
                                                 "re_phased", "quietened")
 BURST_SHORTENED, DWELL_LENGTHENED = "burst_shortened", "dwell_lengthened"
-#: A tone raised because its slider moved too slowly on the chip itself (the loop's tune
-#: stage, where the chip is played: :func:`planner.afterfab.loop._raise_on_chip`).
+#: A tone raised in a step its slider moved too slowly in: on the measured models where
+#: no place in its window drives it (:func:`_raised`), or on the chip itself in the
+#: loop's tune stage (:func:`planner.afterfab.loop._played_on_chip`).
 AMPLITUDE_RAISED = "amplitude_raised"
 #: A ``targets_um`` step's tone gates found again on the chip itself, its sliders'
 #: positions read after each play (:func:`planner.afterfab.loop._played_on_chip`).
@@ -276,10 +277,8 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
                                                sliders, check)
             moved, rows_, fails_ = quieten(strict, moved, rows_, fails_, models,
                                            sliders, check)
-            got = scenes_and_motion(strict, moved.steps, die_drives(settings, moved.waveforms),
-                                    models, sliders, rows_, fails_, dwell_floor=moved.dwells)
-            if (sum(not r["passed"] for r in got[1])
-                    < sum(not r["passed"] for r in ver_rows)):
+            got = _fewer_failing(strict, moved, rows_, fails_, models, sliders, ver_rows)
+            if got is not None:
                 drive = moved
                 steps, ver_rows, failures, scene_rows, repairs, settle = got
     if (any(f.kind == TOO_SLOW for f in failures) and not drive.inseparable
@@ -288,14 +287,12 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
         # that step (issue 45, item 2: the drive changed before the chip is scrapped),
         # kept where fewer checks fail
         raised = _raised(strict, drive, failures, models, sliders, check)
-        if raised is not None:
-            got = scenes_and_motion(strict, raised.steps, die_drives(settings, raised.waveforms),
-                                    models, sliders, *check(raised.steps, raised.waveforms),
-                                    dwell_floor=raised.dwells)
-            if (sum(not r["passed"] for r in got[1])
-                    < sum(not r["passed"] for r in ver_rows)):
-                drive = raised
-                steps, ver_rows, failures, scene_rows, repairs, settle = got
+        got = (None if raised is None else
+               _fewer_failing(strict, raised, *check(raised.steps, raised.waveforms), models,
+                              sliders, ver_rows))
+        if got is not None:
+            drive = raised
+            steps, ver_rows, failures, scene_rows, repairs, settle = got
     timings["verify"] = time.perf_counter() - ts
 
     ts = time.perf_counter()
@@ -421,6 +418,17 @@ def _assignment(steps, settings, chosen, lower_bound, warnings=True):
     return Assignment(graph, groups, coloring, span, int(lower_bound), False,
                       "as-built", 0.0, 1, lo, channels, freqs,
                       guard_violations(steps, freqs, settings.tone_rules) if warnings else [])
+
+
+def _fewer_failing(settings, drive, rows, failures, models, sliders, than):
+    """:func:`planner.planning.repair.scenes_and_motion` of a repaired ``drive`` (its steps
+    checked: ``rows``, ``failures``), or None unless fewer of its checks then fail than of
+    ``than`` (the rows of the drive it would replace)."""
+    got = scenes_and_motion(settings, drive.steps, die_drives(settings, drive.waveforms),
+                            models, sliders, rows, failures, dwell_floor=drive.dwells)
+    if sum(not r["passed"] for r in got[1]) < sum(not r["passed"] for r in than):
+        return got
+    return None
 
 
 def _raised(settings, drive, failures, models, sliders, check):
