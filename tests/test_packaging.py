@@ -15,6 +15,12 @@ from pathlib import Path
 
 import pytest
 
+#: Slow (a wheel build, a venv: ~12 s of the default run's 5 minutes): `.ci/run` builds
+#: the wheel, installs it into a fresh venv, plans with it and checks the same two
+#: things (no numba cache inside site-packages, nothing left after uninstall) on every
+#: submission; run these with `python -m pytest -m slow tests/test_packaging.py`.
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

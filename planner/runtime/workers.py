@@ -105,6 +105,13 @@ def terminate(pool: cf.ProcessPoolExecutor) -> None:
         if p.is_alive():
             p.kill()
             p.join(TERMINATE_WAIT_S)
+    # the pool's manager thread sees its workers gone and closes its wake-up pipe; let it
+    # finish before the interpreter exits: concurrent.futures' exit hook writes to that
+    # pipe without the pool's lock, and a close between its check and its write printed
+    # "OSError: [Errno 9] Bad file descriptor" after a SIGTERM (seen under load)
+    manager = getattr(pool, "_executor_manager_thread", None)
+    if manager is not None and manager.is_alive():
+        manager.join(TERMINATE_WAIT_S)
 
 
 @contextlib.contextmanager

@@ -117,7 +117,8 @@ def test_fuzzed_array_specs(tmp_path, case):
     _check(result, [out])
 
 
-@FUZZ
+# half FUZZ's examples: each accepted config simulates a second and draws a plot
+@settings(FUZZ, max_examples=20)
 @given(case=mutated(DEVICE_CONFIGS))
 def test_fuzzed_device_configs(tmp_path, case):
     """The plot is asked for: a rejected config writes none, an accepted one writes it
@@ -297,7 +298,7 @@ def mutated_block(draw, data):
     return json.dumps(data, allow_nan=True)
 
 
-@settings(max_examples=24, deadline=None, derandomize=True,
+@settings(max_examples=16, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(data=st.data())
 def test_fuzzed_plan_json_blocks(tiny_plan_dir, replanned_tiny, tmp_path, data):

@@ -29,25 +29,44 @@ def tiny_spec(tmp_path):
     return path
 
 
-def test_a_second_plan_reads_every_design_from_the_cache(tiny_spec, tmp_path):
-    cache = tmp_path / "cache"
-    first = _plan(tiny_spec, "--out", tmp_path / "a", "--cache-dir", cache)
-    assert first.exit_code == 0, first.output
-    assert ", 0 read from the design cache" in _designs_line(first.output)
+@pytest.fixture(scope="module")
+def two_plans(tmp_path_factory):
+    """The tiny spec planned twice into one cache (figures drawn): the first run's and
+    the second run's outputs, for the tests that read what a re-run takes from the
+    cache (one pair of runs for all of them: each plan is a few seconds)."""
+    tmp = tmp_path_factory.mktemp("two_plans")
+    spec = tmp / "tiny.yaml"
+    spec.write_text(TINY)
+    cache = tmp / "cache"
+
+    def run(out):
+        res = CliRunner().invoke(main, ["plan", str(spec), "--out", str(tmp / out),
+                                        "--cache-dir", str(cache), "--quiet"],
+                                 catch_exceptions=False)
+        assert res.exit_code == 0, res.output
+        # what the first run stored, counted before the second can store more
+        return res, {d: sorted(p.name for p in (cache / d).iterdir())
+                     for d in ("designs", "verify", "figures")}
+
+    first, stored = run("a")
+    second, _ = run("b")
+    return {"cache": cache, "a": tmp / "a", "b": tmp / "b", "first": first.output,
+            "second": second.output, "stored": stored}
+
+
+def test_a_second_plan_reads_every_design_from_the_cache(two_plans):
+    first, second = two_plans["first"], two_plans["second"]
+    a, b = two_plans["a"], two_plans["b"]
+    assert ", 0 read from the design cache" in _designs_line(first)
     # the two designs and the reach's two probes (stored even when this process
     # probed the spec before, for another cache: the flake of 4 files for 2)
-    stored = sorted((cache / "designs").glob("*.pkl"))
-    assert len(stored) == 4 and "4 computed and stored" in _designs_line(first.output)
-
-    second = _plan(tiny_spec, "--out", tmp_path / "b", "--cache-dir", cache)
-    assert second.exit_code == 0, second.output
+    stored = [n for n in two_plans["stored"]["designs"] if n.endswith(".pkl")]
+    assert len(stored) == 4 and "4 computed and stored" in _designs_line(first)
     # the designs from the cache (the probes too, unless this process probed the spec)
-    assert re.search(r"2 distinct, [24] read from the design cache", _designs_line(second.output))
-    assert "0 computed" in _designs_line(second.output)
-    assert ((tmp_path / "a" / "plan.json").read_bytes()
-            == (tmp_path / "b" / "plan.json").read_bytes())
-    assert ((tmp_path / "a" / "designs.csv").read_bytes()
-            == (tmp_path / "b" / "designs.csv").read_bytes())
+    assert re.search(r"2 distinct, [24] read from the design cache", _designs_line(second))
+    assert "0 computed" in _designs_line(second)
+    assert (a / "plan.json").read_bytes() == (b / "plan.json").read_bytes()
+    assert (a / "designs.csv").read_bytes() == (b / "designs.csv").read_bytes()
 
 
 def _stages(output):
@@ -61,34 +80,28 @@ def _without_timings(report):
     return report.read_text(encoding="utf-8").split("## Timings")[0]
 
 
-def test_a_second_plan_reads_verification_and_manufacturability_from_the_cache(
-        tiny_spec, tmp_path):
+def test_a_second_plan_reads_verification_and_manufacturability_from_the_cache(two_plans):
     """Issue 43: a re-run verified every step and predicted the yield again from the
     designs it read from the cache.  The first run stores each step's checks, the
     coupling matrix and the manufacturability block beside the designs; the second
     reads all of them, simulates nothing, and writes the same files byte for byte
     (report.md but its timings)."""
-    cache = tmp_path / "cache"
-    first = _plan(tiny_spec, "--out", tmp_path / "a", "--cache-dir", cache)
-    assert first.exit_code == 0, first.output
-    stored = _stages(first.output)
+    a, b = two_plans["a"], two_plans["b"]
+    stored = _stages(two_plans["first"])
     steps = stored["verify"][1]
     assert steps >= 2        # push and pull, and any re-check of the motion repair
     assert stored == {"coupling": (0, 1), "manufacturability": (0, 1), "verify": (0, steps)}
-    assert len(list((cache / "verify").glob("*.pkl"))) == steps
+    assert len([n for n in two_plans["stored"]["verify"] if n.endswith(".pkl")]) == steps
 
-    second = _plan(tiny_spec, "--out", tmp_path / "b", "--cache-dir", cache)
-    assert second.exit_code == 0, second.output
-    assert _stages(second.output) == {"coupling": (1, 0), "manufacturability": (1, 0),
-                                      "verify": (steps, 0)}
+    assert _stages(two_plans["second"]) == {"coupling": (1, 0), "manufacturability": (1, 0),
+                                            "verify": (steps, 0)}
     for name in ("plan.json", "designs.csv", "coupling.csv"):
-        assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
-    assert _without_timings(tmp_path / "a" / "report.md") == _without_timings(
-        tmp_path / "b" / "report.md")
-    assert sorted(p.name for p in (tmp_path / "a" / "waveforms").iterdir()) == sorted(
-        p.name for p in (tmp_path / "b" / "waveforms").iterdir())
-    for wav in (tmp_path / "a" / "waveforms").iterdir():
-        assert wav.read_bytes() == (tmp_path / "b" / "waveforms" / wav.name).read_bytes()
+        assert (a / name).read_bytes() == (b / name).read_bytes()
+    assert _without_timings(a / "report.md") == _without_timings(b / "report.md")
+    assert sorted(p.name for p in (a / "waveforms").iterdir()) == sorted(
+        p.name for p in (b / "waveforms").iterdir())
+    for wav in (a / "waveforms").iterdir():
+        assert wav.read_bytes() == (b / "waveforms" / wav.name).read_bytes()
 
 
 def test_a_stage_digest_changes_with_the_seed_a_tolerance_and_a_step():
@@ -167,25 +180,16 @@ def test_the_digest_changes_with_any_input():
     assert task_digest(kw, 1e-4) not in digests and len(digests) == len(changed) + 1
 
 
-def test_a_second_plan_reads_its_figures_from_the_cache(tiny_spec, tmp_path):
+def test_a_second_plan_reads_its_figures_from_the_cache(two_plans):
     """Issue 43, a re-run in 5 s: the figures (matplotlib's rendering and the response
     curves' simulations, ~4 s of the default's re-run) are kept in the cache by the
     plan's record, settings and drives; a re-run writes the same PNG bytes without
     drawing them."""
-    cache = tmp_path / "cache"
-
-    def run(out, *extra):
-        res = CliRunner().invoke(main, ["plan", str(tiny_spec), "--out", str(out),
-                                        "--cache-dir", str(cache), "--quiet", *extra],
-                                 catch_exceptions=False)
-        assert res.exit_code == 0, res.output
-        return {p.name: p.read_bytes() for p in (out / "figures").iterdir()}
-
-    first = run(tmp_path / "a")
-    assert "response_curves.png" in first and len(list((cache / "figures").iterdir())) == 1
-    second = run(tmp_path / "b")
+    first, second = ({p.name: p.read_bytes() for p in (two_plans[k] / "figures").iterdir()}
+                     for k in ("a", "b"))
+    assert "response_curves.png" in first and len(two_plans["stored"]["figures"]) == 1
     assert second == first
-    assert len(list((cache / "figures").iterdir())) == 1
+    assert len(list((two_plans["cache"] / "figures").iterdir())) == 1
     # keyed by what they are drawn from: another seed's plan (its own designs, drives
     # and record) has another key (stage_digest, as test_a_stage_digest_changes_...)
     assert stage_digest("figures", {"seed": 0}) != stage_digest("figures", {"seed": 7})
