@@ -841,7 +841,7 @@ RAISE_FACTORS = (1.03, 1.06, 1.1, 1.15)
 
 
 def raise_slow(settings, steps, waveforms, tones, failures, models, sliders, check_models,
-               check_chip):
+               check_chip, why="its slider moved too slowly"):
     """Raise the tone of each impacter whose slider a lab sees too slow on the chip, in
     the steps it is too slow in: the drive of that impacter's steps changed before the
     chip is scrapped (issue 45, item 2).
@@ -873,6 +873,8 @@ def raise_slow(settings, steps, waveforms, tones, failures, models, sliders, che
     check_models, check_chip : callable
         ``(steps, waveforms) -> (rows, failures)``: the per-step checks on the measured
         models and on the chip.
+    why : str
+        The reason the raised waveform's warning gives.
 
     Returns
     -------
@@ -907,7 +909,7 @@ def raise_slow(settings, steps, waveforms, tones, failures, models, sliders, che
             a = np.array(w.amplitudes, dtype=float)
             a[idx] *= factor
             got = reweighted(w, a, f"tone(s) {', '.join(f'{freqs[i]:.1f}' for i in idx)} Hz "
-                                   f"raised x{factor:g}: its slider moved too slowly")
+                                   f"raised x{factor:g}: {why}")
             limit = settings.peak_limit_m
             if limit is not None and got.peak > limit:
                 got = scaled(got, limit / got.peak * (1.0 - 1e-6),

@@ -186,6 +186,12 @@ def run_loop(job: LoopJob, *, measured: dict | None = None, truth: Truth | None 
                          "a lab's sweep reaches the loop as the measurement's windows")
     if truth is not None and truth.unbuildable:
         return _unbuildable(job, truth)
+    if job.settings is not None and (job.settings.measurement_noise
+                                     != job.measure_noise_pct / 100.0):
+        # the re-plans' margins on the measurement are the noise this lab measures with
+        # (the as-built models' assumption), whatever the spec's
+        job = dataclasses.replace(job, settings=dataclasses.replace(
+            job.settings, measurement_noise=job.measure_noise_pct / 100.0))
     t0 = time.perf_counter()
     floor = truth is None
     missing = () if not floor else tuple(r.id for r in job.record.impacters
