@@ -330,6 +330,9 @@ def _silent_peer():
     return server, f"tcp://127.0.0.1:{server.getsockname()[1]}"
 
 
+# slow (~6 s): it waits out the scheduler's timeout; test_unusable_scheduler_addresses
+# keeps the scheduler's refusals in the default run
+@pytest.mark.slow
 def test_a_scheduler_that_never_answers_is_given_up_on(tiny_plan_dir, tmp_path, monkeypatch):
     # the connect timeout (20 s) shortened through its environment variable
     monkeypatch.setenv("VIBROPLAN_CONNECT_TIMEOUT_S", "3")

@@ -592,6 +592,9 @@ def _a1_of(die_folder: Path) -> float:
     return {i["id"]: i["natural_frequency_hz"] for i in plan["impacters"]}["A1.forward"]
 
 
+# slow (~6 s): a second interrupted batch; test_an_interrupted_batch_resumes_... keeps the
+# resume in the default run
+@pytest.mark.slow
 def test_a_resume_reuses_a_die_only_for_its_own_measurement(tiny_plan_dir, tmp_path):
     """Issue 44 case 1: interrupted once die_0_5 is kept, the files then renamed
     (die_0_5.csv -> die_0_6.csv, die_0_4.csv -> die_0_5.csv: the files' bytes in name

@@ -144,6 +144,8 @@ for v in _assignment(settings.steps, settings, chosen, 0).violations:
 """
 
 
+# slow (~5 s): two interpreters with different hash seeds re-plan the same chip
+@pytest.mark.slow
 def test_a_replans_guard_warnings_do_not_depend_on_the_string_hash():
     """The re-plan's guard warnings (plan.json's assignment) came out in the order of a
     set of nodes, which follows the process's string hash: two runs of one re-plan
