@@ -36,6 +36,7 @@ stiffness's: k from the measured resonance, the design's mass, damping and gap.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -121,6 +122,15 @@ def symmetric(imp):
     m = float(imp.mass)
     return model.Impacter(m, m * w * w, float(np.mean([h.damping for h in parts])),
                           float(imp.gap), imp.a.impact_angle, imp.a.restitution)
+
+
+def resonance_times(imp, ratio: float):
+    """``imp`` (an impacter or a pair of halves) with its natural frequency times
+    ``ratio``: the stiffness times ``ratio**2``, the mass, and so the kick each impact
+    gives, kept (both halves alike)."""
+    parts = [dataclasses.replace(h, stiffness=h.stiffness * ratio * ratio)
+             for h, _ in model.halves(imp)]
+    return parts[0] if len(parts) == 1 else model.pair_of(*parts)
 
 
 def _variances(design: ChipDesign):

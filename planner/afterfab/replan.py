@@ -50,7 +50,7 @@ from planner.planfile.schema import Replan
 from planner.planning.chain import die_drives
 from planner.planning.record import build_record
 from planner.planning.repair import scenes_and_motion
-from planner.afterfab.as_built import AsBuilt, as_built, symmetric
+from planner.afterfab.as_built import AsBuilt, as_built, resonance_times, symmetric
 from planner.afterfab.drive import (REPLAN_TRAVEL_MARGIN, move_tones, plan_phases, quieten,
                                     redraw_slow, rescue, split_weak)
 from planner.planning.result import Plan
@@ -321,7 +321,8 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
         # a slider fast enough on the measured models but too slow where its resonance
         # is one measurement's error away: its tone raised in that step, kept where no
         # more checks fail on the measured models (issue 45, item 3)
-        margined = _speed_margin(strict, drive, ver_rows, models, sliders, swept=windows)
+        margined = _speed_margin(strict, drive, ver_rows, models, sliders, check,
+                                 swept=windows)
         got = (None if margined is None else
                _fewer_failing(strict, margined, *check(margined.steps, margined.waveforms),
                               models, sliders, ver_rows, or_as_many=True))
@@ -468,19 +469,7 @@ def _fewer_failing(settings, drive, rows, failures, models, sliders, than, *,
     return None
 
 
-def _resonances_times(models: dict, ratio: float) -> dict:
-    """``models`` (node -> impacter) with every natural frequency times ``ratio``: the
-    stiffness times ``ratio**2``, the mass and so the kick each impact gives kept (both
-    halves of a pair alike; as :func:`planner.afterfab.trim.trim_models`' ``down``)."""
-    out = {}
-    for n, imp in models.items():
-        parts = [dataclasses.replace(h, stiffness=h.stiffness * ratio * ratio)
-                 for h, _ in model.halves(imp)]
-        out[n] = parts[0] if len(parts) == 1 else model.pair_of(*parts)
-    return out
-
-
-def _speed_margin(settings, drive, rows, models, sliders, swept=()):
+def _speed_margin(settings, drive, rows, models, sliders, check, swept=()):
     """``drive`` with the tones raised of the sliders that move fast enough on the
     measured models but too slowly where their impacters' resonances are
     :data:`SPEED_MARGIN_SIGMAS` measurement sigmas higher or lower; None when no step
@@ -491,7 +480,7 @@ def _speed_margin(settings, drive, rows, models, sliders, swept=()):
     re-plan's checks on the measured models pass and the chip is too slow.  The steps in
     which some slider is slower than :data:`SPEED_MARGIN_RATIO` times the floor are
     checked again on the chip's models with every resonance shifted up, then down, by
-    that margin (:func:`_resonances_times`); a slider too slow on either has its tone raised in that step by
+    that margin (:func:`planner.afterfab.as_built.resonance_times`); a slider too slow on either has its tone raised in that step by
     :func:`planner.afterfab.drive.raise_slow`, every factor checked on the measured
     models (the idle impacters' silence among them) and kept only where the slider is
     fast enough on both shifted chips.
@@ -500,7 +489,9 @@ def _speed_margin(settings, drive, rows, models, sliders, swept=()):
     no design was made to drive its slider, and at 0.1 % noise (2.5 sigmas 0.25 %
     against a 0.15 % window) the raises it asked for cost the loop 24 chips of 200.
     A slider whose impacters' working windows a tuning sweep measured on the chip
-    (``swept``: impacter ids) needs no margin: its speed there was read, not inferred."""
+    (``swept``: impacter ids) needs no margin: its speed there was read, not inferred.
+    ``check`` is the re-plan's ``(steps, waveforms) -> (rows, failures)`` on the
+    measured models."""
     from planner.afterfab.drive import raise_slow
 
     if settings.chain is not None:
@@ -515,15 +506,8 @@ def _speed_margin(settings, drive, rows, models, sliders, swept=()):
     shift = SPEED_MARGIN_SIGMAS * settings.measurement_noise
     if settings.tone_window > 0.0:
         shift = min(shift, settings.tone_window)
-    shifted = [_resonances_times(models, 1.0 + s) for s in (-shift, shift)]
-
-    def on(impacters, steps_, waveforms_):
-        rows_, fails_ = [], []
-        for r, f in check_steps(settings, steps_, die_drives(settings, waveforms_),
-                                impacters, sliders):
-            rows_ += r
-            fails_ += f
-        return rows_, fails_
+    shifted = [{n: resonance_times(imp, 1.0 + s) for n, imp in models.items()}
+               for s in (-shift, shift)]
 
     by_index = {st.index: st for st in steps}
 
@@ -534,7 +518,9 @@ def _speed_margin(settings, drive, rows, models, sliders, swept=()):
             Node(d, r).text not in swept for d, r in st.active_nodes() if d == f.device)
 
     def on_shifted(steps_, waveforms_):
-        fails_ = [f for m in shifted for f in on(m, steps_, waveforms_)[1]
+        drives_ = die_drives(settings, waveforms_)
+        fails_ = [f for m in shifted
+                  for _, fs in check_steps(settings, steps_, drives_, m, sliders) for f in fs
                   if f.kind == TOO_SLOW and unswept(f)]
         return [], fails_
 
@@ -542,15 +528,15 @@ def _speed_margin(settings, drive, rows, models, sliders, swept=()):
     if not slow:
         return None
     new_steps, waveforms, raised = raise_slow(
-        settings, drive.steps, drive.waveforms, drive.tones, slow, models, sliders,
-        lambda s, w: on(models, s, w), on_shifted,
+        settings, drive.steps, drive.waveforms, drive.tones, slow, models, sliders, check,
+        on_shifted,
         why=f"its slider moved too slowly with its resonance {shift:.3%} off the measured")
     if not raised:
         return None
     notes = dict(drive.notes)
     for r in raised:
         notes[r["step"]] = {**notes.get(r["step"], {}), "raised_by": r["factor"],
-                            "raised_ids": list(r["ids"]), "raised_for": "speed margin"}
+                            "raised_ids": list(r["ids"])}
     return dataclasses.replace(drive, steps=tuple(new_steps), waveforms=waveforms,
                                notes=notes)
 

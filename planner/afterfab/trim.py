@@ -286,18 +286,19 @@ def trim_models(impacters: dict, ratios: dict, direction: str) -> dict:
     anchor (k r^2 to first order, m kept)."""
     import model
 
+    from planner.afterfab.as_built import resonance_times
+
     def trimmed(imp, r):
-        if direction == "up":
-            return model.Impacter(imp.mass / (r * r), imp.stiffness, imp.damping, imp.gap,
-                                  imp.impact_angle, imp.restitution, imp.geometry)
-        return model.Impacter(imp.mass, imp.stiffness * r * r, imp.damping, imp.gap,
-                              imp.impact_angle, imp.restitution, imp.geometry)
+        if direction == "down":
+            return resonance_times(imp, r)
+        parts = [model.Impacter(h.mass / (r * r), h.stiffness, h.damping, h.gap,
+                                h.impact_angle, h.restitution, h.geometry)
+                 for h, _ in model.halves(imp)]
+        return parts[0] if len(parts) == 1 else model.pair_of(*parts)
 
     out = dict(impacters)
     for n, r in ratios.items():
-        parts = model.halves(impacters[n])
-        new = [trimmed(h, r) for h, _ in parts]
-        out[n] = new[0] if len(new) == 1 else model.pair_of(*new)
+        out[n] = trimmed(impacters[n], r)
     return out
 
 

@@ -308,12 +308,11 @@ def _margin_case(plan, noise):
 def _speeds_on(plan, result, settings, measured, ratio):
     """(step, device) -> the slider's slowest speed [m/s] on the chip's models with
     every resonance times ``ratio``."""
-    from planner.afterfab.replan import _resonances_times
+    from planner.afterfab.as_built import resonance_times
     from planner.planning.verify import check_steps
 
     built = chip_models(plan, measured, 0.0)
-    models = _resonances_times({r.node: built.impacters[r.id] for r in plan.impacters},
-                               ratio)
+    models = {r.node: resonance_times(built.impacters[r.id], ratio) for r in plan.impacters}
     return {(r["step"], r["device"]): r["min_speed_m_s"]
             for rows, _ in check_steps(settings, result.run_steps, result.waveforms, models,
                                        built.sliders)
