@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from planner.core.data import DEFAULT_SPEC
 from planner.core.errors import SpecError
 from planner.arrayspec.schema import ArraySpec
 from planner.arrayspec.steps import Step, resolve_steps
@@ -125,4 +126,4 @@ def check_sections(spec: ArraySpec, lines=None, source: str | None = None,
 
 def default_spec_path() -> Path:
     """The embedded default spec (a copy of configs/array_5x5.yaml shipped in the package)."""
-    return Path(__file__).resolve().parent.parent / "data" / "array_5x5.yaml"
+    return DEFAULT_SPEC

@@ -259,15 +259,17 @@ class _solver_warnings:
     def __enter__(self):
         import warnings
 
-        from model import SolverWarning
-
         self._catch = warnings.catch_warnings()
         self._catch.__enter__()
         shown = warnings.showwarning
         self.messages = []
 
         def show(message, category, filename, lineno, file=None, line=None):
-            if issubclass(category, SolverWarning):
+            # the solver's warning class, if the solver was imported at all: a command
+            # refused before it imports the solver (numba, a third of a second) is not
+            # made to import it here
+            solver = sys.modules.get("model.impacter")
+            if solver is not None and issubclass(category, solver.SolverWarning):
                 self.messages.append(str(message))
             else:
                 shown(message, category, filename, lineno, file, line)
@@ -285,6 +287,30 @@ class _solver_warnings:
                        + (f"; and {more} more such warnings" if more else "")
                        + "); the results are those of the runs as far as they went", err=True)
         return False
+
+
+#: The parameters that name an input file, in every command that has them.  A device,
+#: a FIFO, a socket or a file over the input limit given there is refused before the
+#: command body imports the solver and the planner (over a second): in a fraction of
+#: a second, with the message :func:`planner.files.read_input` would give.  A path that
+#: does not exist or is a folder is left to the command (some take a plan's folder).
+INPUT_PARAMETERS = ("spec", "config", "sweep_csv", "spec_or_plan", "file", "plan_path",
+                    "measured_path", "windows_path", "spec_file")
+
+
+def _refuse_unreadable_inputs(kwargs):
+    """:func:`planner.files.check_input` on every :data:`INPUT_PARAMETERS` value that
+    exists and is not a folder."""
+    import os
+
+    from planner.files import check_input
+
+    for name in INPUT_PARAMETERS:
+        value = kwargs.get(name)
+        if value is None or not isinstance(value, (str, os.PathLike)):
+            continue
+        if os.path.exists(value) and not os.path.isdir(value):
+            check_input(value)
 
 
 def handle_errors(func):
@@ -305,6 +331,7 @@ def handle_errors(func):
     def wrapper(*args, **kwargs):
         with _SignalGuard() as guard, _solver_warnings():
             try:
+                _refuse_unreadable_inputs(kwargs)
                 return func(*args, **kwargs)
             except KeyboardInterrupt as exc:
                 signum = exc.signum if isinstance(exc, Interrupted) else signal.SIGINT

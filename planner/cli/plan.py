@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from planner.cli._common import EXIT_CODES_HELP, check_output_folder, handle_errors
+from planner.core.data import DEFAULT_SPEC
 
 
 class _Bars:
@@ -96,29 +97,32 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
 
     {EXIT}
     """
-    import numba
-
     from planner.runtime.limits import check_jobs
     from planner.runtime.engine import check_scheduler
-    from planner.planning import plan
-    from planner.planning.design_store import default_cache_dir
-    from planner.arrayspec import default_spec_path, load_spec
 
     if no_cache and cache_dir is not None:
         raise click.UsageError("--cache-dir and --no-cache exclude each other")
-    cache = None if no_cache else Path(cache_dir) if cache_dir else default_cache_dir()
-
     if jobs is not None:
         check_jobs(jobs)
+    path = Path(spec) if spec else DEFAULT_SPEC
+    # refuse the output folder before the spec is read and the solver imported (the
+    # refusal then takes a fraction of a second, the plan a minute); a dry run refuses
+    # what the real run would, so that its "nothing in the way" means the real run starts
+    check_output_folder(out_dir, command="plan", inputs=[path], force=force)
+
+    import numba
+
+    from planner.planning import plan
+    from planner.planning.design_store import default_cache_dir
+    from planner.arrayspec import load_spec
+
+    cache = None if no_cache else Path(cache_dir) if cache_dir else default_cache_dir()
+    if jobs is not None:
         numba.set_num_threads(min(jobs, numba.config.NUMBA_NUM_THREADS))
     else:
         jobs = numba.config.NUMBA_NUM_THREADS
-    path = Path(spec) if spec else default_spec_path()
     loaded = load_spec(path)
-    # refuse the output folder and an unusable scheduler before any work (the plan
-    # takes a minute); a dry run refuses what the real run would, so that its "nothing
-    # in the way" means the real run starts
-    check_output_folder(out_dir, command="plan", inputs=[path], force=force)
+    # and an unusable scheduler, before any work
     if scheduler:
         check_scheduler(scheduler)
     if dry_run:

@@ -50,12 +50,12 @@ import them from here); the modules' other functions are its internals.
 
 from planner.files.files import check_output_file, output_files
 from planner.files.folders import check_output_folder, output_folder
-from planner.files.inputs import read_input
+from planner.files.inputs import check_input, read_input
 from planner.files.marks import MARKER, REGISTRY, folder_marker, written_by
 from planner.files.swap import clean_stale
 from planner.files.targets import check_not_input, check_parent
 from planner.files.version import version_string
 
-__all__ = ["MARKER", "REGISTRY", "check_not_input", "check_output_file",
+__all__ = ["MARKER", "REGISTRY", "check_input", "check_not_input", "check_output_file",
            "check_output_folder", "check_parent", "clean_stale", "folder_marker",
            "output_files", "output_folder", "read_input", "version_string", "written_by"]

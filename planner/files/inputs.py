@@ -36,9 +36,40 @@ def read_input(path: str | os.PathLike, *, limit: int | None = None) -> bytes:
     OSError
         It cannot be read (permissions), with the path.
     """
+    limit = _limit(limit)
+    fd = _open_checked(path, limit)
+    try:
+        with os.fdopen(fd, "rb", closefd=True) as fh:
+            fd = None
+            data = fh.read(limit + 1)
+    finally:
+        if fd is not None:
+            os.close(fd)
+    if len(data) > limit:   # it grew while we read
+        raise SpecError(f"over the {limit / 2**20:.0f} MiB an input may have",
+                        source=str(path))
+    return data
+
+
+def check_input(path: str | os.PathLike, *, limit: int | None = None) -> None:
+    """Refuse, unread, an input :func:`read_input` would refuse (the same errors).
+
+    A command calls it on its input files before it imports the solver and the
+    planner (over a second): a folder, a device, a FIFO or an oversized file is then
+    refused in a fraction of a second.  :func:`read_input` checks again when it reads.
+    """
+    os.close(_open_checked(path, _limit(limit)))
+
+
+def _limit(limit):
     from planner.runtime.limits import MAX_INPUT_BYTES
 
-    limit = MAX_INPUT_BYTES if limit is None else int(limit)
+    return MAX_INPUT_BYTES if limit is None else int(limit)
+
+
+def _open_checked(path, limit) -> int:
+    """A read-only descriptor of ``path``, checked a regular file of at most ``limit``
+    bytes (closed again when it is not; see :func:`read_input` for the errors)."""
     path = Path(path)
     # O_NONBLOCK: opening a FIFO must not wait for a writer; the type is checked on the
     # open descriptor, so the file cannot be swapped for another kind in between
@@ -59,16 +90,10 @@ def read_input(path: str | os.PathLike, *, limit: int | None = None) -> bytes:
         if info.st_size > limit:
             raise SpecError(f"{info.st_size / 2**20:.1f} MiB is over the {limit / 2**20:.0f} MiB "
                             "an input may have: is this the right file?", source=str(path))
-        with os.fdopen(fd, "rb", closefd=True) as fh:
-            fd = None
-            data = fh.read(limit + 1)
-    finally:
-        if fd is not None:
-            os.close(fd)
-    if len(data) > limit:   # it grew while we read
-        raise SpecError(f"over the {limit / 2**20:.0f} MiB an input may have",
-                        source=str(path))
-    return data
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
 
 
 def csv_rows(fh):

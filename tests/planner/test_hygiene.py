@@ -438,6 +438,35 @@ def test_inputs_must_be_regular_files(tiny_plan_dir, tmp_path, fifo, special, co
     assert sorted(p.name for p in tmp_path.iterdir()) == ["input.fifo"]
 
 
+@pytest.mark.parametrize("args", [
+    ["plan", "/dev/zero", "--out", "o"],
+    ["plan", "--out", "."],
+    ["plan", "--out", "users"],
+    ["sweep", "/dev/zero", "--from", 1, "--to", 2, "--step", 1, "--out", "o.csv"],
+    ["yield", "input.fifo", "--chips", 1, "--out", "o"],
+], ids=["plan /dev/zero", "plan --out .", "plan --out a user's folder", "sweep /dev/zero",
+        "yield FIFO"])
+def test_a_refusal_before_any_work_imports_neither_solver_nor_planner(tmp_path, args):
+    # a bad input or output folder is refused before the command imports numba, the
+    # solver or the planner's stages (over a second): the refusal is then immediate.
+    # -X importtime lists every module the process imported, on stderr
+    os.mkfifo(tmp_path / "input.fifo")
+    (tmp_path / "users").mkdir()
+    (tmp_path / "users" / "notes.txt").write_text("mine")
+    proc = subprocess.run([sys.executable, "-X", "importtime", "-m", "planner.cli",
+                           *map(str, args)], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "error: " in proc.stderr and "Traceback" not in proc.stderr
+    imported = {line.rsplit("|", 1)[-1].strip() for line in proc.stderr.splitlines()
+                if line.startswith("import time:")}
+    assert "planner.cli" in imported                      # the listing is there
+    heavy = sorted(m for m in imported if m.split(".")[0] in ("numba", "model", "scipy")
+                   or m.startswith(("planner.planning", "planner.arrayspec")))
+    assert heavy == [], heavy[:10]
+    assert (tmp_path / "users" / "notes.txt").read_text() == "mine"
+
+
 def test_an_input_over_the_size_limit_is_refused_unread(tmp_path):
     from planner.runtime.limits import MAX_INPUT_BYTES
 
