@@ -342,15 +342,74 @@ def slider_motion(slider, drive, kick_times, kick_dv=None, duration=None, z0=0.0
     rec = np.ascontiguousarray(rec[order])
     sample_t = sample_times(trajectory, duration)
     sample_z = np.zeros(sample_t.size)
+    w = np.ascontiguousarray(drive.omegas)
+    a = np.ascontiguousarray(drive.acceleration_amplitudes())
+    phi = np.ascontiguousarray(drive.phases, dtype=float)
     status, z_end, v_end, _ = run_slider(
         code, slider.damping / slider.mass, slider.static_friction / slider.mass,
-        slider.dynamic_friction / slider.mass, np.ascontiguousarray(drive.omegas),
-        np.ascontiguousarray(drive.acceleration_amplitudes()),
-        np.ascontiguousarray(drive.phases, dtype=float), kt, kd, rec, 0.0, float(duration),
-        float(z0), float(v0), _k.MAX_STEPS, sample_t, sample_z)
+        slider.dynamic_friction / slider.mass, w, a, phi, kt, kd, rec, 0.0, float(duration),
+        float(z0), float(v0), _k.MAX_STEPS, sample_t, sample_z,
+        _peak_bound(w, a, phi, float(duration)))
     warn_status(status, f"slider: {STATUS[status]}")
     return (sample_t if sample_t.size else None, sample_z if sample_t.size else None,
             z_end, v_end, STATUS[status])
+
+
+#: Most sample points of :func:`forcing_peak_bound`'s grid: a window that would need
+#: more gets the plain bound sum |a_i| (0 returned).
+PEAK_BOUND_POINTS = 20000
+#: The grid's share of the bound: samples h apart miss the peak by at most
+#: M2 h^2 / 8, held to this fraction of sum |a_i| [-].
+PEAK_BOUND_SLACK = 0.01
+_peak_bounds: dict = {}
+_EPS = float(np.finfo(float).eps)
+
+
+def forcing_peak_bound(drive, duration):
+    """An upper bound of the slider's inertial forcing |sum a_i cos(w_i t + phi_i)|
+    (per unit mass, a_i = w_i^2 Z_i) over [0, duration] [m/s^2].
+
+    The largest sample of a grid h apart, plus M2 h^2 / 8 (M2 = sum a_i w_i^2 bounds
+    |f''|: within h / 2 of its peak, where f' = 0, some sample is at most that lower),
+    plus the samples' rounding: never below the true peak.  A summed drive whose tones
+    were phased for a low crest factor peaks well under sum |a_i|, which is all the
+    kernel knows by itself; below the slider's static friction, a stuck slider then
+    stays stuck between kicks without being stepped through
+    (:func:`model.kernels.slider.run_slider`'s ``f_bound``).  One tone: exactly |a|.
+    0 (no bound) when the grid would exceed :data:`PEAK_BOUND_POINTS`.  Kept per drive
+    and duration (the checks of a step run every device with one drive).
+    """
+    return _peak_bound(np.asarray(drive.omegas, dtype=float),
+                       np.asarray(drive.acceleration_amplitudes(), dtype=float),
+                       np.asarray(drive.phases, dtype=float), float(duration))
+
+
+def _peak_bound(w, a, phi, duration):
+    """:func:`forcing_peak_bound` of the forcing's arrays [rad/s, m/s^2, rad]."""
+    if w.size <= 1:
+        return float(np.abs(a).sum())
+    key = (w.tobytes(), a.tobytes(), phi.tobytes(), duration)
+    hit = _peak_bounds.get(key)
+    if hit is not None:
+        return hit
+    fmax = float(np.sum(np.abs(a)))
+    if duration <= 0.0 or fmax == 0.0:
+        return fmax
+    m2 = float(np.sum(np.abs(a) * w * w))
+    h = math.sqrt(8.0 * PEAK_BOUND_SLACK * fmax / m2)
+    n = int(math.ceil(duration / h)) + 1
+    if n > PEAK_BOUND_POINTS:
+        bound = 0.0
+    else:
+        t = np.linspace(0.0, duration, n)
+        h = duration / (n - 1)
+        f = np.cos(np.outer(t, w) + phi) @ a
+        bound = min(fmax, float(np.max(np.abs(f))) + m2 * h * h / 8.0
+                    + 8.0 * (w.size + 1) * _EPS * fmax)
+    if len(_peak_bounds) > 256:
+        _peak_bounds.clear()
+    _peak_bounds[key] = bound
+    return bound
 
 
 def simulate_slider(impacter, slider, drive, x0=0.0, v0=0.0, duration=3e-3, *,
