@@ -56,7 +56,7 @@ from planner.afterfab.drive import (REPLAN_TRAVEL_MARGIN, move_tones, plan_phase
 from planner.planning.result import Plan
 from planner.planning.settings import plan_settings, tone_amplitudes
 from planner.planning.verify import (TOO_SLOW, check_step, check_steps, coupling_matrix,
-                                     x0_grid)
+                                     too_slow, x0_grid)
 
 #: The re-plan's repairs by kind (plan.json's ``replan.repairs``, yield.json's and the
 #: wafer summary's counts): a tone moved within its window, a step split into runs, a
@@ -517,11 +517,16 @@ def _speed_margin(settings, drive, rows, models, sliders, check, swept=()):
         return st is not None and any(
             Node(d, r).text not in swept for d, r in st.active_nodes() if d == f.device)
 
+    # only the sliders' speeds on the shifted chips are read (the idle, travel and
+    # settling checks are the measured models' to make): too_slow runs those alone, and
+    # remembers them from one of raise_slow's tries to the next (one step changes)
+    speeds = [{} for _ in shifted]
+
     def on_shifted(steps_, waveforms_):
         drives_ = die_drives(settings, waveforms_)
-        fails_ = [f for m in shifted
-                  for _, fs in check_steps(settings, steps_, drives_, m, sliders) for f in fs
-                  if f.kind == TOO_SLOW and unswept(f)]
+        fails_ = [f for m, memo in zip(shifted, speeds)
+                  for f in too_slow(settings, steps_, drives_, m, sliders, memo)
+                  if unswept(f)]
         return [], fails_
 
     _, slow = on_shifted(steps, drive.waveforms)

@@ -213,7 +213,6 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
     """
     impacters = by_node(impacters)
     program = program_of(waveform, step.duration_s)
-    duration = sum(d for d, _ in program)
     moves = step.moves if step.targets_m is not None else {}
     active = step.active_nodes()
     rows, failures = [], []
@@ -285,15 +284,8 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
                 failures.append(Failure(step.index, dev, None, OFF_TARGET, worst))
             worst_case = {"move_m": moves[dev], "worst_position_error_m": worst}
         elif moving:
-            n = moving[0]
-            sign = n.sign
-            drive = program[0][1]
-            speeds = []
-            for start in pair_starts(own[n], settings.x0_points):
-                z, _ = device_motion(own, sliders[dev], drive, duration, {n: start},
-                                     contact, memo)
-                speeds.append(sign * z / duration)
-            worst = float(min(speeds))
+            worst = _slowest(own, moving[0], sliders[dev], contact, program,
+                             settings.x0_points, memo)
             if worst < settings.min_speed_m_s:
                 causes.append(f"too slow: {worst * 1e3:.3g} mm/s < "
                               f"{settings.min_speed_m_s * 1e3:g} mm/s from some x0")
@@ -315,6 +307,56 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
         if shared is not None:
             shared[key] = (dict(rows[-1]), tuple(failures[n_failures:]))
     return rows, failures
+
+
+def _slowest(own, n, slider, contact, program, x0_points, memo=None):
+    """The least speed [m/s] of the slider that ``n`` (of the device's impacters ``own``)
+    drives through ``program``, from every start of its pair (:func:`pair_starts`): the
+    speed check of :func:`check_step` (a step played for a whole program)."""
+    drive = program[0][1]
+    duration = sum(d for d, _ in program)
+    speeds = []
+    for start in pair_starts(own[n], x0_points):
+        z, _ = device_motion(own, slider, drive, duration, {n: start}, contact, memo)
+        speeds.append(n.sign * z / duration)
+    return float(min(speeds))
+
+
+def too_slow(settings: Settings, steps, waveforms, impacters, sliders, memo=None):
+    """The :data:`TOO_SLOW` failures :func:`check_steps` would report, and only those:
+    the speed check of every slider a step drives (not to a target), without the idle,
+    travel and settling checks; the same failures, in the same order.
+
+    ``memo`` (optional, a dict): speeds already computed, by step program, device and
+    the device's models (for a caller that checks steps again with one step changed).
+    """
+    impacters = by_node(impacters)
+    by_device = {}
+    for n, imp in impacters.items():
+        by_device.setdefault(n.device, {})[n] = imp
+    out = []
+    for st in steps:
+        program = program_of(waveforms[st.key], st.duration_s)
+        moves = st.moves if st.targets_m is not None else {}
+        active = st.active_nodes()
+        for dev in sorted(sliders, key=device_key):
+            own = by_device.get(dev, {})
+            moving = [n for n in own if n in active]
+            if not moving or dev in moves:
+                continue
+            key = None
+            if memo is not None:
+                key = (_program_key(program), dev, settings.contacts[dev], sliders[dev],
+                       tuple(own.items()), moving[0], settings.x0_points)
+                worst = memo.get(key)
+            if key is None or worst is None:
+                worst = _slowest(own, moving[0], sliders[dev], settings.contacts[dev],
+                                 program, settings.x0_points, {})
+                if key is not None:
+                    memo[key] = worst
+            if worst < settings.min_speed_m_s:
+                out.append(Failure(st.index, dev, None, TOO_SLOW, worst))
+    return out
 
 
 def _check_on_engine(shared, step, waveform):
