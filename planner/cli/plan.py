@@ -209,6 +209,7 @@ def _dry_run(loaded, seed, jobs, cache, quiet):
 
     from planner.planning.design_store import DesignStore
     from planner.planning.estimate import estimate
+    from planner.planning.pipeline import plan_pool
     from planner.planning.reach import measure_reach
     from planner.planning.settings import resolve_settings
 
@@ -217,8 +218,11 @@ def _dry_run(loaded, seed, jobs, cache, quiet):
     bars = _Bars(quiet)
     t0 = time.perf_counter()
     try:
-        reach, a = measure_reach(settings, jobs=jobs, progress=bars,
-                                 store=None if cache is None else DesignStore(cache))
+        # the plan's worker pool, started only if a probe must be designed (none when the
+        # cache holds the reach), this process designing probes while its workers start
+        with plan_pool(jobs, eager=False) as pool:
+            reach, a = measure_reach(settings, jobs=jobs, progress=bars, pool=pool,
+                                     store=None if cache is None else DesignStore(cache))
     finally:
         bars.close()
     seconds = time.perf_counter() - t0

@@ -219,8 +219,23 @@ def dispatch(func, shared, args_list, *, jobs=1, scheduler=None, pool=None, on_d
         from planner.runtime.workers import process_pool
 
         with (contextlib.nullcontext(pool) if pool is not None else process_pool(jobs)) as workers:
-            futures = {workers.submit(func, shared, *args): i
-                       for i, args in enumerate(args_list)}
+            warming = getattr(workers, "warming", lambda: False)
+            if not warming():
+                futures = {workers.submit(func, shared, *args): i
+                           for i, args in enumerate(args_list)}
+                for fut in cf.as_completed(futures):
+                    finish(futures[fut], fut.result())
+                return results
+            # the workers are still starting (importing the solver, seconds): this
+            # process does the last tasks itself meanwhile, one at a time, and hands the
+            # rest to the workers once they can take them (a spec of two probes is done
+            # before they are)
+            todo = list(range(len(args_list)))
+            futures = {}
+            while todo and warming():
+                i = todo.pop()
+                finish(i, func(shared, *args_list[i]))
+            futures = {workers.submit(func, shared, *args_list[i]): i for i in todo}
             for fut in cf.as_completed(futures):
                 finish(futures[fut], fut.result())
     else:

@@ -376,7 +376,7 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
         # cores); any other starts them at once, to load the kernels meanwhile
         seen = stage_digest("plan_seen", settings) if store is not None else None
         eager = not (store is not None and store.marked("plan_seen", seen))
-        with _plan_pool(jobs, scheduler, eager) as pool:
+        with plan_pool(jobs, scheduler, eager) as pool:
             # what a design can serve, the channels on it, and how far apart they must
             # be (the stage's time includes the first assignment's)
             _, first = clock.timed("reach", measure_reach, settings, jobs=jobs,
@@ -391,17 +391,28 @@ def run_plan(loaded, *, seed=None, progress=None, jobs=None, settings: Settings 
     return result
 
 
-def _plan_pool(jobs, scheduler, eager=True):
+#: The modules a plan's worker tasks import (designs, reach probes, step checks),
+#: imported by each worker as it starts when numba's cache is warm.
+WORKER_MODULES = ("planner.planning.designs", "planner.planning.reach",
+                  "planner.planning.verify", "planner.designer")
+
+
+def plan_pool(jobs, scheduler=None, eager=True):
     """The plan's local worker pool (None: serial, or a Dask cluster), kept over every
     repair round; its first worker compiles (or loads) the solver's kernels while this
     process assigns the channels and synthesises the drives (:mod:`model.warmup`), from
     the start when ``eager``, else from the first task (none: no worker)."""
     if jobs <= 1 or scheduler:
         return contextlib.nullcontext(None)
-    from model.warmup import compile_kernels
+    from model.warmup import compile_kernels, numba_cache_state
     from planner.runtime.workers import warm_pool
 
-    return warm_pool(jobs, compile_kernels, eager=eager)
+    cold, total = numba_cache_state()
+    if cold or not total:
+        # one worker compiles while the others wait: no kernel is compiled twice at once
+        return warm_pool(jobs, compile_kernels, eager=eager)
+    # numba's cache is warm: every worker imports the design and check tasks as it starts
+    return warm_pool(jobs, eager=eager, preload=WORKER_MODULES)
 
 
 def _cache_record(store, designed):

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import importlib
 import multiprocessing
 import os
 import signal
@@ -88,9 +89,13 @@ def watch_parent(parent_pid: int, poll_s: float = PARENT_POLL_S) -> threading.Th
     return thread
 
 
-def _init_worker(parent_pid: int):
+def _init_worker(parent_pid: int, preload=()):
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     watch_parent(parent_pid)
+    for name in preload:
+        # what the tasks will import, imported as the worker starts (beside the parent's
+        # own work) rather than when the first task arrives
+        importlib.import_module(name)
 
 
 def terminate(pool: cf.ProcessPoolExecutor) -> None:
@@ -139,11 +144,13 @@ class WarmPool:
     ``ProcessPoolExecutor`` (None until started).
     """
 
-    def __init__(self, jobs: int, warm_up=None):
+    def __init__(self, jobs: int, warm_up=None, preload=()):
         self.jobs = int(jobs)
         self.pool = None
         self._warm_up = warm_up
         self._warm = None
+        self._preload = tuple(preload)
+        self._ready = None
 
     def start(self) -> "WarmPool":
         """Start the workers (and the warm-up in the first) if not started yet."""
@@ -151,7 +158,13 @@ class WarmPool:
             ctx = multiprocessing.get_context("spawn")
             self.pool = cf.ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx,
                                                initializer=_init_worker,
-                                               initargs=(os.getpid(),))
+                                               initargs=(os.getpid(), self._preload))
+            if self._preload:
+                # every worker starts now (the executor spawns them on demand), each
+                # importing what the tasks need while the parent goes on; a no-op task
+                # answers once the first of them has
+                self.pool._adjust_process_count()
+                self._ready = self.pool.submit(os.getpid)
             if self._warm_up is not None:
                 self._warm = self.pool.submit(self._warm_up)
         return self
@@ -163,18 +176,25 @@ class WarmPool:
         warm, self._warm = self._warm, None
         return None if warm is None else warm.result()
 
+    def warming(self) -> bool:
+        """Whether the workers are still importing what their tasks need (a pool with
+        ``preload``, none of whose workers has yet; the workers are started if they were
+        not): the caller may do a task itself meanwhile rather than wait for them."""
+        self.start()
+        return self._ready is not None and not self._ready.done()
+
     def submit(self, fn, /, *args, **kwargs) -> cf.Future:
         self.wait_warm()
         return self.pool.submit(fn, *args, **kwargs)
 
 
 @contextlib.contextmanager
-def warm_pool(jobs: int, warm_up=None, *, eager=True):
+def warm_pool(jobs: int, warm_up=None, *, eager=True, preload=()):
     """A :class:`WarmPool` of ``jobs`` spawned workers, one of which starts ``warm_up()``
     (a picklable function of no arguments) as soon as the workers start: at once when
     ``eager``, else at the first task.  Terminated on any exception, shut down (waiting
     for its tasks) on leaving."""
-    wp = WarmPool(jobs, warm_up)
+    wp = WarmPool(jobs, warm_up, preload)
     if eager:
         wp.start()
     try:
