@@ -399,9 +399,13 @@ WORKER_MODULES = ("planner.planning.designs", "planner.planning.reach",
 
 def plan_pool(jobs, scheduler=None, eager=True):
     """The plan's local worker pool (None: serial, or a Dask cluster), kept over every
-    repair round; its first worker compiles (or loads) the solver's kernels while this
-    process assigns the channels and synthesises the drives (:mod:`model.warmup`), from
-    the start when ``eager``, else from the first task (none: no worker)."""
+    repair round, started at once when ``eager``, else by the first task (none: no
+    worker).  With numba's cache cold its first worker compiles the solver's kernels
+    (:mod:`model.warmup`) while this process assigns the channels and synthesises the
+    drives, and the first task waits for it; warm, every worker imports
+    :data:`WORKER_MODULES` as it starts, and :func:`planner.planning.designs.dispatch`
+    does tasks in this process until one is up (a spec of two probes is done first).
+    Only where the tasks run changes, never their results."""
     if jobs <= 1 or scheduler:
         return contextlib.nullcontext(None)
     from model.warmup import compile_kernels, numba_cache_state
