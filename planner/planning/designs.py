@@ -229,13 +229,18 @@ def dispatch(func, shared, args_list, *, jobs=1, scheduler=None, pool=None, on_d
             # the workers are still starting (importing the solver, seconds): this
             # process does the last tasks itself meanwhile, one at a time, and hands the
             # rest to the workers once they can take them (a spec of two probes is done
-            # before they are)
+            # before they are); with more tasks than that, the first go to the workers
+            # at once, so that none of them waits for this process's task when it is up
             todo = list(range(len(args_list)))
             futures = {}
+            if len(todo) > jobs + 1:
+                futures = {workers.submit(func, shared, *args_list[i]): i
+                           for i in todo[:jobs]}
+                todo = todo[jobs:]
             while todo and warming():
                 i = todo.pop()
                 finish(i, func(shared, *args_list[i]))
-            futures = {workers.submit(func, shared, *args_list[i]): i for i in todo}
+            futures.update({workers.submit(func, shared, *args_list[i]): i for i in todo})
             for fut in cf.as_completed(futures):
                 finish(futures[fut], fut.result())
     else:
