@@ -220,26 +220,21 @@ def dispatch(func, shared, args_list, *, jobs=1, scheduler=None, pool=None, on_d
 
         with (contextlib.nullcontext(pool) if pool is not None else process_pool(jobs)) as workers:
             warming = getattr(workers, "warming", lambda: False)
-            if not warming():
-                futures = {workers.submit(func, shared, *args): i
-                           for i, args in enumerate(args_list)}
-                for fut in cf.as_completed(futures):
-                    finish(futures[fut], fut.result())
-                return results
-            # the workers are still starting (importing the solver, seconds): this
-            # process does the last tasks itself meanwhile, one at a time, and hands the
-            # rest to the workers once they can take them (a spec of two probes is done
-            # before they are); with more tasks than that, the first go to the workers
-            # at once, so that none of them waits for this process's task when it is up
             todo = list(range(len(args_list)))
             futures = {}
-            if len(todo) > jobs + 1:
-                futures = {workers.submit(func, shared, *args_list[i]): i
-                           for i in todo[:jobs]}
-                todo = todo[jobs:]
-            while todo and warming():
-                i = todo.pop()
-                finish(i, func(shared, *args_list[i]))
+            if warming():
+                # the workers are still starting (importing the solver, seconds): this
+                # process does the last tasks itself meanwhile, one at a time, and hands
+                # the rest to the workers once they can take them (a spec of two probes
+                # is done before they are); with more tasks than that, the first go to
+                # the workers at once, so that none waits for this process's task
+                if len(todo) > jobs + 1:
+                    futures = {workers.submit(func, shared, *args_list[i]): i
+                               for i in todo[:jobs]}
+                    todo = todo[jobs:]
+                while todo and warming():
+                    i = todo.pop()
+                    finish(i, func(shared, *args_list[i]))
             futures.update({workers.submit(func, shared, *args_list[i]): i for i in todo})
             for fut in cf.as_completed(futures):
                 finish(futures[fut], fut.result())

@@ -223,10 +223,7 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
                   settings.x0_points, settings.max_settle_s, settings.max_travel_m,
                   settings.min_speed_m_s, settings.idle_tolerance_m,
                   settings.position_tolerance_m)
-    # each device's impacters, in the order of ``impacters`` (one pass, not one per device)
-    by_device = {}
-    for n, imp in impacters.items():
-        by_device.setdefault(n.device, {})[n] = imp
+    by_device = _by_device(impacters)
     for dev in sorted(sliders, key=device_key):
         own = by_device.get(dev, {})
         if shared is not None:
@@ -309,6 +306,16 @@ def check_step(settings: Settings, step, waveform, impacters, sliders):
     return rows, failures
 
 
+def _by_device(impacters):
+    """Device -> its impacters (node -> model), in the order of ``impacters`` (one pass,
+    not one per device; the nodes' text is accepted, :func:`planner.planning.motion.
+    by_node`)."""
+    out = {}
+    for n, imp in by_node(impacters).items():
+        out.setdefault(n.device, {})[n] = imp
+    return out
+
+
 def _slowest(own, n, slider, contact, program, x0_points, memo=None):
     """The least speed [m/s] of the slider that ``n`` (of the device's impacters ``own``)
     drives through ``program``, from every start of its pair (:func:`pair_starts`): the
@@ -330,10 +337,7 @@ def too_slow(settings: Settings, steps, waveforms, impacters, sliders, memo=None
     ``memo`` (optional, a dict): speeds already computed, by step program, device and
     the device's models (for a caller that checks steps again with one step changed).
     """
-    impacters = by_node(impacters)
-    by_device = {}
-    for n, imp in impacters.items():
-        by_device.setdefault(n.device, {})[n] = imp
+    by_device = _by_device(impacters)
     out = []
     for st in steps:
         program = program_of(waveforms[st.key], st.duration_s)

@@ -160,11 +160,11 @@ class WarmPool:
                                                initializer=_init_worker,
                                                initargs=(os.getpid(), self._preload))
             if self._preload:
-                # every worker starts now (the executor spawns them on demand), each
-                # importing what the tasks need while the parent goes on; a no-op task
-                # answers once the first of them has
-                self.pool._adjust_process_count()
-                self._ready = self.pool.submit(os.getpid)
+                # every worker starts now, each importing what the tasks need while the
+                # parent goes on: the executor spawns a worker per task submitted while
+                # none is idle, so one no-op task per worker; they answer once the
+                # workers have imported
+                self._ready = [self.pool.submit(os.getpid) for _ in range(self.jobs)]
             if self._warm_up is not None:
                 self._warm = self.pool.submit(self._warm_up)
         return self
@@ -181,7 +181,7 @@ class WarmPool:
         ``preload``, none of whose workers has yet; the workers are started if they were
         not): the caller may do a task itself meanwhile rather than wait for them."""
         self.start()
-        return self._ready is not None and not self._ready.done()
+        return self._ready is not None and not any(f.done() for f in self._ready)
 
     def submit(self, fn, /, *args, **kwargs) -> cf.Future:
         self.wait_warm()
