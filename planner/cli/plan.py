@@ -180,8 +180,12 @@ def command(spec, out_dir, seed, jobs, no_figures, quiet, force, dry_run, schedu
         click.echo(line)
     dc = result.design_cache
     if dc is not None:
+        probes = dc.get("probes") or {}
+        # the reach's probes are entries of the same cache, counted apart from the designs
+        probed = (f"; reach probes: {probes['read']} read, {probes['written']} computed and "
+                  "stored" if probes.get("read") or probes.get("written") else "")
         click.echo(f"designs: {dc['designed']} distinct, {dc['read']} read from the design "
-                   f"cache ({dc['path']}), {dc['written']} computed and stored")
+                   f"cache ({dc['path']}), {dc['written']} computed and stored{probed}")
         st = dc.get("stages") or {}
         if st:
             click.echo("from the same cache: " + ", ".join(

@@ -176,6 +176,9 @@ class DesignStore:
     ----------
     hits, writes : int
         Designs read from and written to the cache so far.
+    probes : dict
+        {"read": n, "written": m}: the reach's probes (:mod:`planner.planning.reach`)
+        read from and written to it so far (entries beside the designs, counted apart).
     stages : dict
         Stage name -> {"read": n, "written": m}: the later stages' results read from
         and written to the cache so far (:meth:`get_stage`, :meth:`put_stage`).
@@ -186,27 +189,36 @@ class DesignStore:
         self.folder = self.path / "designs"
         self.hits = 0
         self.writes = 0
+        self.probes = {"read": 0, "written": 0}
         self.stages = {}
 
     def _file(self, digest):
         return self.folder / f"{digest}.pkl"
 
-    def get(self, digest):
-        """The stored result for ``digest``, or None (absent or unreadable)."""
+    def get(self, digest, *, probe=False):
+        """The stored result for ``digest``, or None (absent or unreadable); counted in
+        :attr:`hits`, or with ``probe`` in :attr:`probes`."""
         res = _load(self._file(digest))
         if res is not None:
-            self.hits += 1
+            if probe:
+                self.probes["read"] += 1
+            else:
+                self.hits += 1
         return res
 
     def holds(self, digest) -> bool:
         """Whether a design is stored for ``digest`` (not read, not counted)."""
         return self._file(digest).is_file()
 
-    def put(self, digest, result):
+    def put(self, digest, result, *, probe=False):
         """Store ``result`` atomically; an unwritable cache is skipped, not an error
-        (the plan does not depend on it)."""
+        (the plan does not depend on it).  Counted in :attr:`writes`, or with ``probe``
+        in :attr:`probes`."""
         if _store(self.folder, digest, result):
-            self.writes += 1
+            if probe:
+                self.probes["written"] += 1
+            else:
+                self.writes += 1
 
     def _count(self, stage):
         return self.stages.setdefault(stage, {"read": 0, "written": 0})

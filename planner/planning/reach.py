@@ -666,9 +666,9 @@ def _cached_run(shared, args_list, store, ran, jobs, scheduler, pool, on_done=No
         if hit is not None and store is not None and not store.holds(digest):
             # probed earlier in this process for another cache (or none): this cache
             # holds it too, so that the next process reads it rather than probing
-            store.put(digest, hit)
+            store.put(digest, hit, probe=True)
         if hit is None and store is not None:
-            hit = store.get(digest)
+            hit = store.get(digest, probe=True)
         if hit is not None:
             out[i] = hit
             _remember(digest, hit)
@@ -688,7 +688,7 @@ def _cached_run(shared, args_list, store, ran, jobs, scheduler, pool, on_done=No
         ran[0] += 1
         _remember(digests[i], res)
         if store is not None:
-            store.put(digests[i], res)
+            store.put(digests[i], res, probe=True)
         if on_done is not None:
             on_done(i, res)
 

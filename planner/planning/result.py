@@ -69,7 +69,8 @@ class Plan:
         (keyword only).
     design_cache : dict or None
         With an on-disk design cache: its ``path``, the designs ``read`` from it and
-        ``written`` to it, and the distinct designs of the plan (``designed``, every
+        ``written`` to it, the reach's ``probes`` ({"read": n, "written": m}, apart
+        from the designs), and the distinct designs of the plan (``designed``, every
         repair round's), and ``stages``: per later stage cached beside the designs
         (``verify``: steps, ``manufacturability``: the block) the results ``read`` and
         ``written``; None without one (keyword only; not in plan.json).
