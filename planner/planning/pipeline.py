@@ -293,7 +293,8 @@ def _repair_rounds(settings, clock, tick, on_assignment, design_kw, first, free_
             break
         offsets, drawn_before = dict(reseed), dict(draws)
         actions, away = design_levers(got.designs, steps, assignment, draws, pair_sep, sep,
-                                      reseed, reseeded, confirmed=got.confirmed)
+                                      reseed, reseeded, confirmed=got.confirmed,
+                                      previous=before)
         answered = reseed_idle(got.failures, got.designs, reseed, idle_redesigned)
         for n, near in widen_separations(got.failures, got.designs, steps, assignment,
                                          pair_sep, sep, skip=answered).items():

@@ -61,7 +61,7 @@ def _nearest_tones(node, designs, assignment, count=1):
 
 
 def design_levers(designs, steps, assignment, draws, pair_sep, sep, reseed, reseeded,
-                  confirmed=()):
+                  confirmed=(), previous=None):
     """What the loop changes for every infeasible design (their shortfalls say why).
 
     - it answers the summed drive of a multi-tone step it sits out: that step's phases
@@ -73,7 +73,14 @@ def design_levers(designs, steps, assignment, draws, pair_sep, sep, reseed, rese
       it, it moves away from them;
     - it misses only the speed floor, the mass cap, a bound or its sensitivity: it is
       re-designed from further seeds (``reseed``, in place) once (``reseeded``, a set
-      updated in place), then moves away from its nearest neighbours.
+      updated in place), then moves away from its nearest neighbours.  If it sits out a
+      multi-tone step, that step's phases are drawn anew instead (the one whose tones
+      come nearest its own, while its draws last) when it misses again after further
+      seeds, or at once when its design was feasible at the same tone in the last
+      round (``previous``: node -> that round's design): silent under the step's summed
+      drive, it may have room only for slow designs (seed 145902 of the default:
+      A1.backward, 0.36 mm/s at 29.0 kHz until the positioning step's second draw, then
+      0.066-0.070 mm/s from 16 seeds, 0.36 mm/s again under the third draw).
 
     ``confirmed``: the nodes whose design the steps' own simulation confirms
     (:func:`planner.planning.verify.confirm_responses`): no lever acts on them.
@@ -162,7 +169,21 @@ def design_levers(designs, steps, assignment, draws, pair_sep, sep, reseed, rese
             say(f"{{who}}: moved away from {tones_of(singles)} (it answers them)", n)
         if not drives and not singles:
             soft = kinds <= {"speed_floor", "mass_ratio", "bounds", "sensitivity"}
-            if soft and n not in reseeded:
+            squeezing = _squeezing_step(n, sits_out, by_key, assignment, draws)
+            # feasible at this very tone in the last round: what changed around it (a
+            # step's phases, its neighbours) squeezed it, not its seeds
+            was = (previous or {}).get(n)
+            squeezed = (was is not None and was.feasible
+                        and was.frequency_hz == assignment.frequencies[n])
+            if soft and squeezing is not None and (squeezed or n in reseeded):
+                if squeezing not in drawn:
+                    draws[squeezing] = draws.get(squeezing, 0) + 1
+                    drawn.add(squeezing)
+                say(f"{squeezing}: phases drawn anew (draw {draws[squeezing] + 1}): {{who}} "
+                    + ("was feasible at its tone in the last round, now "
+                       if squeezed else "after further seeds still ")
+                    + "; ".join(s["text"] for s in d.shortfalls), n)
+            elif soft and n not in reseeded:
                 _next_seeds(reseed, n)
                 reseeded.add(n)
                 say("{who}: re-designed from further seeds ("
@@ -176,6 +197,19 @@ def design_levers(designs, steps, assignment, draws, pair_sep, sep, reseed, rese
     actions = [text.replace("{who}", _names([m.text for m in nodes]))
                for text, nodes in said.items()]
     return actions, away
+
+
+def _squeezing_step(node, sits_out, by_key, assignment, draws):
+    """The multi-tone step ``node`` sits out whose tones come nearest its own, if its
+    phases may still be drawn anew (fewer than :data:`MAX_PHASE_DRAWS` draws), else
+    None (a step further away squeezes it less: drawing that one would not help)."""
+    f = assignment.frequencies[node]
+    steps = [k for k in sits_out.get(node, ()) if k in by_key]
+    if not steps:
+        return None
+    near = min(steps, key=lambda k: (min(abs(math.log(assignment.frequencies[Node(dv, dr)] / f))
+                                         for dv, dr in by_key[k].active_nodes()), k))
+    return near if draws.get(near, 0) + 1 < MAX_PHASE_DRAWS else None
 
 
 def _names(names, shown=3):

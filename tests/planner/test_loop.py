@@ -310,3 +310,85 @@ def test_a_reach_that_widens_most_of_the_band_is_refused_not_relaxed():
     settings, reach = _default_reach_as_found(0, lambda tone, packed: 1.2)
     with pytest.raises(PlanningError, match="neighbours must be x1.2 away"):
         assign_on_reach(settings, reach)
+
+
+# --- a design squeezed slow by a summed drive it sits out (seed 145902) ---------------
+
+def _lever_case():
+    """The default's steps, a stand-in assignment (every node on its own channel) and the
+    levers' inputs for A1.backward, which sits out the 25-tone positioning step."""
+    from types import SimpleNamespace
+
+    from planner.arrayspec import default_spec_path, load_spec
+    from planner.core.nodes import Node
+    from planner.planning.settings import resolve_settings
+
+    settings = resolve_settings(load_spec(default_spec_path()), 0)
+    grid = np.asarray(settings.channel_grid_hz)
+    nodes = sorted(settings.impacters)
+    freqs = {n: float(grid[4 * i]) for i, n in enumerate(nodes)}
+    assignment = SimpleNamespace(frequencies=freqs, positions=None,
+                                 channels={n: 4 * i for i, n in enumerate(nodes)}, stride=1)
+    node = Node.parse("A1.backward")
+    ok = SimpleNamespace(feasible=True, shortfalls=(), checks={}, forbidden_hz=(),
+                         r_max_forbidden_n=(), frequency_hz=freqs[node])
+    slow = SimpleNamespace(
+        feasible=False, checks={}, forbidden_hz=(), r_max_forbidden_n=(),
+        frequency_hz=freqs[node],
+        shortfalls=({"constraint": "speed_floor", "text": "its predicted slider speed "
+                     "0.0657 mm/s is below the floor 0.1 mm/s"},))
+    designs = {n: ok for n in nodes}
+    designs[node] = slow
+    return settings, assignment, node, designs, ok
+
+
+@pytest.mark.parametrize("history", ["feasible at its tone last round", "first time slow",
+                                     "slow again after further seeds",
+                                     "slow again, no draw left"])
+def test_a_slow_design_squeezed_by_a_summed_drive_gets_a_new_phase_draw(history):
+    """Seed 145902 of the default ended FAILED: A1.backward, 0.36 mm/s at 29.0 kHz until
+    the positioning step's phases were drawn anew for another impacter, was then
+    0.066-0.070 mm/s from 16 seeds (the loop re-designed it from further seeds, then
+    moved its neighbours, and ran out of rounds); under the step's next draw it was
+    0.36 mm/s again.  A design that misses only the speed floor and sits out a multi-tone
+    step gets that step's phases drawn anew: at once when it was feasible at the same
+    tone in the last round, else after one re-design from further seeds."""
+    from planner.planning.repair import MAX_PHASE_DRAWS, design_levers
+
+    settings, assignment, node, designs, ok = _lever_case()
+    step = "position_all/position"
+    draws, reseed, reseeded, pair_sep = {}, {}, set(), {}
+    previous = None
+    if history == "feasible at its tone last round":
+        previous = {n: ok for n in designs}
+    elif history != "first time slow":
+        reseeded.add(node)
+        reseed[node] = 8
+    if history == "slow again, no draw left":
+        draws[step] = MAX_PHASE_DRAWS - 1
+    actions, away = design_levers(designs, settings.steps, assignment, draws, pair_sep,
+                                  settings.separation_channels, reseed, reseeded,
+                                  previous=previous)
+    if history == "first time slow":
+        assert reseed == {node: 8} and not draws and not away
+        assert "re-designed from further seeds" in actions[0]
+    elif history == "slow again, no draw left":
+        assert draws == {step: MAX_PHASE_DRAWS - 1} and node in away
+        assert "moved away from its nearest neighbours" in actions[0]
+    else:
+        assert draws == {step: 1} and not away
+        assert reseed == ({} if previous else {node: 8})
+        assert actions[0].startswith(f"{step}: phases drawn anew (draw 2): A1.backward")
+
+
+@pytest.mark.slow
+def test_seed_145902_of_the_default_verifies(tmp_path):
+    """A seed drawn at random (2026-11-30) that ended FAILED on a design squeezed slow
+    by the positioning step's second phase draw (see the test above): verified."""
+    proc = _cli("plan", "--seed", 145902, "--out", "out", "--no-figures", "--quiet",
+                cwd=tmp_path)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    d = json.loads((tmp_path / "out" / "plan.json").read_text())
+    actions = [a for r in d["verification"]["repair_rounds"] for a in r.get("actions", ())]
+    assert any("was feasible at its tone in the last round" in a for a in actions), actions
+    assert not d["verification"]["design_problems"]
