@@ -132,10 +132,7 @@ def design_levers(designs, steps, assignment, draws, pair_sep, sep, reseed, rese
             # silent under every summed drive it sits out but unable to respond from
             # every x0: the other side of the same trade-off; the step whose tones come
             # nearest its own squeezes it most
-            f = assignment.frequencies[n]
-            drives = [min(sits_out[n], key=lambda k: min(
-                abs(math.log(assignment.frequencies[Node(dv, dr)] / f))
-                for dv, dr in by_key[k].active_nodes()))]
+            drives = [_nearest_step(n, sits_out[n], by_key, assignment)]
         for k in drives:
             if k in drawn:
                 continue
@@ -199,16 +196,22 @@ def design_levers(designs, steps, assignment, draws, pair_sep, sep, reseed, rese
     return actions, away
 
 
+def _nearest_step(node, keys, by_key, assignment):
+    """Of the steps ``keys``, the one whose tones come nearest ``node``'s own (in log
+    frequency; the first of them on a tie)."""
+    f = assignment.frequencies[node]
+    return min(keys, key=lambda k: min(abs(math.log(assignment.frequencies[Node(dv, dr)] / f))
+                                       for dv, dr in by_key[k].active_nodes()))
+
+
 def _squeezing_step(node, sits_out, by_key, assignment, draws):
     """The multi-tone step ``node`` sits out whose tones come nearest its own, if its
     phases may still be drawn anew (fewer than :data:`MAX_PHASE_DRAWS` draws), else
     None (a step further away squeezes it less: drawing that one would not help)."""
-    f = assignment.frequencies[node]
-    steps = [k for k in sits_out.get(node, ()) if k in by_key]
-    if not steps:
+    keys = [k for k in sits_out.get(node, ()) if k in by_key]
+    if not keys:
         return None
-    near = min(steps, key=lambda k: (min(abs(math.log(assignment.frequencies[Node(dv, dr)] / f))
-                                         for dv, dr in by_key[k].active_nodes()), k))
+    near = _nearest_step(node, keys, by_key, assignment)
     return near if draws.get(near, 0) + 1 < MAX_PHASE_DRAWS else None
 
 
