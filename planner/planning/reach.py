@@ -618,7 +618,12 @@ def assign_on_reach(settings: Settings, reach: Reach):
         hopeless = sum(p.hopeless for p in probes)
         if not reach.widened() and not hopeless or 2 * hopeless >= len(probes):
             raise
-        if 2 * (len(reach.widened()) + hopeless) >= len(probes):
+        # of the probes a design can serve (the channels the plan may take: a probe below
+        # the floor offers none, and counted as "packed" it would outvote the band that
+        # is left; a 1 x 4 in 2-8 kHz: 5 of its 8 probes below the floor, the 3 others
+        # needing neighbours x1.28-1.38 apart, relaxed, and 8 of 8 designs infeasible)
+        served = sum(p.reachable for p in probes)
+        if 2 * (len(reach.widened()) + hopeless) >= served:
             # most of the band needs the wider spacing: at the packed one the loop would
             # fail by trying (a 3 x 3 in a 5 um process, 5-40 kHz: every probe needed
             # neighbours x1.4-2.7 apart, and 18 of 18 designs then answered several

@@ -312,6 +312,47 @@ def test_a_reach_that_widens_most_of_the_band_is_refused_not_relaxed():
         assign_on_reach(settings, reach)
 
 
+LOW_ROW = ("name: low_row\narray: {rows: 1, cols: 4}\nindependent: true\n"
+           "drive: {band_hz: [2000, 8000]}\n")
+
+
+def test_probes_below_the_floor_do_not_outvote_the_band_that_is_left():
+    """A 1 x 4 in 2-8 kHz (2026-11-30): 5 of its 8 probes found no design at the floor,
+    the 3 others needed neighbours x1.28-1.38 apart where the grid packs them x1.05.
+    Counted among all 8, the 3 were a minority and the reach was relaxed to the packed
+    spacing: the plan then ended exit 1 with 8 of 8 designs infeasible.  The majority is
+    taken among the probes a design can serve: refused before any design, naming the
+    spacing (built here as the probes found it, 9 log-spaced probes: 5 below 4.2 kHz
+    unreachable, 3 of the 4 others widened)."""
+    from planner.arrayspec import load_spec
+    from planner.core.errors import PlanningError
+    from planner.core.separation import position_grid
+    from planner.planning.reach import (Probe, Reach, _needed_ratio, assign_on_reach,
+                                        packed_neighbours, probe_channels)
+    from planner.planning.settings import resolve_settings
+
+    settings = resolve_settings(load_spec(LOW_ROW), 0)
+    grid = np.asarray(settings.channel_grid_hz)
+    positions = position_grid(grid, settings.separation_channels, settings.guard)
+    served = grid >= 4227.0
+    probes = []
+    for c in probe_channels(grid):
+        packed, _ = packed_neighbours(grid, positions, settings.separation_channels, c)
+        if not served[c]:
+            probes.append(Probe(c, float(grid[c]), packed, None, False, 0.0))
+        else:
+            ratio = packed if c == len(grid) - 1 else 1.35
+            probes.append(Probe(c, float(grid[c]), packed, ratio, True, 5e-4))
+    assert sum(not p.reachable for p in probes) == 5
+    need = _needed_ratio(grid, probes, served)
+    reach = Reach(settings.min_speed_m_s, tuple(float(f) for f in grid),
+                  tuple(bool(a) for a in served), tuple(bool(a) for a in served),
+                  tuple(float(r) for r in need), tuple(probes))
+    assert len(reach.widened()) == 3
+    with pytest.raises(PlanningError, match="neighbours must be x1.35 away"):
+        assign_on_reach(settings, reach)
+
+
 # --- a design squeezed slow by a summed drive it sits out (seed 145902) ---------------
 
 def _lever_case():
