@@ -157,6 +157,35 @@ def rescaled_tones(plan, measured: dict, seps: Separations | None = None,
     return out
 
 
+def shared_tones(plan, tones: dict, window: float) -> dict:
+    """``tones`` (node -> re-planned tone [Hz]) with the impacters that share one tone in
+    ``plan`` (one channel: driven together, one design) on one tone again, the mean of
+    their re-planned tones, where it lies within each one's tone window (``window``,
+    relative, ``settings.tone_window``: where its design drives its slider at speed).
+
+    Each follows its own measured resonance otherwise, and a step then plays a tone per
+    impacter where the plan played one: a row of four 7-20 Hz apart (0.05 % of
+    measurement noise at 25 kHz) beats to four times the plan's amplitude, and the idle
+    impacters near it answer (a 2 x 4 of our own: the nominal chip's re-plan failed,
+    B1.forward at 41.5 kHz answering the four tones at 25.43 kHz; 0 of 20 chips
+    re-planned).  Tones closer than :data:`planner.planning.drives.MERGE_HZ` are played
+    as one anyway; this keeps the rest of a shared tone shared."""
+    by_tone = {}
+    for rec in plan.impacters:
+        if rec.node in tones:
+            by_tone.setdefault(round(rec.frequency_hz, 6), []).append(rec.node)
+    out = dict(tones)
+    for members in by_tone.values():
+        if len(members) < 2:
+            continue
+        fs = [tones[n] for n in members]
+        mean = sum(fs) / len(fs)
+        if all(abs(f - mean) <= window * f for f in fs):
+            for n in members:
+                out[n] = mean
+    return out
+
+
 def must_differ(steps) -> list:
     """Pairs of impacter ids some step drives one of and not the other (sorted)."""
     nodes = sorted({Node(d, r).text for st in steps for d, r in st.active_nodes()})
@@ -444,7 +473,8 @@ def rescue(plan, measured: dict, settings, models: dict, sliders: dict,
     free = {}
     chosen, blocked, outside = choose_tones(seps, middle, measured, pairs, windows,
                                             band=tuple(settings.band_hz), free_out=free)
-    tones = {rec.node: chosen[rec.id] for rec in plan.impacters}
+    tones = shared_tones(plan, {rec.node: chosen[rec.id] for rec in plan.impacters},
+                         settings.tone_window)
     # what blocks a tone is named pair by pair, with the separation each would need
     bad = inseparable(seps, measured, pairs)
     named = {n for c in bad for n in c["pair"]}

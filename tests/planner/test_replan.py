@@ -460,6 +460,36 @@ def test_tones_closer_than_the_loop_resolution_play_as_one(plan):
     assert w.phases[k] == pytest.approx(0.05)
 
 
+def test_impacters_sharing_a_tone_keep_one_tone_within_their_windows():
+    """A row of four that shared one tone in the plan (one channel, one design) is
+    re-planned on one tone again, the mean of their measured tones, when it lies within
+    each one's tone window: each on its own measured tone, the step played four tones
+    7-20 Hz apart that beat to four times the plan's amplitude, and on a 2 x 4 of our own
+    the nominal chip's re-plan failed (B1.forward at 41.5 kHz answered the four tones
+    at 25.43 kHz).  Spread beyond the window, each keeps its own tone."""
+    from types import SimpleNamespace
+
+    from planner.afterfab.drive import shared_tones
+
+    row = [Node(f"B{k}", "backward") for k in range(1, 5)]
+    lone = Node("B1", "forward")
+    plan = SimpleNamespace(impacters=[SimpleNamespace(node=n, frequency_hz=25465.8385093)
+                                      for n in row]
+                           + [SimpleNamespace(node=lone, frequency_hz=41573.0337079)])
+    measured = {row[0]: 25437.30, row[1]: 25418.96, row[2]: 25433.17, row[3]: 25430.42,
+                lone: 41542.63}
+    window = 1.5e-3                      # the default's: 3 x 0.05 % of measurement noise
+    got = shared_tones(plan, measured, window)
+    mean = sum(measured[n] for n in row) / 4
+    assert all(got[n] == mean for n in row) and got[lone] == measured[lone]
+    assert all(abs(measured[n] - mean) <= window * measured[n] for n in row)
+    # spread by fabrication beyond the window: each keeps its own
+    spread = {**measured, row[0]: 25620.0}
+    assert shared_tones(plan, spread, window) == spread
+    # no window (no measurement noise): nothing is moved
+    assert shared_tones(plan, measured, 0.0) == measured
+
+
 # ------------------------------------------------------------------ issue 44: the drive band
 
 def _cli(*args):
