@@ -659,6 +659,65 @@ def _least_serious(candidates, attempt):
     return None if best is None else (*best, tries)
 
 
+def reunite(plan, settings, drive: RescuedDrive, rows, failures, models, sliders, check):
+    """Play each row that shared one tone in ``plan`` on one tone again where its members
+    now play several and the drive fails: the members' mean, beyond their designed
+    windows too, kept where fewer checks fail.
+
+    :func:`shared_tones` keeps a row on one tone only within each member's designed
+    tone window; spread wider by fabrication, every member plays its own tone, and the
+    step sums a tone per member where the plan played one: their beats reach N times the
+    plan's amplitude at the idle impacters, which were designed silent under one tone.
+    One tone at the row's mean may still drive every member (each responds over a band
+    wider than its designed window, at a lower speed): the verification decides.  Every
+    step a row plays in is synthesised again with the row on its mean, its burst sized
+    again, and the variant kept where it has fewer failures than the drive as it stands
+    (the motion's aside, as :func:`quieten` counts them).
+
+    Returns
+    -------
+    (drive, rows, failures)
+    """
+    if not _serious(failures):
+        return drive, rows, failures
+    by_tone = {}
+    for rec in plan.impacters:
+        if rec.node in drive.tones:
+            by_tone.setdefault(round(rec.frequency_hz, 6), []).append(rec.node)
+    split = [ms for ms in by_tone.values()
+             if len(ms) > 1 and len({drive.tones[n] for n in ms}) > 1]
+    if not split:
+        return drive, rows, failures
+    tones = dict(drive.tones)
+    for members in split:
+        mean = sum(tones[n] for n in members) / len(members)
+        for n in members:
+            tones[n] = mean
+    moved = {n for ms in split for n in ms}
+    touched = [st for st in drive.steps
+               if any(Node(d, r) in moved for d, r in st.active_nodes())
+               and st.targets_m is None]
+    if not touched:
+        return drive, rows, failures
+    waveforms, notes = drive.synthesize_and_limit(tuple(touched), tones)
+    sized, _ = size_within(settings, tuple(touched), waveforms, models, sliders,
+                           settings.max_travel_m)
+    got_rows, got_fails = check(list(sized), waveforms)
+    keys = {st.index for st in touched}
+    before = _serious(f for f in failures if f.step in keys)
+    if _serious(got_fails) >= before:
+        return drive, rows, failures
+    by_key = {st.key: st for st in sized}
+    steps = tuple(by_key.get(st.key, st) for st in drive.steps)
+    rows = sorted([r for r in rows if r["index"] not in keys] + list(got_rows),
+                  key=lambda r: r["index"])
+    failures = [f for f in failures if f.step not in keys] + list(got_fails)
+    notes_all = {**drive.notes, **{k: {**v, "rows_reunited": True} for k, v in notes.items()}}
+    return (dataclasses.replace(drive, steps=steps, tones=tones,
+                                waveforms={**drive.waveforms, **waveforms}, notes=notes_all),
+            rows, failures)
+
+
 def quieten(settings, drive: RescuedDrive, rows, failures, models, sliders, check):
     """Lower the drive of each step an idle impacter answers until it no longer does.
 

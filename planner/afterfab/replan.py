@@ -52,7 +52,7 @@ from planner.planning.record import build_record
 from planner.planning.repair import scenes_and_motion
 from planner.afterfab.as_built import AsBuilt, as_built, resonance_times, symmetric
 from planner.afterfab.drive import (REPLAN_TRAVEL_MARGIN, move_tones, plan_phases, quieten,
-                                    redraw_slow, rescue, split_weak)
+                                    redraw_slow, rescue, reunite, split_weak)
 from planner.planning.result import Plan
 from planner.planning.settings import plan_settings, tone_amplitudes
 from planner.planning.verify import (TOO_SLOW, check_step, check_steps, coupling_matrix,
@@ -273,6 +273,10 @@ def replan(plan: PlanRecord, measured, *, seed=None, settings=None, progress=Non
         return rows, fails
 
     ver_rows, failures = check(drive.steps, drive.waveforms, lambda k: tick("verify", k))
+    # a row that shared one tone in the plan, now on a tone per member, and failing: on
+    # one tone again, where that passes more checks
+    drive, ver_rows, failures = reunite(plan, strict, drive, ver_rows, failures, models,
+                                        sliders, check)
     # a step the acceleration limit weakened, failing by a slow slider: split it where
     # its sub-steps pass more checks
     drive, ver_rows, failures = split_weak(strict, drive, ver_rows, failures, models,
