@@ -22,6 +22,11 @@ class _Bars:
     def __call__(self, stage, item=None, total=None):
         from tqdm import tqdm
 
+        if stage == "probe":
+            # a reach probe's verdict, as it comes: above the bar, which it does not count
+            if not self.quiet and item:
+                tqdm.write(str(item), file=sys.stderr)
+            return
         if total is not None:
             self.close()
             self.stage = stage

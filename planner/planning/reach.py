@@ -453,6 +453,23 @@ def packed_neighbours(grid, positions, separation, channel):
     return (min(ratios) if ratios else RATIO_LIMIT), tuple(nb)
 
 
+def probe_line(tone_hz, packed_ratio, result, floor_m_s) -> str:
+    """One probe's verdict as a line (what :func:`measure_reach` reports as it goes):
+    ``result`` is :func:`_tone`'s (ratio, reachable, speed, tried, design)."""
+    ratio, reachable, speed, _, _ = result
+    head = f"probe {tone_hz / 1e3:.4g} kHz: "
+    fastest = f"fastest design {speed * 1e3:.3g} mm/s"
+    if not reachable:
+        return head + (f"no design reaches the floor {floor_m_s * 1e3:g} mm/s ({fastest})")
+    if ratio is None:
+        return head + (f"served alone ({fastest}), but no design is silent at neighbours "
+                       f"x{RATIO_LIMIT:g} away")
+    if ratio > packed_ratio:
+        return head + (f"neighbours must be x{ratio:.3g} away (the grid packs them "
+                       f"x{packed_ratio:.3g}); {fastest}")
+    return head + f"served at the grid's spacing (x{packed_ratio:.3g}); {fastest}"
+
+
 def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, store=None,
                   progress=None):
     """Probe the spec's reach and spacing (see the module docstring) and assign the
@@ -466,7 +483,9 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
     store : planner.planning.design_store.DesignStore, optional
         The design cache: a probe it holds is read, not run.
     progress : callable(stage, item=None, total=None), optional
-        The plan's progress callback (stages "reach" and "edges").
+        The plan's progress callback (stages "reach" and "edges"), and, as each probe
+        tone is answered, ``progress("probe", line)``: a line saying what it found
+        (:func:`probe_line`), for a reader who would stop a long reach early.
 
     Returns
     -------
@@ -527,10 +546,13 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
     for node in kinds:
         shared = ({**settings.design_kwargs(node), "seed": REACH_SEED}, floor)
         tick("reach", total=len(probes_at))
+        def answered(i, res):
+            tick("reach", i)
+            tick("probe", probe_line(float(grid[probes_at[i]]), packed[i][0], res, floor))
+
         found = _cached_run(shared, [("tone", float(grid[c]), r, nb, g)
                                      for c, (r, nb), g in zip(probes_at, packed, given)],
-                            store, ran, jobs, scheduler, pool,
-                            on_done=lambda i, res: tick("reach", i))
+                            store, ran, jobs, scheduler, pool, on_done=answered)
         # a probe that held its assigned neighbours counts them as its packed ones
         mine = [Probe(c, float(grid[c]), r if g is None or ratio != g[0] else g[0], ratio,
                       ok, speed, tried, design)
