@@ -453,21 +453,28 @@ def packed_neighbours(grid, positions, separation, channel):
     return (min(ratios) if ratios else RATIO_LIMIT), tuple(nb)
 
 
-def probe_line(tone_hz, packed_ratio, result, floor_m_s) -> str:
-    """One probe's verdict as a line (what :func:`measure_reach` reports as it goes):
-    ``result`` is :func:`_tone`'s (ratio, reachable, speed, tried, design)."""
-    ratio, reachable, speed, _, _ = result
-    head = f"probe {tone_hz / 1e3:.4g} kHz: "
-    fastest = f"fastest design {speed * 1e3:.3g} mm/s"
-    if not reachable:
+def probe_line(probe: Probe, floor_m_s) -> str:
+    """One probe's verdict as a line (what :func:`measure_reach` reports as it goes)."""
+    head = f"probe {probe.tone_hz / 1e3:.4g} kHz: "
+    fastest = f"fastest design {probe.speed_m_s * 1e3:.3g} mm/s"
+    if not probe.reachable:
         return head + (f"no design reaches the floor {floor_m_s * 1e3:g} mm/s ({fastest})")
-    if ratio is None:
+    if probe.ratio is None:
         return head + (f"served alone ({fastest}), but no design is silent at neighbours "
                        f"x{RATIO_LIMIT:g} away")
-    if ratio > packed_ratio:
-        return head + (f"neighbours must be x{ratio:.3g} away (the grid packs them "
-                       f"x{packed_ratio:.3g}); {fastest}")
-    return head + f"served at the grid's spacing (x{packed_ratio:.3g}); {fastest}"
+    if probe.ratio > probe.packed_ratio:
+        return head + (f"neighbours must be x{probe.ratio:.3g} away (the grid packs them "
+                       f"x{probe.packed_ratio:.3g}); {fastest}")
+    return head + f"served with neighbours x{probe.packed_ratio:.3g} away; {fastest}"
+
+
+def _probe_of(channel, tone_hz, packed_ratio, given, result) -> Probe:
+    """The :class:`Probe` of a tone probe's ``result`` (:func:`_tone`'s); a probe that
+    held the neighbours its assignment gives it (``given``) counts them as its packed
+    ones."""
+    ratio, ok, speed, tried, design = result
+    packed = packed_ratio if given is None or ratio != given[0] else given[0]
+    return Probe(channel, tone_hz, packed, ratio, ok, speed, tried, design)
 
 
 def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, store=None,
@@ -548,16 +555,15 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
         tick("reach", total=len(probes_at))
         def answered(i, res):
             tick("reach", i)
-            tick("probe", probe_line(float(grid[probes_at[i]]), packed[i][0], res, floor))
+            c = probes_at[i]
+            probe = _probe_of(c, float(grid[c]), packed[i][0], given[i], res)
+            tick("probe", probe_line(probe, floor))
 
         found = _cached_run(shared, [("tone", float(grid[c]), r, nb, g)
                                      for c, (r, nb), g in zip(probes_at, packed, given)],
                             store, ran, jobs, scheduler, pool, on_done=answered)
-        # a probe that held its assigned neighbours counts them as its packed ones
-        mine = [Probe(c, float(grid[c]), r if g is None or ratio != g[0] else g[0], ratio,
-                      ok, speed, tried, design)
-                for c, (r, _), g, (ratio, ok, speed, tried, design)
-                in zip(probes_at, packed, given, found)]
+        mine = [_probe_of(c, float(grid[c]), r, g, res)
+                for c, (r, _), g, res in zip(probes_at, packed, given, found)]
         pairs = [(i, i + 1) for i in range(len(mine) - 1)
                  if mine[i].reachable != mine[i + 1].reachable
                  and probes_at[i + 1] - probes_at[i] > 1]

@@ -439,23 +439,30 @@ def test_each_probe_says_what_it_found_as_it_comes(tmp_path):
     """Know early (issue 43): a long reach reports each probe's verdict as it is
     answered, above the progress bar (stderr), so that a reader can stop a spec bound
     to be refused; --quiet says nothing of it."""
-    from planner.planning.reach import RATIO_LIMIT, probe_line
+    from planner.planning.reach import RATIO_LIMIT, _probe_of, probe_line
 
     floor = 2e-4
-    assert probe_line(2882.0, 1.05, (None, False, 0.0, (), None), floor) == (
+
+    def line(tone, packed, result, given=None):
+        return probe_line(_probe_of(0, tone, packed, given, result), floor)
+
+    assert line(2882.0, 1.05, (None, False, 0.0, (), None)) == (
         "probe 2.882 kHz: no design reaches the floor 0.2 mm/s (fastest design 0 mm/s)")
-    assert probe_line(5519.0, 1.05, (1.28, True, 6.79e-4, (), None), floor) == (
+    assert line(5519.0, 1.05, (1.28, True, 6.79e-4, (), None)) == (
         "probe 5.519 kHz: neighbours must be x1.28 away (the grid packs them x1.05); "
         "fastest design 0.679 mm/s")
-    assert probe_line(20e3, 1.04, (1.04, True, 3e-4, (), None), floor).endswith(
-        "served at the grid's spacing (x1.04); fastest design 0.3 mm/s")
-    assert f"no design is silent at neighbours x{RATIO_LIMIT:g} away" in probe_line(
-        30e3, 1.04, (None, True, 9e-4, (), None), floor)
+    assert line(20e3, 1.04, (1.04, True, 3e-4, (), None)).endswith(
+        "served with neighbours x1.04 away; fastest design 0.3 mm/s")
+    assert f"no design is silent at neighbours x{RATIO_LIMIT:g} away" in line(
+        30e3, 1.04, (None, True, 9e-4, (), None))
+    # a probe that held the (wider) neighbours its assignment gives it did not need them
+    assert line(5088.0, 1.15, (2.66, True, 7.1e-4, (), None), given=(2.66, (13520.0,))) == (
+        "probe 5.088 kHz: served with neighbours x2.66 away; fastest design 0.71 mm/s")
 
     (tmp_path / "tiny.yaml").write_text((ROOT / "configs" / "tiny_1x2.yaml").read_text())
     loud, quiet = (_cli("plan", "tiny.yaml", "--dry-run", *extra, "--cache-dir",
                         str(tmp_path / "cache"), cwd=tmp_path) for extra in ((), ("--quiet",)))
     assert loud.returncode == 0 and quiet.returncode == 0, loud.stderr + quiet.stderr
     said = [line for line in loud.stderr.splitlines() if line.startswith("probe ")]
-    assert len(said) == 2 and all(" kHz: " in line for line in said), loud.stderr
+    assert len(said) == 2 and all(" kHz: served with neighbours" in x for x in said), said
     assert "probe " not in quiet.stderr
