@@ -157,6 +157,16 @@ def rescaled_tones(plan, measured: dict, seps: Separations | None = None,
     return out
 
 
+def _rows(plan, tones: dict) -> list:
+    """The impacters of ``tones`` (node -> tone) that share one tone in ``plan``, two or
+    more: one list of nodes per shared tone."""
+    by_tone = {}
+    for rec in plan.impacters:
+        if rec.node in tones:
+            by_tone.setdefault(round(rec.frequency_hz, 6), []).append(rec.node)
+    return [members for members in by_tone.values() if len(members) > 1]
+
+
 def shared_tones(plan, tones: dict, window: float) -> dict:
     """``tones`` (node -> re-planned tone [Hz]) with the impacters that share one tone in
     ``plan`` (one channel: driven together, one design) on one tone again, the mean of
@@ -170,14 +180,8 @@ def shared_tones(plan, tones: dict, window: float) -> dict:
     B1.forward at 41.5 kHz answering the four tones at 25.43 kHz; 0 of 20 chips
     re-planned).  Tones closer than :data:`planner.planning.drives.MERGE_HZ` are played
     as one anyway; this keeps the rest of a shared tone shared."""
-    by_tone = {}
-    for rec in plan.impacters:
-        if rec.node in tones:
-            by_tone.setdefault(round(rec.frequency_hz, 6), []).append(rec.node)
     out = dict(tones)
-    for members in by_tone.values():
-        if len(members) < 2:
-            continue
+    for members in _rows(plan, tones):
         fs = [tones[n] for n in members]
         mean = sum(fs) / len(fs)
         if all(abs(f - mean) <= window * f for f in fs):
@@ -680,12 +684,7 @@ def reunite(plan, settings, drive: RescuedDrive, rows, failures, models, sliders
     """
     if not _serious(failures):
         return drive, rows, failures
-    by_tone = {}
-    for rec in plan.impacters:
-        if rec.node in drive.tones:
-            by_tone.setdefault(round(rec.frequency_hz, 6), []).append(rec.node)
-    split = [ms for ms in by_tone.values()
-             if len(ms) > 1 and len({drive.tones[n] for n in ms}) > 1]
+    split = [ms for ms in _rows(plan, drive.tones) if len({drive.tones[n] for n in ms}) > 1]
     if not split:
         return drive, rows, failures
     tones = dict(drive.tones)

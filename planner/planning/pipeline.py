@@ -422,8 +422,9 @@ def plan_pool(jobs, scheduler=None, eager=True):
 
 def _cache_record(store, designed):
     """:attr:`Plan.design_cache`: the design cache's path, its designs read and written,
-    the reach's probes read and written, the distinct designs, and per later stage (``verify``, ``manufacturability``) the
-    results read and written (None without a cache)."""
+    the reach's probes read and written, the distinct designs, and per later stage
+    (``verify``, ``manufacturability``) the results read and written (None without a
+    cache)."""
     if store is None:
         return None
     return {"path": str(store.path), "read": store.hits, "written": store.writes,
