@@ -183,7 +183,8 @@ class Reach:
     @property
     def family(self) -> tuple:
         """((A, w, l, c), tone) of every probe's feasible design, by tone: the spec's
-        design family, which the plan's designs start from (:func:`planner.planning.designs.family_for`)."""
+        design family, which the plan's designs start from
+        (:func:`planner.planning.designs.family_for`)."""
         return tuple(sorted((p.design for p in self.probes if p.design is not None),
                             key=lambda d: d[1]))
 
@@ -209,13 +210,22 @@ class Reach:
         """Probes whose spacing had to be widened beyond the packed grid's."""
         return [p for p in self.probes if p.ratio is not None and p.ratio > p.packed_ratio]
 
+    def speeds_by_tone(self):
+        """(tone [Hz], speed [m/s]) per probe tone, by tone: with several kinds of
+        impacter (``devices:``) each tone was probed once per kind, and the slowest
+        kind's fastest design is the tone's (every kind must be served there)."""
+        slowest = {}
+        for p in self.probes:
+            slowest[p.tone_hz] = min(slowest.get(p.tone_hz, math.inf), p.speed_m_s)
+        return sorted(slowest.items())
+
     def summary(self) -> str:
         """One paragraph: the reachable tones and the separations, for messages."""
         grid = self.grid_hz
         rng = self.range_hz
         floor = self.floor_m_s * 1e3
-        speeds = ", ".join(f"{p.tone_hz / 1e3:.3g} kHz {p.speed_m_s * 1e3:.3g}"
-                           for p in self.probes)
+        speeds = ", ".join(f"{tone / 1e3:.3g} kHz {speed * 1e3:.3g}"
+                           for tone, speed in self.speeds_by_tone())
         if rng is None:
             text = (f"no tone of the channel grid ({grid[0]:.0f}-{grid[-1]:.0f} Hz) can be "
                     f"served at the speed floor {floor:g} mm/s: the fastest design the "
@@ -261,12 +271,13 @@ class Reach:
                        "impacter for its slider (design.max_mass_ratio) or a lighter "
                        "slider (device.slider.area_um2)")
         if rng is None and self.probes:
-            fastest = max(self.probes, key=lambda p: p.speed_m_s)
-            where = ("higher" if fastest is self.probes[-1] else
-                     "lower" if fastest is self.probes[0] else None)
+            by_tone = self.speeds_by_tone()
+            fastest = max(range(len(by_tone)), key=lambda i: by_tone[i][1])
+            where = ("higher" if fastest == len(by_tone) - 1 else
+                     "lower" if fastest == 0 else None)
             if where:
                 out.append(f"or a {where} band (drive.band_hz): the fastest design was found "
-                           f"at {fastest.tone_hz:.0f} Hz, the band's "
+                           f"at {by_tone[fastest][0]:.0f} Hz, the band's "
                            f"{'top' if where == 'higher' else 'bottom'}")
         if self.widened() or any(p.hopeless for p in self.probes):
             out.append("to bring separations down: more damping (environment."
@@ -283,7 +294,7 @@ class Reach:
         head = (f"reach (measured in {self.seconds:.1f} s, {self.designs} probe "
                 f"designs{compiled}): ")
         if not self.constrained and not self.relaxed and self.assigned:
-            tones = ", ".join(f"{p.tone_hz:.0f}" for p in self.probes)
+            tones = ", ".join(f"{tone:.0f}" for tone, _ in self.speeds_by_tone())
             return [head + f"every tone the spec plays ({tones} Hz) can be served at "
                     f"{self.floor_m_s * 1e3:g} mm/s beside the tones it must be told "
                     "apart from"]
@@ -550,14 +561,23 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
     allowed = np.ones(grid.size, dtype=bool)
     need = np.ones(grid.size)
     probes, all_edges = [], []
+    total = len(probes_at) * len(kinds)
     for node in kinds:
         shared = ({**settings.design_kwargs(node), "seed": REACH_SEED}, floor)
         tick("reach", total=len(probes_at))
+        so_far = [None] * len(probes_at)
+
         def answered(i, res):
             tick("reach", i)
             c = probes_at[i]
             probe = _probe_of(c, float(grid[c]), packed[i][0], given[i], res)
             tick("probe", probe_line(probe, floor))
+            so_far[i] = probe
+            if not probe.reachable or probe.ratio != probe.packed_ratio:
+                # a probe that takes channels away or widens the spacing: refuse now if
+                # the steps cannot fit whatever the probes still to come find
+                _refuse_early(settings, grid, probes_at, so_far, (reachable, allowed, need),
+                              probes, total, env, assigned=few)
 
         found = _cached_run(shared, [("tone", float(grid[c]), r, nb, g)
                                      for c, (r, nb), g in zip(probes_at, packed, given)],
@@ -592,6 +612,64 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
     # (with a distorting drive chain the layout weighs each product against the
     # reach's design family, which the assignment before the probes did not have)
     return assign_on_reach(settings, reach)
+
+
+def _refuse_early(settings, grid, probes_at, so_far, before, earlier, total, env, assigned):
+    """Raise the reach's refusal now when the steps cannot fit whatever the probes not
+    yet answered find (know early: a spec in a robust process was refused after 3 min
+    of probes, most of whose verdict its first few probes had already decided).
+
+    The probes can only take channels away or widen the spacing, so the most any
+    completion offers is this one: every probe not yet answered served at the packed
+    spacing (an edge between an answered probe that cannot be served and one that can,
+    or has not answered yet, at its most generous: only the channels of probes found
+    out of reach lost); the kinds probed ``before`` (reachable, allowed, need) as they
+    were found, later kinds unconstrained.  The assignment fails on that reach, and
+    :func:`assign_on_reach` would not relax it (most of the probes answered so far
+    need the wider spacing or are hopeless, counted against every probe that could
+    still be served, or its relaxed assignment fails too), so it fails on every reach
+    the remaining probes can give.  ``earlier``: the probes of the kinds before."""
+    from planner.assignment.assign import assign
+
+    reach_before, allowed_before, need_before = before
+    answered = [p for p in so_far if p is not None]
+    optimistic = [p if p is not None else
+                  Probe(c, float(grid[c]), 1.0, 1.0, True, 0.0)
+                  for c, p in zip(probes_at, so_far)]
+    ok = [p.reachable for p in optimistic]
+    pairs = [(i, i + 1) for i in range(len(ok) - 1)
+             if ok[i] != ok[i + 1] and probes_at[i + 1] - probes_at[i] > 1]
+    # the most generous edge: every channel between the two probes on the served side
+    edges = [((probes_at[j] - probes_at[i] - 1) if ok[i] else 0, ()) for i, j in pairs]
+    mask = _reachable_mask(len(grid), probes_at, ok, pairs, edges)
+    reachable = reach_before & mask
+    allowed = allowed_before & mask
+    need = np.maximum(need_before, _needed_ratio(grid, optimistic, allowed))
+    reach = Reach(settings.min_speed_m_s, tuple(float(f) for f in grid),
+                  tuple(bool(a) for a in reachable), tuple(bool(a) for a in allowed),
+                  tuple(float(r) for r in need), tuple(earlier) + tuple(answered),
+                  environment=env, assigned=assigned)
+    try:
+        assign(settings, settings.steps, reach=reach)
+        return
+    except PlanningError as exc:
+        refusal = exc
+    seen = list(earlier) + answered
+    hopeless = sum(p.hopeless for p in seen)
+    wide = sum(p.ratio is not None and p.ratio > p.packed_ratio for p in seen)
+    could_serve = sum(p.reachable for p in seen) + (total - len(seen))
+    if not (2 * hopeless >= total or 2 * (wide + hopeless) >= could_serve):
+        relaxed = dataclasses.replace(reach, min_ratio=tuple(1.0 for _ in reach.min_ratio),
+                                      allowed=reach.reachable, relaxed=True)
+        try:
+            assign(settings, settings.steps, reach=relaxed)
+            return
+        except PlanningError:
+            pass
+    left = total - len(seen)
+    raise PlanningError(
+        f"{refusal} (Refused after {len(seen)} of {total} probes: the {left} not yet "
+        "answered could only take channels away or widen the spacing.)") from None
 
 
 def _distorting(settings) -> bool:

@@ -466,3 +466,121 @@ def test_each_probe_says_what_it_found_as_it_comes(tmp_path):
     said = [line for line in loud.stderr.splitlines() if line.startswith("probe ")]
     assert len(said) == 2 and all(" kHz: served with neighbours" in x for x in said), said
     assert "probe " not in quiet.stderr
+
+
+def test_a_reach_of_several_kinds_names_each_tone_once_at_its_slowest_kind():
+    """A spec whose devices differ (``devices: B2: slider: ...``) is probed once per kind
+    of impacter at the same tones; the dry run listed every tone twice ("6108, 9274,
+    ..., 6108, 9274 ... Hz") and each tone's speed once per kind.  Each tone is now named
+    once, with the slowest kind's fastest design (every kind must be served there), and
+    the band advice points at the slowest kind's fastest tone."""
+    from planner.planning.reach import Probe, Reach
+
+    tones = (6108.0, 9274.0, 14081.0)
+    def kind(speeds):
+        return [Probe(i, f, 1.1, 1.1, True, v) for i, (f, v) in enumerate(zip(tones, speeds))]
+
+    light, heavy = kind((4e-4, 5e-4, 6e-4)), kind((3e-4, 7e-4, 2e-4))
+    reach = Reach(2e-4, tones, (True,) * 3, (True,) * 3, (1.0,) * 3,
+                  tuple(light + heavy), assigned=True)
+    assert reach.speeds_by_tone() == [(6108.0, 3e-4), (9274.0, 5e-4), (14081.0, 2e-4)]
+    assert "(6108, 9274, 14081 Hz)" in reach.lines()[0]
+    assert "6.11 kHz 0.3, 9.27 kHz 0.5, 14.1 kHz 0.2)" in reach.summary()
+    # nothing reachable: the band advice follows the tone whose slowest kind was fastest
+    none = Reach(1e-3, tones, (False,) * 3, (False,) * 3, (1.0,) * 3,
+                 tuple(light + heavy))
+    assert "fastest design was found at 9274 Hz" not in none.advice()
+    heavy[1] = Probe(1, 9274.0, 1.1, 1.1, False, 4e-4)
+    light[2] = Probe(2, 14081.0, 1.1, 1.1, False, 9e-4)
+    heavy[2] = Probe(2, 14081.0, 1.1, 1.1, False, 8e-4)
+    top = Reach(1e-3, tones, (False,) * 3, (False,) * 3, (1.0,) * 3, tuple(light + heavy))
+    assert ("or a higher band (drive.band_hz): the fastest design was found at 14081 Hz"
+            in top.advice())
+
+
+_ROBUST_2X2 = """\
+name: robust_2x2
+array: {rows: 2, cols: 2, pitch_um: 2000}
+drive:
+  band_hz: [8000, 30000]
+design:
+  robust: true
+fabrication:
+  natural_frequency_pct: {die: 0.5, device: 0.2}
+"""
+
+
+def _reach_from(settings, probes_at, verdicts):
+    """The Reach :func:`measure_reach` builds from probes at ``probes_at`` with
+    ``verdicts`` (ratio or None: hopeless; every probe reachable, so no edges)."""
+    from planner.core.separation import position_grid
+    from planner.planning.reach import Probe, Reach, _needed_ratio, packed_neighbours
+
+    grid = np.asarray(settings.channel_grid_hz)
+    positions = position_grid(grid, settings.separation_channels, settings.guard)
+    probes = []
+    for c, ratio in zip(probes_at, verdicts):
+        packed, _ = packed_neighbours(grid, positions, settings.separation_channels, c)
+        probes.append(Probe(c, float(grid[c]), packed, packed if ratio == "packed" else ratio,
+                            True, 5e-4))
+    allowed = np.ones(grid.size, dtype=bool)
+    need = _needed_ratio(grid, probes, allowed)
+    return probes, Reach(settings.min_speed_m_s, tuple(float(f) for f in grid),
+                         (True,) * grid.size, tuple(bool(a) for a in allowed),
+                         tuple(float(r) for r in need), tuple(probes))
+
+
+@pytest.mark.parametrize("verdicts, refused", [
+    # what a robust 2 x 2 in 8-30 kHz measured (a design silent at its neighbours under
+    # a +-0.5 % shift needs them x1.3-1.7 away): at most 4 of its 8 impacters fit
+    ((1.27, 1.27, 1.36, 1.72, 1.53, 1.72, 1.36, 1.3, 1.3), True),
+    # the same band where most probes hold the packed spacing: planned (relaxed)
+    (("packed", "packed", 1.36, "packed", "packed", 1.72, "packed", "packed", "packed"),
+     False),
+    # every probe needs a wider spacing, but one the band still holds: planned
+    ((1.12,) * 9, False),
+])
+def test_a_reach_is_refused_as_soon_as_no_probe_still_to_come_could_save_it(verdicts, refused):
+    """Know early (issue 43): a robust 2 x 2 was refused after 3 min of probes, most of
+    whose verdict its first probes had decided.  The reach now refuses as soon as the
+    steps cannot fit whatever the probes still to come find (every one of them served at
+    the packed spacing: the most a probe can offer).  Held against the verdict on every
+    probe: in every order of answers, an early refusal comes only where the whole reach
+    refuses, and with every probe answered it refuses exactly where the whole reach
+    does (the real assigner; the probes' verdicts as the designs found them)."""
+    from planner.arrayspec import load_spec
+    from planner.core.errors import PlanningError
+    from planner.planning.reach import _refuse_early, assign_on_reach, probe_channels
+    from planner.planning.settings import resolve_settings
+
+    settings = resolve_settings(load_spec(_ROBUST_2X2), 0)
+    grid = np.asarray(settings.channel_grid_hz)
+    probes_at = probe_channels(grid)
+    probes, reach = _reach_from(settings, probes_at, verdicts)
+    try:
+        assign_on_reach(settings, reach)
+        whole = False
+    except PlanningError:
+        whole = True
+    assert whole is refused
+    state = (np.ones(grid.size, dtype=bool), np.ones(grid.size, dtype=bool), np.ones(grid.size))
+    rng = np.random.default_rng(0)
+    first = []
+    for order in [range(len(probes)), reversed(range(len(probes)))] + [
+            rng.permutation(len(probes)) for _ in range(3)]:
+        so_far = [None] * len(probes)
+        for n, i in enumerate(order, start=1):
+            so_far[i] = probes[i]
+            try:
+                _refuse_early(settings, grid, probes_at, so_far, state, [], len(probes), "",
+                              assigned=False)
+            except PlanningError as exc:
+                assert refused, f"refused early after {n} probes: {exc}"
+                assert f"(Refused after {n} of {len(probes)} probes" in str(exc)
+                first.append(n)
+                break
+        else:
+            assert not refused, "every probe answered and not refused"
+    if refused:
+        # the robust 2 x 2's verdict was clear before its last probes
+        assert min(first) < len(probes), first
