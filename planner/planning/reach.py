@@ -179,6 +179,9 @@ class Reach:
     #: assignment on the packed grid takes, each first asked with the neighbours that
     #: assignment gives it (:func:`measure_reach`)
     assigned: bool = False
+    #: the designs are made robust (``design.robust``): silent at their neighbours under
+    #: every resonance shift the fabrication allows, which widens the spacing they need
+    robust: bool = field(default=False, compare=False)
 
     @property
     def family(self) -> tuple:
@@ -285,6 +288,12 @@ class Reach:
                        "never stops ringing, and any tone it sits out adds to it until "
                        "it reaches its wall) or fewer impacters that must be told apart "
                        "(independent: false, scenes that move devices together)")
+            if self.robust:
+                out.append("or designs not made robust (design.robust: false: a robust "
+                           "design must be silent at its neighbours under every resonance "
+                           "shift the fabrication tolerances allow, which widens the "
+                           "spacing it needs; smaller tolerances or a smaller "
+                           "design.robust_k narrow it)")
         return "; ".join(out)
 
     def lines(self) -> list[str]:
@@ -605,7 +614,7 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
     reach = Reach(floor, tuple(float(f) for f in grid), tuple(bool(a) for a in reachable),
                   tuple(bool(a) for a in allowed), tuple(float(r) for r in need),
                   tuple(probes), tuple(all_edges), ran[0], time.perf_counter() - t0, env,
-                  cold, assigned=few)
+                  cold, assigned=few, robust=settings.robust_k is not None)
     if not reach.constrained and not _distorting(settings):
         # the reach takes nothing from the grid: the assignment made before the probes
         return reach, dataclasses.replace(unconstrained, reach=reach)
@@ -648,7 +657,8 @@ def _refuse_early(settings, grid, probes_at, so_far, before, earlier, total, env
     reach = Reach(settings.min_speed_m_s, tuple(float(f) for f in grid),
                   tuple(bool(a) for a in reachable), tuple(bool(a) for a in allowed),
                   tuple(float(r) for r in need), tuple(earlier) + tuple(answered),
-                  environment=env, assigned=assigned)
+                  environment=env, assigned=assigned,
+                  robust=settings.robust_k is not None)
     try:
         assign(settings, settings.steps, reach=reach)
         return

@@ -577,6 +577,7 @@ def test_a_reach_is_refused_as_soon_as_no_probe_still_to_come_could_save_it(verd
             except PlanningError as exc:
                 assert refused, f"refused early after {n} probes: {exc}"
                 assert f"(Refused after {n} of {len(probes)} probes" in str(exc)
+                assert "or designs not made robust (design.robust: false" in str(exc)
                 first.append(n)
                 break
         else:
