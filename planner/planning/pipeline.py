@@ -220,6 +220,13 @@ def _design_round(settings, steps, assignment, clock, tick, design_cache, draws=
                   sliders, run_steps, sizing, ver_rows, failures, confirmed)
 
 
+def _unmoved(designs, new, old):
+    """The designs whose impacter plays the same tone in assignment ``new`` as in
+    ``old`` (a moved one is designed again)."""
+    return {n: d for n, d in designs.items()
+            if new.frequencies.get(n) == old.frequencies.get(n)}
+
+
 def _design_stats(designs, before):
     """How the round's distinct designs were made: {"designed", "kept", "reused"} (a
     re-check kept a design whose inputs changed; reused: unchanged since the last
@@ -264,12 +271,14 @@ def _repair_rounds(settings, clock, tick, on_assignment, design_kw, first, free_
         plan.json's ``repair_rounds`` log and the distinct designs made over the rounds.
     """
     from planner.planning.designs import design_keys
-    from planner.planning.repair import design_levers
+    from planner.planning.repair import design_levers, pick_draw
     from planner.assignment.reassign import move_groups
 
     steps, sep = settings.steps, settings.separation_channels
     pair_sep, design_cache, rounds, reseed, idle_redesigned = {}, {}, [], {}, set()
-    draws, reseeded = {}, set()
+    # draws: step key -> new draws made (the levers' count); picks: step key -> the
+    # draw each plays, chosen among candidates by what the round's designs do under it
+    draws, picks, reseeded = {}, {}, set()
     best, previous, before = None, None, None
     assignment = first
     reach = first.reach
@@ -277,7 +286,7 @@ def _repair_rounds(settings, clock, tick, on_assignment, design_kw, first, free_
         on_assignment(settings, steps, assignment)
     for round_ in range(settings.repair_rounds + 1):
         got = _design_round(settings, steps, assignment, clock, tick, design_cache,
-                            draws=dict(draws), reseed=dict(reseed), previous=previous,
+                            draws=dict(picks), reseed=dict(reseed), previous=previous,
                             free_cores=free_cores, **design_kw)
         failed_rows = sum(1 for r in got.ver_rows if not r["passed"])
         infeasible = got.infeasible
@@ -326,6 +335,23 @@ def _repair_rounds(settings, clock, tick, on_assignment, design_kw, first, free_
                     entry["recoloured"] = sum(1 for n in new.frequencies
                                               if new.frequencies[n] != assignment.frequencies[n])
             clock.add("assign", ts)
+        for k in sorted(draws):
+            if draws[k] != drawn_before.get(k, 0):
+                ts = time.perf_counter()
+                picks[k], table = pick_draw(settings, steps, new, _unmoved(got.designs, new,
+                                                                           assignment),
+                                            k, draws[k])
+                clock.add("drive", ts)
+                entry.setdefault("phase_picks", {})[k] = {
+                    "draw": picks[k],
+                    "candidates": [{"draw": d, "failing": f} for d, f in table]}
+                fails = dict(table)[picks[k]]
+                actions.append(
+                    f"{k}: of draws {table[0][0]}-{table[-1][0]}, draw {picks[k]} plays "
+                    + (f"(under it {len(fails)} design(s) fail: {', '.join(fails)}; "
+                       if fails else "(under it every design of this round holds; ")
+                    + "under the others " + ", ".join(str(len(f)) for d, f in table
+                                                      if d != picks[k]) + ")")
         if actions:
             entry["actions"] = actions
         drawn = {k: v for k, v in draws.items() if v}

@@ -429,9 +429,49 @@ def _edge(shared, tones, neighbours, reachable_first):
     return a, tuple(seen)
 
 
+def _tone_from(shared, tone, packed, packed_neighbours, assigned, family):
+    """A probe asked again (:func:`_tone`), its designs started from ``family`` (the
+    designs its neighbour probes found, :func:`planner.planning.designs.family_for`)."""
+    base, floor = shared
+    return _tone(({**base, "family": tuple(family)}, floor), tone, packed, packed_neighbours,
+                 assigned)
+
+
 def _probe(shared, kind, *args):
-    """One probe task of ``kind`` ("tone" or "edge") on a worker."""
-    return {"tone": _tone, "edge": _edge}[kind](shared, *args)
+    """One probe task of ``kind`` ("tone", "tone_from" or "edge") on a worker."""
+    return {"tone": _tone, "tone_from": _tone_from, "edge": _edge}[kind](shared, *args)
+
+
+def _packed_ok(p) -> bool:
+    """Whether probe ``p`` was served at its packed spacing."""
+    return p.reachable and p.ratio is not None and p.ratio <= p.packed_ratio
+
+
+def _worth_asking_again(prev, p, nxt) -> bool:
+    """Whether probe ``p``'s verdict is worse than both its neighbours' (``prev``,
+    ``nxt``): out of reach between two probes a design serves, or needing a wider
+    spacing (or none) between two served at the packed one.  A probe is a few seeded
+    design searches; such a verdict is likelier the search's than the tone's (a 3 x 3
+    in 20-80 kHz: 67.2 kHz found nothing faster than 0.038 mm/s between 56.5 and 80 kHz
+    probes at 0.20 and 0.18 mm/s; started from their designs, 0.179 mm/s in 0.4 s), so
+    it is asked again from their designs (:func:`measure_reach`)."""
+    if _packed_ok(p):
+        return False
+    if not p.reachable:
+        return prev.reachable and nxt.reachable
+    return _packed_ok(prev) and _packed_ok(nxt)
+
+
+def _better(old, new):
+    """The better verdict of a probe asked twice (each is a witness: a design found
+    feasible serves the tone at its spacing, whichever search found it), with both
+    searches' rungs and the fastest design's speed."""
+    def rank(p):
+        return (p.reachable, p.ratio is not None, -(p.ratio or 0.0))
+
+    best = new if rank(new) > rank(old) else old
+    return dataclasses.replace(best, tried=old.tried + new.tried,
+                               speed_m_s=max(old.speed_m_s, new.speed_m_s))
 
 
 # the stage ---------------------------------------------------------------------------
@@ -593,6 +633,8 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
                             store, ran, jobs, scheduler, pool, on_done=answered)
         mine = [_probe_of(c, float(grid[c]), r, g, res)
                 for c, (r, _), g, res in zip(probes_at, packed, given, found)]
+        mine = _ask_again(shared, mine, packed, given, store, ran, jobs, scheduler, pool, tick,
+                          floor)
         pairs = [(i, i + 1) for i in range(len(mine) - 1)
                  if mine[i].reachable != mine[i + 1].reachable
                  and probes_at[i + 1] - probes_at[i] > 1]
@@ -623,6 +665,36 @@ def measure_reach(settings: Settings, *, jobs=1, scheduler=None, pool=None, stor
     return assign_on_reach(settings, reach)
 
 
+def _ask_again(shared, mine, packed, given, store, ran, jobs, scheduler, pool, tick, floor):
+    """``mine`` with every probe whose verdict is worse than both its neighbours'
+    (:func:`_worth_asking_again`) asked again from the designs of the probes a design
+    served (the nearest :data:`planner.planning.designs.FAMILY_SIZE` in tone), keeping
+    the better verdict (:func:`_better`)."""
+    from planner.planning.designs import family_for
+
+    again = [i for i in range(1, len(mine) - 1)
+             if _worth_asking_again(mine[i - 1], mine[i], mine[i + 1])]
+    family = tuple(sorted((p.design for p in mine if p.design is not None),
+                          key=lambda d: d[1]))
+    if not again or not family:
+        return mine
+
+    def answered(j, res):
+        i = again[j]
+        p = _probe_of(mine[i].channel, mine[i].tone_hz, packed[i][0], given[i], res)
+        tick("probe", probe_line(p, floor) + " (asked again from its neighbours' designs)")
+
+    found = _cached_run(shared, [("tone_from", mine[i].tone_hz, packed[i][0], packed[i][1],
+                                  given[i], family_for(family, mine[i].tone_hz))
+                                 for i in again],
+                        store, ran, jobs, scheduler, pool, on_done=answered)
+    out = list(mine)
+    for i, res in zip(again, found):
+        out[i] = _better(mine[i], _probe_of(mine[i].channel, mine[i].tone_hz, packed[i][0],
+                                            given[i], res))
+    return out
+
+
 def _refuse_early(settings, grid, probes_at, so_far, before, earlier, total, env, assigned):
     """Raise the reach's refusal now when the steps cannot fit whatever the probes not
     yet answered find (know early: a spec in a robust process was refused after 3 min
@@ -637,14 +709,28 @@ def _refuse_early(settings, grid, probes_at, so_far, before, earlier, total, env
     :func:`assign_on_reach` would not relax it (most of the probes answered so far
     need the wider spacing or are hopeless, counted against every probe that could
     still be served, or its relaxed assignment fails too), so it fails on every reach
-    the remaining probes can give.  ``earlier``: the probes of the kinds before."""
+    the remaining probes can give.  A probe that will be asked again
+    (:func:`_ask_again`: its neighbours are both answered and better) counts as not yet
+    answered.  ``earlier``: the probes of the kinds before."""
     from planner.assignment.assign import assign
 
     reach_before, allowed_before, need_before = before
     answered = [p for p in so_far if p is not None]
-    optimistic = [p if p is not None else
-                  Probe(c, float(grid[c]), 1.0, 1.0, True, 0.0)
-                  for c, p in zip(probes_at, so_far)]
+    n = len(so_far)
+
+    def final(i):
+        # answered, and not to be asked again (_ask_again): at an end, or with a
+        # neighbour answered no better than it
+        p = so_far[i]
+        if p is None:
+            return False
+        if i == 0 or i == n - 1 or _packed_ok(p):
+            return True
+        prev, nxt = so_far[i - 1], so_far[i + 1]
+        return prev is not None and nxt is not None and not _worth_asking_again(prev, p, nxt)
+
+    optimistic = [so_far[i] if final(i) else Probe(c, float(grid[c]), 1.0, 1.0, True, 0.0)
+                  for i, c in enumerate(probes_at)]
     ok = [p.reachable for p in optimistic]
     pairs = [(i, i + 1) for i in range(len(ok) - 1)
              if ok[i] != ok[i + 1] and probes_at[i + 1] - probes_at[i] > 1]
@@ -664,7 +750,8 @@ def _refuse_early(settings, grid, probes_at, so_far, before, earlier, total, env
         return
     except PlanningError as exc:
         refusal = exc
-    seen = list(earlier) + answered
+    # the verdicts that stand (a probe to be asked again may still be served packed)
+    seen = list(earlier) + [so_far[i] for i in range(n) if final(i)]
     hopeless = sum(p.hopeless for p in seen)
     wide = sum(p.ratio is not None and p.ratio > p.packed_ratio for p in seen)
     could_serve = sum(p.reachable for p in seen) + (total - len(seen))
@@ -676,9 +763,9 @@ def _refuse_early(settings, grid, probes_at, so_far, before, earlier, total, env
             return
         except PlanningError:
             pass
-    left = total - len(seen)
+    done = len(earlier) + len(answered)
     raise PlanningError(
-        f"{refusal} (Refused after {len(seen)} of {total} probes: the {left} not yet "
+        f"{refusal} (Refused after {done} of {total} probes: the {total - done} not yet "
         "answered could only take channels away or widen the spacing.)") from None
 
 

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from planner.core.nodes import Node
 from planner.planning.designs import DESIGN_RETRIES
 from planner.planning.verify import IDLE_RESPONSE, TOO_SLOW
@@ -46,6 +48,13 @@ def widen_separations(failures, designs, steps, assignment, pair_sep, sep, skip=
 #: no feasible design in 9 tries under its first draw, and one in every try under
 #: each of four other draws).
 MAX_PHASE_DRAWS = 3
+#: Candidate phase draws weighed each time the loop draws a multi-tone step's phases
+#: anew (:func:`pick_draw`): the k-th new draw of a step chooses among draws
+#: (k - 1) x PHASE_CANDIDATES + 1 .. k x PHASE_CANDIDATES, so no two choose among the
+#: same.  A blind draw could trade one idle impacter's silence for seven others' (seed
+#: 529687 of the default: the third draw of the positioning step left seven backward
+#: impacters with no silent design).
+PHASE_CANDIDATES = 4
 
 
 def _nearest_tones(node, designs, assignment, count=1):
@@ -370,7 +379,8 @@ def merge_carried(ver_rows, carried, steps, scene_rows, dwells):
     rows = [dict(r) for r in ver_rows]
     for f in carried:
         if f.kind == CARRIED_IDLE:
-            text = f"carried state: idle slider moves {f.value * 1e6:.3g} um over the step and its dwell"
+            text = (f"carried state: idle slider moves {f.value * 1e6:.3g} um over the step "
+                    "and its dwell")
         elif f.kind == TRAVEL_OVER:
             text = f"carried state: travel {f.value * 1e6:.4g} um over the limit"
         elif f.kind == UNSETTLED:
@@ -450,3 +460,54 @@ def scenes_and_motion(settings, run_steps, waveforms, impacters, sliders, ver_ro
         ver_rows.sort(key=lambda r: r["index"])
     ver_rows, step_settle = merge_carried(ver_rows, carried, run_steps, scene_rows, dwells)
     return run_steps, ver_rows, failures + carried, scene_rows, motion_repairs, step_settle
+
+
+def pick_draw(settings, steps, assignment, designs, key, use):
+    """The phase draw the ``use``-th new draw (1, 2 ...) of step ``key`` plays: of the
+    candidates (:data:`PHASE_CANDIDATES` of them, see there), the one under whose summed
+    drive fewest of this round's designs fail, the lower draw on a tie.  A design fails
+    when it sits the step out and answers the summed drive from any x0 of the
+    designer's grid over its window, or plays in it and does not respond from every
+    x0 (as the designer checks them, on its nominal model; the next round re-checks
+    every design under the draw chosen, and keeps those that pass).
+
+    Each candidate is synthesised and held to the drive's limits as the round's own
+    drives are (:func:`planner.planning.drives.synthesize_steps`,
+    :func:`planner.planning.chain.limit_drives`).
+
+    Returns
+    -------
+    (draw, table)
+        ``draw``: the draw index chosen; ``table``: (draw, names of the designs that
+        fail under it) per candidate, in draw order.
+    """
+    from model import responses
+    from planner.designer.runs import _u_grid
+    from planner.planning.chain import limit_drives
+    from planner.planning.drives import drive_of, synthesize_steps
+    from planner.planning.exposure import idle_ensembles
+
+    step = next(st for st in steps if st.key == key)
+    frequencies = assignment.frequencies
+    players = sorted(Node(d, dr) for d, dr in step.active_nodes())
+    idle = sorted(n for n, keys in idle_ensembles(steps, frequencies).items() if key in keys)
+    u = _u_grid(settings.x0_points)
+    table = []
+    first = (use - 1) * PHASE_CANDIDATES + 1
+    for draw in range(first, first + PHASE_CANDIDATES):
+        loop = synthesize_steps(settings, [step], assignment, draws={key: draw})
+        limited, _ = limit_drives(settings, loop, [step], frequencies)
+        drive = drive_of(limited[key])
+        failing = []
+        for n in idle + players:
+            d = designs.get(n)
+            if d is None:
+                continue
+            imp = d.impacter
+            r = responses(imp, drive, u * imp.gap, duration=settings.window_s,
+                          stop_at_first=n not in players)
+            if (np.any(r > 0) if n not in players else not np.all(r > 0)):
+                failing.append(n.text)
+        table.append((draw, failing))
+    draw = min(table, key=lambda row: (len(row[1]), row[0]))[0]
+    return draw, table

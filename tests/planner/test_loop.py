@@ -585,3 +585,53 @@ def test_a_reach_is_refused_as_soon_as_no_probe_still_to_come_could_save_it(verd
     if refused:
         # the robust 2 x 2's verdict was clear before its last probes
         assert min(first) < len(probes), first
+
+
+def test_a_probe_worse_than_both_its_neighbours_is_asked_again_from_their_designs():
+    """A probe is a few seeded design searches: a 3 x 3 in 20-80 kHz found nothing
+    faster than 0.038 mm/s at 67.2 kHz between probes served at 56.5 and 80 kHz, and the
+    reach took 33 channels away around it; started from its neighbours' designs the same
+    probe finds 0.179 mm/s at the packed spacing in 0.4 s.  Such a probe is asked again
+    from the spec's family and keeps the better verdict (both searches' rungs recorded).
+    Here on the default's lower probes (real designs), the middle one's verdict replaced
+    by a failed search's."""
+    from planner.arrayspec import default_spec_path, load_spec
+    from planner.core.separation import position_grid
+    from planner.planning.reach import (REACH_SEED, Probe, _ask_again, _better, _kinds,
+                                        _probe_of, _tone, _worth_asking_again,
+                                        packed_neighbours, probe_channels)
+    from planner.planning.settings import resolve_settings
+
+    settings = resolve_settings(load_spec(default_spec_path()), 0)
+    grid = np.asarray(settings.channel_grid_hz)
+    positions = position_grid(grid, settings.separation_channels, settings.guard)
+    chans = probe_channels(grid)[1:4]
+    packed = [packed_neighbours(grid, positions, settings.separation_channels, c)
+              for c in chans]
+    shared = ({**settings.design_kwargs(_kinds(settings)[0]), "seed": REACH_SEED},
+              settings.min_speed_m_s)
+    mine = [_probe_of(c, float(grid[c]), r, None, _tone(shared, float(grid[c]), r, nb))
+            for c, (r, nb) in zip(chans, packed)]
+    assert all(p.reachable and p.ratio == p.packed_ratio for p in mine)
+    failed = Probe(chans[1], float(grid[chans[1]]), packed[1][0], None, False, 3e-5,
+                   ((packed[1][0], False, "slider speed below the floor"),))
+    assert _worth_asking_again(mine[0], failed, mine[2])
+    assert not _worth_asking_again(mine[0], mine[1], mine[2])
+    assert not _worth_asking_again(failed, mine[1], mine[2])
+    said, ran = [], [0]
+    out = _ask_again(shared, [mine[0], failed, mine[2]], packed, [None] * 3, None, ran, 1,
+                     None, None, lambda stage, item=None, total=None: said.append(item),
+                     settings.min_speed_m_s)
+    assert ran == [1]
+    again = out[1]
+    assert again.reachable and again.ratio == again.packed_ratio and again.design is not None
+    assert again.tried[0] == failed.tried[0] and len(again.tried) > 1
+    assert again.speed_m_s >= settings.min_speed_m_s
+    assert out[0] is mine[0] and out[2] is mine[2]
+    assert len(said) == 1 and said[0].endswith("(asked again from its neighbours' designs)")
+    # the better of two verdicts whichever came first; a worse one never replaces it
+    assert _better(again, failed).reachable and _better(failed, again).reachable
+    # both neighbours served: a probe needing a wider spacing between them is asked too
+    wide = dataclasses.replace(mine[1], ratio=2.0)
+    assert _worth_asking_again(mine[0], wide, mine[2])
+    assert not _worth_asking_again(wide, mine[1], wide)
