@@ -635,3 +635,83 @@ def test_a_probe_worse_than_both_its_neighbours_is_asked_again_from_their_design
     wide = dataclasses.replace(mine[1], ratio=2.0)
     assert _worth_asking_again(mine[0], wide, mine[2])
     assert not _worth_asking_again(wide, mine[1], wide)
+
+
+def test_a_new_phase_draw_is_the_candidate_under_which_the_idle_designs_stay_silent():
+    """Seed 529687 of the default: the blind second draw of the positioning step left
+    A1.backward (29.0 kHz, just above the 25-tone cluster) slow, the third seven backward
+    impacters infeasible, and the plan ended FAILED.  A new draw is now chosen among
+    PHASE_CANDIDATES by what the round's designs do under each (real synthesis, the
+    acceleration limit, the simulator).  Here an idle impacter at A1.backward's tone
+    whose gap is set where the candidates disagree: the draw chosen is the first under
+    which it stays silent; the k-th new draw weighs its own block of draws."""
+    from types import SimpleNamespace
+
+    from model import Impacter, responses
+    from planner.arrayspec import default_spec_path, load_spec
+    from planner.assignment.assign import assign
+    from planner.core.nodes import Node
+    from planner.designer.runs import _u_grid
+    from planner.planning.chain import limit_drives
+    from planner.planning.drives import drive_of, synthesize_steps
+    from planner.planning.repair import PHASE_CANDIDATES, pick_draw
+    from planner.planning.settings import resolve_settings
+
+    settings = resolve_settings(load_spec(default_spec_path()), 529687)
+    steps = settings.steps
+    assignment = assign(settings, steps)
+    key = next(st.key for st in steps if len(st.active_nodes()) == 25)
+    step = next(st for st in steps if st.key == key)
+    node = Node("A1", "backward")
+    assert node not in {Node(d, dr) for d, dr in step.active_nodes()}
+    f = assignment.frequencies[node]
+    mass, q = 1e-10, 60.0
+    w = 2 * np.pi * f
+
+    def idle(gap):
+        return Impacter(mass, mass * w * w, mass * w / q, gap)
+
+    u = _u_grid(settings.x0_points)
+    drives = {}
+    for draw in range(1, 1 + 2 * PHASE_CANDIDATES):
+        loop = synthesize_steps(settings, [step], assignment, draws={key: draw})
+        drives[draw] = drive_of(limit_drives(settings, loop, [step],
+                                             assignment.frequencies)[0][key])
+
+    def answers(gap, draw):
+        imp = idle(gap)
+        return bool(np.any(responses(imp, drives[draw], u * gap, duration=settings.window_s,
+                                     stop_at_first=True) > 0))
+
+    for use in (1, 2):
+        block = range((use - 1) * PHASE_CANDIDATES + 1, use * PHASE_CANDIDATES + 1)
+        split = None
+        for gap in np.geomspace(0.05e-6, 5e-6, 60):
+            said = [answers(gap, d) for d in block]
+            if any(said) and not all(said):
+                split = gap, said
+                break
+        assert split is not None, "no gap at which the candidate draws disagree"
+        # (at use 1 the first two candidates answer: a blind first draw would not do)
+        gap, said = split
+        designs = {node: SimpleNamespace(impacter=idle(gap))}
+        draw, table = pick_draw(settings, steps, assignment, designs, key, use)
+        assert [d for d, _ in table] == list(block)
+        assert [bool(fails) for _, fails in table] == said
+        assert draw == block[said.index(False)]
+        assert all(fails in ([], [node.text]) for _, fails in table)
+
+
+@pytest.mark.slow
+def test_seed_529687_of_the_default_verifies_with_a_chosen_phase_draw(tmp_path):
+    """Drawn at random: the blind draws ended FAILED (A1.backward infeasible after three
+    rounds); the chosen draw keeps every design of round 0 and the plan verifies."""
+    proc = _cli("plan", "--seed", 529687, "--out", "out", "--no-figures", "--quiet",
+                cwd=tmp_path)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    d = json.loads((tmp_path / "out" / "plan.json").read_text())
+    rounds = [r for r in d["verification"]["repair_rounds"] if r.get("round") is not None]
+    picks = [p for r in rounds for p in (r.get("phase_picks") or {}).values()]
+    assert picks and not [c for c in picks[0]["candidates"]
+                          if c["draw"] == picks[0]["draw"]][0]["failing"]
+    assert not d["verification"]["design_problems"]
