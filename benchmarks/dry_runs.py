@@ -82,7 +82,9 @@ def main(argv=None):
             print(rows[-1], flush=True)
         for label, text in (("a band no design can serve (1.5-3.2 kHz, docs/loop.md)", LOW_BAND),
                             ("vacuum, 2 x 2 (docs/loop.md)", VACUUM),
-                            ("26 x 99 independent (the band cannot hold it)", HUGE)):
+                            ("26 x 99 independent (the band cannot hold it)", HUGE),
+                            ("a 3 x 3 in a 5 um process (refused by its probes, issue 43)",
+                             (HERE / "data" / "issue43_thick_3x3.yaml").read_text())):
             spec = work / f"{label.split()[0]}-{len(rows)}.yaml"
             spec.write_text(text)
             got = _run([spec, "--out", work / "never", "--quiet", "--jobs", args.jobs], work,
