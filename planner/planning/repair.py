@@ -285,12 +285,27 @@ def reseed_idle(failures, designs, reseed, tried):
     return out
 
 
-def repair_motion(settings, steps, failures, dwells, longer_dwells):
+#: A travel-sized step whose fastest slider went over ``verification.max_travel_um`` is
+#: re-sized from its verified travels when the burst that moves its slowest slider the
+#: step's ``travel_um`` keeps the fastest within this fraction of the limit [-]
+#: (:func:`repair_motion`; the step is verified again at the new burst).
+TRAVEL_FIT = 0.95
+
+
+def repair_motion(settings, steps, failures, dwells, longer_dwells, rows=()):
     """Act on the motion failures of a verification and its scene simulation.
 
     - a slider travels over ``verification.max_travel_um`` in a step: that step's burst
       is shortened in proportion (to 0.8 of limit / travel, at least one burst quantum);
-      not a ``targets_um`` step's, whose gates set where each slider stops;
+      not a ``targets_um`` step's, whose gates set where each slider stops.  A
+      ``travel_um`` step, sized from predicted speeds, is first re-sized from its
+      verified travels (``rows``, the checks' rows): to the burst that moves its slowest
+      slider ``travel_um``, where that keeps the fastest within :data:`TRAVEL_FIT` of
+      the limit (a 3 x 5 whose rows move at 0.86 and 1.2 mm/s: the predicted slowest
+      speed, 0.78 mm/s, sized a 51.6 ms burst that took the fastest to 62.5 um, and the
+      0.8 cut to 39.6 ms left the slowest at 33.9 um of the 40 um asked; re-sized, 46.8
+      ms moves it 40 um and the fastest 56 um); otherwise cut as above, and the action
+      says how far the slowest then travels;
     - an idle slider moves in a scene step from the state the previous step left: the
       previous step's dwell is doubled (up to ``settings.max_settle_s``), so that its
       impacters ring down further before the next tones start;
@@ -307,6 +322,7 @@ def repair_motion(settings, steps, failures, dwells, longer_dwells):
     """
     import dataclasses
 
+    from planner.arrayspec import DEFAULT_MAX_BURST_S
     from planner.planning.motion import BURST_QUANTUM_S, SETTLE_CHUNK_S
     from planner.planning.verify import CARRIED_IDLE, TRAVEL_OVER
 
@@ -316,20 +332,71 @@ def repair_motion(settings, steps, failures, dwells, longer_dwells):
     for f in failures:
         if f.kind == TRAVEL_OVER:
             worst[f.step] = max(worst.get(f.step, 0.0), abs(f.value))
+    movers = {}
+    for r in rows:
+        if r.get("expected") in ("forward", "backward"):
+            movers.setdefault(r["index"], []).append(abs(float(r["travel_m"])))
     for i, travel in sorted(worst.items()):
         st = by_index[i]
         if st.targets_m is not None:
             continue
-        factor = 0.8 * settings.max_travel_m / travel
-        burst = max(BURST_QUANTUM_S,
-                    math.floor(st.duration_s * factor / BURST_QUANTUM_S) * BURST_QUANTUM_S)
+        slowest = min(movers.get(i) or [0.0])
+        why = (f"a slider travels {travel * 1e6:.4g} um > {settings.max_travel_m * 1e6:g} "
+               "um")
+        burst = None
+        if st.travel_m is not None and slowest > 0:
+            # travel grows about in proportion to the burst: the one that takes the
+            # slowest slider as far as asked, if the fastest then stays within the limit
+            need = math.ceil(st.duration_s * st.travel_m / slowest / BURST_QUANTUM_S
+                             - 1e-9) * BURST_QUANTUM_S
+            fastest = travel * need / st.duration_s
+            if need < st.duration_s and fastest <= TRAVEL_FIT * settings.max_travel_m:
+                burst = need
+                why += (f"; {need * 1e3:g} ms moves the slowest slider the step's "
+                        f"{st.travel_m * 1e6:g} um, about {fastest * 1e6:.3g} um the "
+                        "fastest")
+        if burst is None:
+            factor = 0.8 * settings.max_travel_m / travel
+            burst = max(BURST_QUANTUM_S, math.floor(st.duration_s * factor / BURST_QUANTUM_S)
+                        * BURST_QUANTUM_S)
+            short = slowest * burst / st.duration_s
+            if st.travel_m is not None and slowest > 0 and short < st.travel_m:
+                why += (f"; the slowest slider then travels about {short * 1e6:.3g} um of "
+                        f"the step's {st.travel_m * 1e6:g} um: its sliders move at speeds "
+                        "too far apart for both (a smaller travel_um, a larger "
+                        "verification.max_travel_um, or the step split)")
         if burst >= st.duration_s:
             continue
         new[i] = dataclasses.replace(st, duration_s=float(burst))
         redo.add(i)
         actions.append(f"{st.key}: burst {st.duration_s * 1e3:g} -> {burst * 1e3:g} ms "
-                       f"(a slider travels {travel * 1e6:.4g} um > "
-                       f"{settings.max_travel_m * 1e6:g} um)")
+                       f"({why})")
+    for st in steps:
+        # a travel-sized step whose slowest slider fell short of its travel_um (the
+        # predicted speed it was sized from was too high): lengthened from its verified
+        # travels, within its longest burst and with the fastest within TRAVEL_FIT
+        ms = movers.get(st.index)
+        if (st.travel_m is None or st.targets_m is not None or st.index in worst or not ms
+                or min(ms) <= 0
+                or min(ms) >= st.travel_m - settings.position_tolerance_m):
+            continue
+        slowest, fastest = min(ms), max(ms)
+        cap = st.max_duration_s if st.max_duration_s is not None else DEFAULT_MAX_BURST_S
+        need = math.ceil(st.duration_s * st.travel_m / slowest / BURST_QUANTUM_S
+                         - 1e-9) * BURST_QUANTUM_S
+        fits = math.floor(st.duration_s * TRAVEL_FIT * settings.max_travel_m / fastest
+                          / BURST_QUANTUM_S) * BURST_QUANTUM_S
+        # only where the whole travel fits: a burst held short of it by the cap or the
+        # fastest's limit gains the slowest little (the default's row C: 12.3 -> 12.9 ms
+        # moved its slowest 10.77 -> 10.77 um and its fastest 90 -> 98 um of 100)
+        if need <= st.duration_s or need > min(cap, fits):
+            continue
+        new[st.index] = dataclasses.replace(st, duration_s=float(need))
+        redo.add(st.index)
+        actions.append(
+            f"{st.key}: burst {st.duration_s * 1e3:g} -> {need * 1e3:g} ms (its slowest "
+            f"slider travelled {slowest * 1e6:.3g} um of the step's {st.travel_m * 1e6:g} um, "
+            f"about {fastest * need / st.duration_s * 1e6:.3g} um the fastest now)")
     carried_steps = sorted({f.step for f in failures if f.kind == CARRIED_IDLE})
     for i in carried_steps:
         st = by_index[i]
@@ -446,7 +513,8 @@ def scenes_and_motion(settings, run_steps, waveforms, impacters, sliders, ver_ro
         carried = scene_failures(settings, run_steps, scene_rows)
         if mround == settings.repair_rounds:
             break
-        fixed = repair_motion(settings, run_steps, failures + carried, dwells, longer_dwells)
+        fixed = repair_motion(settings, run_steps, failures + carried, dwells, longer_dwells,
+                              ver_rows)
         if fixed is None:
             break
         run_steps, actions, redo = fixed

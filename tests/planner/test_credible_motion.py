@@ -490,3 +490,58 @@ def test_report_says_which_impacters_a_design_round_redesigned(travel_plan):
     text = "\n".join(_motion_notes(d).lines)
     assert "design round 0: re-designed from further seeds (too slow in a step): A1.forward" in text
     assert "(answered a step it sits out): A2.forward" in text
+
+
+def _travel_step(travel_um, burst_ms, cap_ms=60.0):
+    from planner.arrayspec.steps import Step
+
+    return Step("s", "go", 0, burst_ms * 1e-3, ("A1", "A2"), (), travel_m=travel_um * 1e-6,
+                max_duration_s=cap_ms * 1e-3)
+
+
+def _mover_rows(travels_um):
+    return [{"index": 0, "device": dev, "expected": "forward", "travel_m": t * 1e-6}
+            for dev, t in zip(("A1", "A2"), travels_um)]
+
+
+@pytest.mark.parametrize("travel_um, burst_ms, cap_ms, travels_um, want_ms, said", [
+    # over the limit, and the burst that moves the slowest its travel keeps the fastest
+    # within 95 % of it: re-sized from the verified travels (a 3 x 5 of our own: 51.6 ->
+    # 46.6 ms, its slowest 40 um as asked; the blind 0.8 cut left it 33.9 um)
+    (25, 50, 60, (30, 110), 41.7, "41.7 ms moves the slowest slider the step's 25 um"),
+    # over the limit, sliders too far apart for both: the 0.8 cut, and it says so
+    (20, 50, 60, (10, 120), 33.3, "the slowest slider then travels about 6.66 um of the "
+                                  "step's 20 um"),
+    # the slowest fell short (its predicted speed was too high): lengthened
+    (50, 82, 120, (45, 45), 91.2, "its slowest slider travelled 45 um of the step's 50 um"),
+    # ... but not past the step's longest burst
+    (50, 82, 85, (45, 45), None, None),
+    # ... nor where the fastest would go over 95 % of the limit
+    (50, 82, 120, (45, 90), None, None),
+    # within the position tolerance (2 um) of its travel: left alone
+    (50, 82, 120, (48.5, 60), None, None),
+])
+def test_a_travel_step_is_sized_again_from_its_verified_travels(travel_um, burst_ms, cap_ms,
+                                                                 travels_um, want_ms, said):
+    """A ``travel_um`` step is sized from predicted speeds before it is verified; the
+    motion repair re-sizes it from the travels the verification found (issue 43's own
+    specs: a 3 x 5 got 45 of its 50 um and 33.9 of its 40 um, and the plan said neither)."""
+    from planner.arrayspec import default_spec_path, load_spec
+    from planner.planning.repair import repair_motion
+    from planner.planning.settings import resolve_settings
+    from planner.planning.verify import TRAVEL_OVER, Failure
+
+    settings = resolve_settings(load_spec(default_spec_path()))
+    assert settings.max_travel_m == pytest.approx(100e-6)
+    st = _travel_step(travel_um, burst_ms, cap_ms)
+    fastest = max(travels_um) * 1e-6
+    fails = ([Failure(0, "A2", None, TRAVEL_OVER, fastest)]
+             if fastest > settings.max_travel_m else [])
+    out = repair_motion(settings, (st,), fails, {}, {}, _mover_rows(travels_um))
+    if want_ms is None:
+        assert out is None
+        return
+    steps, actions, redo = out
+    assert redo == {0}
+    assert steps[0].duration_s == pytest.approx(want_ms * 1e-3)
+    assert len(actions) == 1 and said in actions[0], actions
