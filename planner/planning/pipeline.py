@@ -346,12 +346,14 @@ def _repair_rounds(settings, clock, tick, on_assignment, design_kw, first, free_
                     "draw": picks[k],
                     "candidates": [{"draw": d, "failing": f} for d, f in table]}
                 fails = dict(table)[picks[k]]
+                which = [d for d, _ in table].index(picks[k]) + 1
                 actions.append(
-                    f"{k}: of draws {table[0][0]}-{table[-1][0]}, draw {picks[k]} plays "
-                    + (f"(under it {len(fails)} design(s) fail: {', '.join(fails)}; "
-                       if fails else "(under it every design of this round holds; ")
-                    + "under the others " + ", ".join(str(len(f)) for d, f in table
-                                                      if d != picks[k]) + ")")
+                    f"{k}: candidate {which} of {len(table)} new phase draws plays: "
+                    + (f"under it {len(fails)} design(s) of this round fail "
+                       f"({', '.join(fails)})" if fails else
+                       "under it every design of this round holds")
+                    + "; under the others " + ", ".join(str(len(f)) for d, f in table
+                                                        if d != picks[k]) + " fail")
         if actions:
             entry["actions"] = actions
         drawn = {k: v for k, v in draws.items() if v}
