@@ -288,11 +288,18 @@ def reseed_idle(failures, designs, reseed, tried):
 #: A travel-sized step whose fastest slider went over ``verification.max_travel_um`` is
 #: re-sized from its verified travels when the burst that moves its slowest slider the
 #: step's ``travel_um`` keeps the fastest within this fraction of the limit [-]
-#: (:func:`repair_motion`; the step is verified again at the new burst).
+#: (:func:`repair_motion`; the step is verified again at the new burst).  Shortened,
+#: the fastest travels less than in proportion (the impacters ring up first), so the
+#: proportion is an upper bound.
 TRAVEL_FIT = 0.95
+#: ... and lengthened (a slowest slider short of its travel), more than in proportion:
+#: the fastest, in proportion, within this fraction of the limit, and the lengthening
+#: taken back if it goes over (:func:`repair_motion`) [-].
+LENGTHEN_FIT = 0.9
 
 
-def repair_motion(settings, steps, failures, dwells, longer_dwells, rows=()):
+def repair_motion(settings, steps, failures, dwells, longer_dwells, rows=(),
+                  lengthened=None, may_lengthen=True):
     """Act on the motion failures of a verification and its scene simulation.
 
     - a slider travels over ``verification.max_travel_um`` in a step: that step's burst
@@ -304,15 +311,25 @@ def repair_motion(settings, steps, failures, dwells, longer_dwells, rows=()):
       the limit (a 3 x 5 whose rows move at 0.86 and 1.2 mm/s: the predicted slowest
       speed, 0.78 mm/s, sized a 51.6 ms burst that took the fastest to 62.5 um, and the
       0.8 cut to 39.6 ms left the slowest at 33.9 um of the 40 um asked; re-sized, 46.8
-      ms moves it 40 um and the fastest 56 um); otherwise cut as above, and the action
-      says how far the slowest then travels;
+      ms moves it 40 um and the fastest 56 um), never below the 0.8 cut; otherwise cut
+      as above, and the action says how far the slowest then gets at most.  A travel
+      step whose slowest slider fell short of ``travel_um`` by more than the position
+      tolerance is lengthened in proportion, within its longest burst and with the
+      fastest within :data:`LENGTHEN_FIT` of the limit, tentatively (below);
     - an idle slider moves in a scene step from the state the previous step left: the
       previous step's dwell is doubled (up to ``settings.max_settle_s``), so that its
       impacters ring down further before the next tones start;
     - a step still moving at the end of the longest dwell is not repaired (the cap is
       the limit; it stays a failure).
 
-    ``longer_dwells`` (step key -> dwell [s]) is updated in place.
+    ``longer_dwells`` (step key -> dwell [s]) is updated in place, and so is
+    ``lengthened`` (step index -> the burst [s] a step had before this repair lengthened
+    it, None once it went back to it), which the caller keeps from round to round: a
+    lengthened step that then travels over the limit goes back to the burst that passed
+    (seed 70590 of the default: its positioning step, lengthened from 6.5 to 9.4 ms in
+    proportion to its slowest slider's travel, took its fastest to 100.07 um; travel
+    grows faster than the burst once the impacters have rung up).  A step is lengthened
+    only with ``may_lengthen``: when a repair round is left to take it back.
 
     Returns
     -------
@@ -336,35 +353,48 @@ def repair_motion(settings, steps, failures, dwells, longer_dwells, rows=()):
     for r in rows:
         if r.get("expected") in ("forward", "backward"):
             movers.setdefault(r["index"], []).append(abs(float(r["travel_m"])))
+    lengthened = {} if lengthened is None else lengthened
     for i, travel in sorted(worst.items()):
         st = by_index[i]
         if st.targets_m is not None:
             continue
+        if lengthened.get(i) is not None:
+            # this repair lengthened it and it went over: back to the burst that passed
+            # (travel grows faster than the burst once the impacters have rung up)
+            burst = lengthened.pop(i)
+            lengthened[i] = None          # never lengthened again
+            new[i] = dataclasses.replace(st, duration_s=float(burst))
+            redo.add(i)
+            actions.append(f"{st.key}: burst {st.duration_s * 1e3:g} -> {burst * 1e3:g} ms "
+                           f"(lengthened, a slider travelled {travel * 1e6:.4g} um > "
+                           f"{settings.max_travel_m * 1e6:g} um: back to the burst that "
+                           "passed)")
+            continue
         slowest = min(movers.get(i) or [0.0])
         why = (f"a slider travels {travel * 1e6:.4g} um > {settings.max_travel_m * 1e6:g} "
                "um")
-        burst = None
+        cut = max(BURST_QUANTUM_S, math.floor(st.duration_s * 0.8 * settings.max_travel_m
+                                              / travel / BURST_QUANTUM_S) * BURST_QUANTUM_S)
+        burst = cut
         if st.travel_m is not None and slowest > 0:
-            # travel grows about in proportion to the burst: the one that takes the
-            # slowest slider as far as asked, if the fastest then stays within the limit
+            # shorter, travel falls faster than the burst (the impacters ring up first):
+            # the burst that takes the slowest slider as far as asked in proportion is a
+            # floor, taken where it is longer than the cut and keeps the fastest, in
+            # proportion too (an upper bound), within TRAVEL_FIT of the limit
             need = math.ceil(st.duration_s * st.travel_m / slowest / BURST_QUANTUM_S
                              - 1e-9) * BURST_QUANTUM_S
             fastest = travel * need / st.duration_s
-            if need < st.duration_s and fastest <= TRAVEL_FIT * settings.max_travel_m:
+            if cut < need < st.duration_s and fastest <= TRAVEL_FIT * settings.max_travel_m:
                 burst = need
-                why += (f"; {need * 1e3:g} ms moves the slowest slider the step's "
-                        f"{st.travel_m * 1e6:g} um, about {fastest * 1e6:.3g} um the "
-                        "fastest")
-        if burst is None:
-            factor = 0.8 * settings.max_travel_m / travel
-            burst = max(BURST_QUANTUM_S, math.floor(st.duration_s * factor / BURST_QUANTUM_S)
-                        * BURST_QUANTUM_S)
-            short = slowest * burst / st.duration_s
-            if st.travel_m is not None and slowest > 0 and short < st.travel_m:
-                why += (f"; the slowest slider then travels about {short * 1e6:.3g} um of "
-                        f"the step's {st.travel_m * 1e6:g} um: its sliders move at speeds "
-                        "too far apart for both (a smaller travel_um, a larger "
-                        "verification.max_travel_um, or the step split)")
+                why += (f"; {need * 1e3:g} ms moves the slowest slider about the step's "
+                        f"{st.travel_m * 1e6:g} um, the fastest under "
+                        f"{fastest * 1e6:.3g} um")
+            elif slowest * cut / st.duration_s < st.travel_m:
+                why += (f"; the slowest slider then travels under "
+                        f"{slowest * cut / st.duration_s * 1e6:.3g} um of the step's "
+                        f"{st.travel_m * 1e6:g} um: its sliders move at speeds too far apart "
+                        "for both (a smaller travel_um, a larger verification.max_travel_um, "
+                        "or the step split)")
         if burst >= st.duration_s:
             continue
         new[i] = dataclasses.replace(st, duration_s=float(burst))
@@ -374,23 +404,26 @@ def repair_motion(settings, steps, failures, dwells, longer_dwells, rows=()):
     for st in steps:
         # a travel-sized step whose slowest slider fell short of its travel_um (the
         # predicted speed it was sized from was too high): lengthened from its verified
-        # travels, within its longest burst and with the fastest within TRAVEL_FIT
+        # travels, within its longest burst and with the fastest, in proportion, within
+        # LENGTHEN_FIT of the limit; tentatively (``lengthened``): one that then goes over
+        # goes back to this burst, and is not lengthened again
         ms = movers.get(st.index)
-        if (st.travel_m is None or st.targets_m is not None or st.index in worst or not ms
-                or min(ms) <= 0
+        if (not may_lengthen or st.travel_m is None or st.targets_m is not None
+                or st.index in worst or not ms or st.index in lengthened or min(ms) <= 0
                 or min(ms) >= st.travel_m - settings.position_tolerance_m):
             continue
         slowest, fastest = min(ms), max(ms)
         cap = st.max_duration_s if st.max_duration_s is not None else DEFAULT_MAX_BURST_S
         need = math.ceil(st.duration_s * st.travel_m / slowest / BURST_QUANTUM_S
                          - 1e-9) * BURST_QUANTUM_S
-        fits = math.floor(st.duration_s * TRAVEL_FIT * settings.max_travel_m / fastest
+        fits = math.floor(st.duration_s * LENGTHEN_FIT * settings.max_travel_m / fastest
                           / BURST_QUANTUM_S) * BURST_QUANTUM_S
         # only where the whole travel fits: a burst held short of it by the cap or the
         # fastest's limit gains the slowest little (the default's row C: 12.3 -> 12.9 ms
         # moved its slowest 10.77 -> 10.77 um and its fastest 90 -> 98 um of 100)
         if need <= st.duration_s or need > min(cap, fits):
             continue
+        lengthened[st.index] = st.duration_s
         new[st.index] = dataclasses.replace(st, duration_s=float(need))
         redo.add(st.index)
         actions.append(
@@ -506,15 +539,17 @@ def scenes_and_motion(settings, run_steps, waveforms, impacters, sliders, ver_ro
     from planner.planning.scenes import scene_failures, simulate_scenes
     from planner.planning.verify import check_steps
 
-    motion_repairs, longer_dwells = [], dict(dwell_floor or {})
+    motion_repairs, longer_dwells, lengthened = [], dict(dwell_floor or {}), {}
     for mround in range(settings.repair_rounds + 1):
         dwells = settle_by_step(ver_rows, longer_dwells)
         scene_rows = simulate_scenes(settings, run_steps, waveforms, impacters, sliders, dwells)
         carried = scene_failures(settings, run_steps, scene_rows)
         if mround == settings.repair_rounds:
             break
+        # a lengthened burst is tentative: only while a round is left to take it back
         fixed = repair_motion(settings, run_steps, failures + carried, dwells, longer_dwells,
-                              ver_rows)
+                              ver_rows, lengthened,
+                              may_lengthen=mround < settings.repair_rounds - 1)
         if fixed is None:
             break
         run_steps, actions, redo = fixed

@@ -508,9 +508,12 @@ def _mover_rows(travels_um):
     # over the limit, and the burst that moves the slowest its travel keeps the fastest
     # within 95 % of it: re-sized from the verified travels (a 3 x 5 of our own: 51.6 ->
     # 46.6 ms, its slowest 40 um as asked; the blind 0.8 cut left it 33.9 um)
-    (25, 50, 60, (30, 110), 41.7, "41.7 ms moves the slowest slider the step's 25 um"),
+    (25, 50, 60, (30, 110), 41.7, "41.7 ms moves the slowest slider about the step's 25 um"),
+    # ... but never below the 0.8 cut (seed 70590 of the default: 10 -> 6.5 ms left its
+    # slowest 14 um, where the cut's 7.5 ms gives it more)
+    (20, 10, 60, (30.8, 106.2), 7.5, "a slider travels 106.2 um > 100 um)"),
     # over the limit, sliders too far apart for both: the 0.8 cut, and it says so
-    (20, 50, 60, (10, 120), 33.3, "the slowest slider then travels about 6.66 um of the "
+    (20, 50, 60, (10, 120), 33.3, "the slowest slider then travels under 6.66 um of the "
                                   "step's 20 um"),
     # the slowest fell short (its predicted speed was too high): lengthened
     (50, 82, 120, (45, 45), 91.2, "its slowest slider travelled 45 um of the step's 50 um"),
@@ -545,3 +548,34 @@ def test_a_travel_step_is_sized_again_from_its_verified_travels(travel_um, burst
     assert redo == {0}
     assert steps[0].duration_s == pytest.approx(want_ms * 1e-3)
     assert len(actions) == 1 and said in actions[0], actions
+
+
+def test_a_lengthened_travel_step_that_goes_over_goes_back_to_the_burst_that_passed():
+    """Seed 70590 of the default (drawn at random): the repair lengthened its positioning
+    step from 6.5 to 9.4 ms in proportion to its slowest slider's travel, the fastest went
+    to 100.07 um of 100 (travel grows faster than the burst once the impacters ring up),
+    and the plan ended FAILED 1299/1300.  A lengthening is tentative: over the limit, the
+    step goes back to the burst that passed, and is not lengthened again."""
+    from planner.arrayspec import default_spec_path, load_spec
+    from planner.planning.repair import repair_motion
+    from planner.planning.settings import resolve_settings
+    from planner.planning.verify import TRAVEL_OVER, Failure
+
+    settings = resolve_settings(load_spec(default_spec_path()))
+    lengthened = {}
+    st = _travel_step(20, 6.5)
+    steps, actions, _ = repair_motion(settings, (st,), [], {}, {}, _mover_rows((14, 60)),
+                                      lengthened)
+    assert steps[0].duration_s == pytest.approx(9.3e-3)
+    assert lengthened == {0: pytest.approx(6.5e-3)}
+    over = [Failure(0, "A2", None, TRAVEL_OVER, 100.07e-6)]
+    steps, actions, redo = repair_motion(settings, steps, over, {}, {},
+                                         _mover_rows((20.1, 100.07)), lengthened)
+    assert steps[0].duration_s == pytest.approx(6.5e-3) and redo == {0}
+    assert "back to the burst that passed" in actions[0]
+    # short again at the burst that passed: left so
+    assert repair_motion(settings, steps, [], {}, {}, _mover_rows((14, 60)),
+                         lengthened) is None
+    # and in the last repair round (none left to take it back) no step is lengthened
+    assert repair_motion(settings, (st,), [], {}, {}, _mover_rows((14, 60)), {},
+                         may_lengthen=False) is None
