@@ -238,24 +238,34 @@ def _default_reach_as_found(seed, ratio_at):
     it: every channel reachable, the probe at tone f [Hz] holding neighbours
     ``ratio_at(f, packed ratio)`` apart (no design is run)."""
     from planner.arrayspec import default_spec_path, load_spec
-    from planner.planning.reach import (Probe, Reach, _needed_ratio, packed_neighbours,
-                                        probe_channels)
+    from planner.planning.reach import probe_channels
     from planner.planning.settings import resolve_settings
-    from planner.core.separation import position_grid
 
     settings = resolve_settings(load_spec(default_spec_path()), seed)
     grid = np.asarray(settings.channel_grid_hz)
+    _, reach = _reach_from(settings, probe_channels(grid), ratio_at, 3e-4)
+    return settings, reach
+
+
+def _reach_from(settings, probes_at, ratio_at, speed):
+    """The Reach :func:`measure_reach` builds from probes at ``probes_at`` whose
+    verdicts are ``ratio_at(tone, packed ratio)`` (None: hopeless; every probe reachable
+    at ``speed``, so no edges): (probes, reach)."""
+    from planner.core.separation import position_grid
+    from planner.planning.reach import Probe, Reach, _needed_ratio, packed_neighbours
+
+    grid = np.asarray(settings.channel_grid_hz)
     positions = position_grid(grid, settings.separation_channels, settings.guard)
     probes = []
-    for c in probe_channels(grid):
+    for c in probes_at:
         packed, _ = packed_neighbours(grid, positions, settings.separation_channels, c)
         probes.append(Probe(c, float(grid[c]), packed, ratio_at(float(grid[c]), packed),
-                            True, 3e-4))
+                            True, speed))
     allowed = np.ones(grid.size, dtype=bool)
     need = _needed_ratio(grid, probes, allowed)
-    return settings, Reach(settings.min_speed_m_s, tuple(float(f) for f in grid),
-                           (True,) * grid.size, tuple(bool(a) for a in allowed),
-                           tuple(float(r) for r in need), tuple(probes))
+    return probes, Reach(settings.min_speed_m_s, tuple(float(f) for f in grid),
+                         (True,) * grid.size, tuple(bool(a) for a in allowed),
+                         tuple(float(r) for r in need), tuple(probes))
 
 
 def test_a_lone_probes_verdict_that_does_not_fit_is_relaxed_not_refused():
@@ -510,26 +520,6 @@ fabrication:
 """
 
 
-def _reach_from(settings, probes_at, verdicts):
-    """The Reach :func:`measure_reach` builds from probes at ``probes_at`` with
-    ``verdicts`` (ratio or None: hopeless; every probe reachable, so no edges)."""
-    from planner.core.separation import position_grid
-    from planner.planning.reach import Probe, Reach, _needed_ratio, packed_neighbours
-
-    grid = np.asarray(settings.channel_grid_hz)
-    positions = position_grid(grid, settings.separation_channels, settings.guard)
-    probes = []
-    for c, ratio in zip(probes_at, verdicts):
-        packed, _ = packed_neighbours(grid, positions, settings.separation_channels, c)
-        probes.append(Probe(c, float(grid[c]), packed, packed if ratio == "packed" else ratio,
-                            True, 5e-4))
-    allowed = np.ones(grid.size, dtype=bool)
-    need = _needed_ratio(grid, probes, allowed)
-    return probes, Reach(settings.min_speed_m_s, tuple(float(f) for f in grid),
-                         (True,) * grid.size, tuple(bool(a) for a in allowed),
-                         tuple(float(r) for r in need), tuple(probes))
-
-
 @pytest.mark.parametrize("verdicts, refused", [
     # what a robust 2 x 2 in 8-30 kHz measured (a design silent at its neighbours under
     # a +-0.5 % shift needs them x1.3-1.7 away): at most 4 of its 8 impacters fit
@@ -556,7 +546,10 @@ def test_a_reach_is_refused_as_soon_as_no_probe_still_to_come_could_save_it(verd
     settings = resolve_settings(load_spec(_ROBUST_2X2), 0)
     grid = np.asarray(settings.channel_grid_hz)
     probes_at = probe_channels(grid)
-    probes, reach = _reach_from(settings, probes_at, verdicts)
+    said = dict(zip((float(grid[c]) for c in probes_at), verdicts))
+    probes, reach = _reach_from(
+        settings, probes_at,
+        lambda tone, packed: packed if said[tone] == "packed" else said[tone], 5e-4)
     try:
         assign_on_reach(settings, reach)
         whole = False
