@@ -78,17 +78,14 @@ def replan_wafer_command(plan_path, measured, out_dir, *, trim, jobs, scheduler,
             if work.is_dir() else 0
         return f"{kept} finished dies kept in {work}: run the same command again to resume"
 
-    try:
-        # said by the signal watchdog too, when it ends a run stuck in a kernel
-        with exit_note(kept_note), output_folder(out_dir, command="replan", inputs=inputs,
-                                                 force=force) as tmp:
-            results = replan_wafer(plan, dies, tmp, plan_path=plan.path,
-                                   measured_paths=files + ([test_map] if test_map else []),
-                                   trim=trim, jobs=jobs, scheduler=scheduler,
-                                   progress=progress, work=work, sources=sources)
-    except KeyboardInterrupt:
-        click.echo(kept_note(), err=True)
-        raise
+    # said when a signal stops the run, however it unwinds (cli._common.handle_errors)
+    # or the signal watchdog ends it stuck in a kernel
+    with exit_note(kept_note), output_folder(out_dir, command="replan", inputs=inputs,
+                                             force=force) as tmp:
+        results = replan_wafer(plan, dies, tmp, plan_path=plan.path,
+                               measured_paths=files + ([test_map] if test_map else []),
+                               trim=trim, jobs=jobs, scheduler=scheduler,
+                               progress=progress, work=work, sources=sources)
     remove_work(work)
     c = counts(results)
     click.echo(f"{plan.spec.name}: {len(results)} dies: " + ", ".join(

@@ -106,6 +106,10 @@ class _SignalGuard:
 
     def __init__(self):
         self.signum = None
+        #: the exit notes registered when the signal came (:func:`exit_note`), said
+        #: however the run then unwinds (a wafer batch interrupted between two dies
+        #: unwound through an error raised by the interrupt, and said only "stopped")
+        self.notes = ()
         self.saved = {}
         self._wakeup = None
         self._done = None
@@ -115,6 +119,7 @@ class _SignalGuard:
 
         if self.signum is None:
             self.signum = signum
+            self.notes = tuple(_EXIT_NOTES)
             note_interrupt(signum)
             raise Interrupted(signum)
 
@@ -250,6 +255,18 @@ def _fail(code: int, message: str):
     sys.exit(code)
 
 
+def _interrupted(signum, notes):
+    """Exit 128 + ``signum``: "interrupted (SIGINT): stopped, nothing written", then
+    each exit note (:func:`exit_note`) registered when the signal came, as the signal
+    watchdog says them."""
+    click.echo(f"interrupted ({_NAMES.get(signum, signum)}): stopped, nothing written",
+               err=True)
+    for note in notes:
+        with contextlib.suppress(Exception):
+            click.echo(note(), err=True)
+    sys.exit(128 + signum)
+
+
 class _solver_warnings:
     """Collect the solver's :class:`model.SolverWarning` of a command into one line at
     its end (``warning: the solver stopped N simulations ...``): Python would print
@@ -335,20 +352,17 @@ def handle_errors(func):
                 return func(*args, **kwargs)
             except KeyboardInterrupt as exc:
                 signum = exc.signum if isinstance(exc, Interrupted) else signal.SIGINT
-                _fail(128 + signum, f"interrupted ({_NAMES.get(signum, signum)}): "
-                                    "stopped, nothing written")
+                _interrupted(signum, guard.notes or tuple(_EXIT_NOTES))
             except (SpecError, OutputError, PlanningError, ValueError,
                     FileNotFoundError) as exc:  # a missing input file is bad input
                 if guard.signum is not None:  # an error raised while unwinding a signal
-                    _fail(128 + guard.signum, f"interrupted ({_NAMES[guard.signum]}): "
-                                              "stopped, nothing written")
+                    _interrupted(guard.signum, guard.notes)
                 if isinstance(exc, FileNotFoundError):
                     _fail(EXIT_INPUT, f"error: {exc.filename}: no such file")
                 _fail(EXIT_INPUT, f"error: {exc}")
             except OSError as exc:
                 if guard.signum is not None:
-                    _fail(128 + guard.signum, f"interrupted ({_NAMES[guard.signum]}): "
-                                              "stopped, nothing written")
+                    _interrupted(guard.signum, guard.notes)
                 where = exc.filename or ""
                 what = exc.strerror or str(exc)
                 _fail(EXIT_OS, f"error: {where}: {what}" if where else f"error: {what}")
@@ -364,8 +378,7 @@ def handle_errors(func):
                                f"this command needs it: python -m pip install {top}")
             except Exception:
                 if guard.signum is not None:
-                    _fail(128 + guard.signum, f"interrupted ({_NAMES[guard.signum]}): "
-                                              "stopped, nothing written")
+                    _interrupted(guard.signum, guard.notes)
                 raise
 
     return wrapper
