@@ -273,6 +273,12 @@ def probe_speeds(settings, step, drive, impacters, sliders, window=PROBE_S):
     return out
 
 
+def burst_for(travel_m, speed_m_s):
+    """The burst [s] that moves a slider ``travel_m`` [m] at ``speed_m_s`` [m/s], rounded
+    up to :data:`BURST_QUANTUM_S`."""
+    return math.ceil(travel_m / speed_m_s / BURST_QUANTUM_S - 1e-9) * BURST_QUANTUM_S
+
+
 def size_bursts(settings, steps, waveforms, impacters, sliders):
     """Steps with their bursts sized from ``travel_m`` (see the module docstring).
 
@@ -293,7 +299,7 @@ def size_bursts(settings, steps, waveforms, impacters, sliders):
         slowest = min(speeds.values()) if speeds else 0.0
         cap = st.max_duration_s if st.max_duration_s is not None else DEFAULT_MAX_BURST_S
         if slowest > 0:
-            want = math.ceil(st.travel_m / slowest / BURST_QUANTUM_S - 1e-9) * BURST_QUANTUM_S
+            want = burst_for(st.travel_m, slowest)
             duration = min(max(want, MIN_BURST_S), cap)
         else:
             duration = cap

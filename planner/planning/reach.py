@@ -188,8 +188,7 @@ class Reach:
         """((A, w, l, c), tone) of every probe's feasible design, by tone: the spec's
         design family, which the plan's designs start from
         (:func:`planner.planning.designs.family_for`)."""
-        return tuple(sorted((p.design for p in self.probes if p.design is not None),
-                            key=lambda d: d[1]))
+        return _family(self.probes)
 
     @property
     def constrained(self) -> bool:
@@ -211,7 +210,7 @@ class Reach:
 
     def widened(self):
         """Probes whose spacing had to be widened beyond the packed grid's."""
-        return [p for p in self.probes if p.ratio is not None and p.ratio > p.packed_ratio]
+        return [p for p in self.probes if _widened(p)]
 
     def speeds_by_tone(self):
         """(tone [Hz], speed [m/s]) per probe tone, by tone: with several kinds of
@@ -440,6 +439,32 @@ def _tone_from(shared, tone, packed, packed_neighbours, assigned, family):
 def _probe(shared, kind, *args):
     """One probe task of ``kind`` ("tone", "tone_from" or "edge") on a worker."""
     return {"tone": _tone, "tone_from": _tone_from, "edge": _edge}[kind](shared, *args)
+
+
+def _family(probes) -> tuple:
+    """((A, w, l, c), tone) of each of ``probes``' feasible designs, by tone."""
+    return tuple(sorted((p.design for p in probes if p.design is not None),
+                        key=lambda d: d[1]))
+
+
+def _widened(p) -> bool:
+    """Whether probe ``p`` needed a wider spacing than the packed grid's."""
+    return p.ratio is not None and p.ratio > p.packed_ratio
+
+
+def _may_relax(probes, total, served):
+    """Whether the relaxation of :func:`assign_on_reach` applies, by ``probes``'
+    verdicts: fewer than half of ``total`` probes hopeless, and fewer than half of the
+    ``served`` ones (those a design can serve) widened or hopeless."""
+    hopeless = sum(p.hopeless for p in probes)
+    wide = sum(_widened(p) for p in probes)
+    return not (2 * hopeless >= total or 2 * (wide + hopeless) >= served)
+
+
+def _relaxed(reach):
+    """``reach`` relaxed: every reachable channel offered at the packed spacing."""
+    return dataclasses.replace(reach, min_ratio=tuple(1.0 for _ in reach.min_ratio),
+                               allowed=reach.reachable, relaxed=True)
 
 
 def _packed_ok(p) -> bool:
@@ -674,8 +699,7 @@ def _ask_again(shared, mine, packed, given, store, ran, jobs, scheduler, pool, t
 
     again = [i for i in range(1, len(mine) - 1)
              if _worth_asking_again(mine[i - 1], mine[i], mine[i + 1])]
-    family = tuple(sorted((p.design for p in mine if p.design is not None),
-                          key=lambda d: d[1]))
+    family = _family(mine)
     if not again or not family:
         return mine
 
@@ -752,14 +776,10 @@ def _refuse_early(settings, grid, probes_at, so_far, before, earlier, total, env
         refusal = exc
     # the verdicts that stand (a probe to be asked again may still be served packed)
     seen = list(earlier) + [so_far[i] for i in range(n) if final(i)]
-    hopeless = sum(p.hopeless for p in seen)
-    wide = sum(p.ratio is not None and p.ratio > p.packed_ratio for p in seen)
     could_serve = sum(p.reachable for p in seen) + (total - len(seen))
-    if not (2 * hopeless >= total or 2 * (wide + hopeless) >= could_serve):
-        relaxed = dataclasses.replace(reach, min_ratio=tuple(1.0 for _ in reach.min_ratio),
-                                      allowed=reach.reachable, relaxed=True)
+    if _may_relax(seen, total, could_serve):
         try:
-            assign(settings, settings.steps, reach=relaxed)
+            assign(settings, settings.steps, reach=_relaxed(reach))
             return
         except PlanningError:
             pass
@@ -818,19 +838,18 @@ def assign_on_reach(settings: Settings, reach: Reach):
     try:
         return reach, assign(settings, settings.steps, reach=reach)
     except PlanningError:
-        hopeless = sum(p.hopeless for p in probes)
-        if not reach.widened() and not hopeless or 2 * hopeless >= len(probes):
+        if not reach.widened() and not any(p.hopeless for p in probes):
             raise
-        # of the probes a design can serve (the channels the plan may take: a probe below
-        # the floor offers none, and counted as "packed" it would outvote the band that
-        # is left; a 1 x 4 in 2-8 kHz: 5 of its 8 probes below the floor, the 3 others
-        # needing neighbours x1.28-1.38 apart, relaxed, and 8 of 8 designs infeasible)
-        served = sum(p.reachable for p in probes)
-        if 2 * (len(reach.widened()) + hopeless) >= served:
-            # most of the band needs the wider spacing: at the packed one the loop would
-            # fail by trying (a 3 x 3 in a 5 um process, 5-40 kHz: every probe needed
-            # neighbours x1.4-2.7 apart, and 18 of 18 designs then answered several
-            # other tones, exit 1 after minutes); refused here, naming the spacing
+        # most probes hopeless (an undamped array in vacuum), or most of those a design
+        # can serve needing the wider spacing or hopeless: refused here, naming the
+        # spacing.  Of the served ones, because a probe below the floor offers no
+        # channel, and counted as "packed" it would outvote the band that is left (a
+        # 1 x 4 in 2-8 kHz: 5 of its 8 probes below the floor, the 3 others needing
+        # neighbours x1.28-1.38 apart, relaxed, and 8 of 8 designs infeasible); at the
+        # packed spacing the loop would fail by trying (a 3 x 3 in a 5 um process, 5-40
+        # kHz: every probe needed neighbours x1.4-2.7 apart, and 18 of 18 designs then
+        # answered several other tones, exit 1 after minutes)
+        if not _may_relax(probes, len(probes), sum(p.reachable for p in probes)):
             raise
         # A widened spacing, or a probe found hopeless, at a few probes is what a few
         # seeded probe designs found (when the probes still took the plan's seed, seed 13
@@ -841,8 +860,7 @@ def assign_on_reach(settings: Settings, reach: Reach):
         # there, rather than refuse a spec other seeds plan; refuse when that cannot hold
         # the steps either, when most probes are hopeless (an undamped array in vacuum),
         # or when most need the wider spacing (above).
-        relaxed = dataclasses.replace(reach, min_ratio=tuple(1.0 for _ in reach.min_ratio),
-                                      allowed=reach.reachable, relaxed=True)
+        relaxed = _relaxed(reach)
         try:
             return relaxed, assign(settings, settings.steps, reach=relaxed)
         except PlanningError:

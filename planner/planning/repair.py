@@ -340,7 +340,7 @@ def repair_motion(settings, steps, failures, dwells, longer_dwells, rows=(),
     import dataclasses
 
     from planner.arrayspec import DEFAULT_MAX_BURST_S
-    from planner.planning.motion import BURST_QUANTUM_S, SETTLE_CHUNK_S
+    from planner.planning.motion import BURST_QUANTUM_S, SETTLE_CHUNK_S, burst_for
     from planner.planning.verify import CARRIED_IDLE, TRAVEL_OVER
 
     by_index = {st.index: st for st in steps}
@@ -381,8 +381,7 @@ def repair_motion(settings, steps, failures, dwells, longer_dwells, rows=(),
             # the burst that takes the slowest slider as far as asked in proportion is a
             # floor, taken where it is longer than the cut and keeps the fastest, in
             # proportion too (an upper bound), within TRAVEL_FIT of the limit
-            need = math.ceil(st.duration_s * st.travel_m / slowest / BURST_QUANTUM_S
-                             - 1e-9) * BURST_QUANTUM_S
+            need = burst_for(st.travel_m, slowest / st.duration_s)
             fastest = travel * need / st.duration_s
             if cut < need < st.duration_s and fastest <= TRAVEL_FIT * settings.max_travel_m:
                 burst = need
@@ -414,8 +413,7 @@ def repair_motion(settings, steps, failures, dwells, longer_dwells, rows=(),
             continue
         slowest, fastest = min(ms), max(ms)
         cap = st.max_duration_s if st.max_duration_s is not None else DEFAULT_MAX_BURST_S
-        need = math.ceil(st.duration_s * st.travel_m / slowest / BURST_QUANTUM_S
-                         - 1e-9) * BURST_QUANTUM_S
+        need = burst_for(st.travel_m, slowest / st.duration_s)
         fits = math.floor(st.duration_s * LENGTHEN_FIT * settings.max_travel_m / fastest
                           / BURST_QUANTUM_S) * BURST_QUANTUM_S
         # only where the whole travel fits: a burst held short of it by the cap or the
